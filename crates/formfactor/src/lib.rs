@@ -1,0 +1,1 @@
+//! `formfactor`: builds the linear transport operators (zonal form factors, discrete ordinates).

@@ -1,0 +1,1 @@
+//! `gather`: the view-dependent pass.

@@ -1,0 +1,37 @@
+//! Errors of the medium crate: small, matchable, and naming what was wrong.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong while building a medium or reading a scene or volume.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum MediumError {
+    /// A scene file is malformed or has a value out of range. `key` is the dotted TOML path.
+    #[error("{file}: `{key}`: {message}")]
+    Scene {
+        file: PathBuf,
+        key: String,
+        message: String,
+    },
+    /// A volume file cannot be read or does not match what was declared.
+    #[error("{file}: {message}")]
+    Volume { file: PathBuf, message: String },
+    /// An argument to a constructor is invalid (dims of zero, negative cell size, ...).
+    #[error("invalid {what}: {message}")]
+    Invalid { what: &'static str, message: String },
+    #[error("{file}: {source}")]
+    Io {
+        file: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+impl MediumError {
+    pub fn invalid(what: &'static str, message: impl Into<String>) -> Self {
+        MediumError::Invalid {
+            what,
+            message: message.into(),
+        }
+    }
+}

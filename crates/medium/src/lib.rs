@@ -1,0 +1,42 @@
+//! `medium`: everything volrad knows about the participating medium itself, and nothing
+//! about how light transport is solved.
+//!
+//! The core types:
+//! - [`Grid`]: the `nx × ny × nz` lattice of cubic cells, x-fastest flat indexing
+//!   (`i + nx * (j + ny * k)`), world space `[0, n h]` per axis.
+//! - [`Medium`]: a grid with per-cell optical properties ([`ChannelMedium`]: σt, albedo,
+//!   emission; one channel for grey scenes, three for RGB) and a [`PhaseFunction`].
+//! - [`Light`]: directional, point and spot lights; [`light_pass`] propagates them through
+//!   the grid (the first pass of Kajiya & Von Herzen), which is the source term `E` of
+//!   every multiple-scattering solve.
+//! - [`traversal`]: exact 3D-DDA traversal of a ray through the grid (Amanatides & Woo),
+//!   the basis of every per-cell analytic integral in volrad.
+//! - [`scene`]: the TOML scene file (`docs/scene-format.md`), validated into a [`Scene`].
+//!
+//! ```
+//! use medium::{Grid, traversal::Ray};
+//! use glam::DVec3;
+//! let grid = Grid::new([4, 4, 4], 1.0).unwrap();
+//! let ray = Ray::new(DVec3::new(-1.0, 0.5, 0.5), DVec3::X);
+//! let cells: Vec<usize> = grid.traverse(&ray, 0.0, f64::INFINITY).map(|s| s.cell).collect();
+//! assert_eq!(cells, vec![0, 1, 2, 3]);
+//! ```
+
+pub mod error;
+pub mod generators;
+pub mod grid;
+pub mod light;
+pub mod light_pass;
+pub mod optical;
+pub mod phase;
+pub mod scene;
+pub mod transfer;
+pub mod traversal;
+pub mod volume_io;
+
+pub use error::MediumError;
+pub use grid::Grid;
+pub use light::Light;
+pub use optical::{CellValues, ChannelMedium, Interpolation, Medium};
+pub use phase::PhaseFunction;
+pub use scene::Scene;

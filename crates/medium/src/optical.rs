@@ -1,0 +1,186 @@
+//! Per-cell optical properties: σt, albedo and emission, per colour channel.
+
+use serde::{Deserialize, Serialize};
+
+use crate::{Grid, MediumError, PhaseFunction};
+
+/// A per-cell quantity that is often constant: stored once when it is.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum CellValues {
+    Uniform(f32),
+    PerCell(Vec<f32>),
+}
+
+impl CellValues {
+    #[inline]
+    pub fn get(&self, cell: usize) -> f32 {
+        match self {
+            CellValues::Uniform(v) => *v,
+            CellValues::PerCell(v) => v[cell],
+        }
+    }
+
+    pub fn max(&self) -> f32 {
+        match self {
+            CellValues::Uniform(v) => *v,
+            CellValues::PerCell(v) => v.iter().copied().fold(0.0, f32::max),
+        }
+    }
+
+    pub fn is_zero(&self) -> bool {
+        match self {
+            CellValues::Uniform(v) => *v == 0.0,
+            CellValues::PerCell(v) => v.iter().all(|&x| x == 0.0),
+        }
+    }
+
+    /// Checks length against the grid and that every value lies in `[lo, hi]` and is finite.
+    fn check(&self, what: &'static str, cells: usize, lo: f32, hi: f32) -> Result<(), MediumError> {
+        let ok = |v: f32| v.is_finite() && v >= lo && v <= hi;
+        match self {
+            CellValues::Uniform(v) if !ok(*v) => Err(MediumError::invalid(
+                what,
+                format!("{v} is outside [{lo}, {hi}]"),
+            )),
+            CellValues::PerCell(v) if v.len() != cells => Err(MediumError::invalid(
+                what,
+                format!("{} values for {cells} cells", v.len()),
+            )),
+            CellValues::PerCell(v) => match v.iter().position(|&x| !ok(x)) {
+                Some(i) => Err(MediumError::invalid(
+                    what,
+                    format!("cell {i} has {} outside [{lo}, {hi}]", v[i]),
+                )),
+                None => Ok(()),
+            },
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The optical properties of one colour channel. Transport in volrad is per channel: a grey
+/// scene has one, an RGB scene three, each solved and rendered independently.
+///
+/// # Invariants
+/// `sigma_t.len()` equals the grid's cell count; `σt ≥ 0`, `albedo ∈ [0, 1]`, `emission ≥ 0`,
+/// all finite. Checked by [`Medium::new`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ChannelMedium {
+    /// Extinction coefficient per cell (1/length).
+    pub sigma_t: Vec<f32>,
+    /// Single-scattering albedo per cell.
+    pub albedo: CellValues,
+    /// Emitted radiance per unit length per cell (Max's "glow" source).
+    pub emission: CellValues,
+}
+
+impl ChannelMedium {
+    #[inline]
+    pub fn sigma_s(&self, cell: usize) -> f32 {
+        self.sigma_t[cell] * self.albedo.get(cell)
+    }
+
+    pub fn max_sigma_t(&self) -> f32 {
+        self.sigma_t.iter().copied().fold(0.0, f32::max)
+    }
+}
+
+/// How renders reconstruct the medium between cell centres. Solvers always use the
+/// piecewise-constant (`Nearest`) medium.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Interpolation {
+    #[default]
+    Nearest,
+    Trilinear,
+}
+
+/// A grid with its optical properties and phase function.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Medium {
+    pub grid: Grid,
+    /// One entry for grey scenes, three (R, G, B) for colour.
+    pub channels: Vec<ChannelMedium>,
+    pub phase: PhaseFunction,
+    pub interpolation: Interpolation,
+    /// The raw data values the optical properties were mapped from, kept for gradient
+    /// shading (Max eq. 11). `None` when the medium was given directly.
+    pub data: Option<Vec<f32>>,
+}
+
+impl Medium {
+    /// Builds and validates a medium.
+    pub fn new(
+        grid: Grid,
+        channels: Vec<ChannelMedium>,
+        phase: PhaseFunction,
+        interpolation: Interpolation,
+        data: Option<Vec<f32>>,
+    ) -> Result<Self, MediumError> {
+        let cells = grid.cell_count();
+        if !(channels.len() == 1 || channels.len() == 3) {
+            return Err(MediumError::invalid(
+                "medium",
+                format!("{} colour channels (expected 1 or 3)", channels.len()),
+            ));
+        }
+        for ch in &channels {
+            CellValues::PerCell(ch.sigma_t.clone()).check("sigma_t", cells, 0.0, f32::MAX)?;
+            ch.albedo.check("albedo", cells, 0.0, 1.0)?;
+            ch.emission.check("emission", cells, 0.0, f32::MAX)?;
+        }
+        if let Some(d) = &data {
+            if d.len() != cells {
+                return Err(MediumError::invalid(
+                    "data",
+                    format!("{} values for {cells} cells", d.len()),
+                ));
+            }
+        }
+        phase.validate()?;
+        Ok(Medium {
+            grid,
+            channels,
+            phase,
+            interpolation,
+            data,
+        })
+    }
+
+    /// A grey homogeneous medium, handy for tests and analytic cases.
+    pub fn homogeneous(
+        grid: Grid,
+        sigma_t: f32,
+        albedo: f32,
+        emission: f32,
+        phase: PhaseFunction,
+    ) -> Result<Self, MediumError> {
+        Medium::new(
+            grid,
+            vec![ChannelMedium {
+                sigma_t: vec![sigma_t; grid.cell_count()],
+                albedo: CellValues::Uniform(albedo),
+                emission: CellValues::Uniform(emission),
+            }],
+            phase,
+            Interpolation::Nearest,
+            None,
+        )
+    }
+
+    pub fn is_grey(&self) -> bool {
+        self.channels.len() == 1
+    }
+
+    /// Bytes held by the per-cell arrays, for `volrad info` and memory reports.
+    pub fn memory_bytes(&self) -> usize {
+        let vals = |v: &CellValues| match v {
+            CellValues::Uniform(_) => 0,
+            CellValues::PerCell(v) => v.len() * 4,
+        };
+        self.channels
+            .iter()
+            .map(|c| c.sigma_t.len() * 4 + vals(&c.albedo) + vals(&c.emission))
+            .sum::<usize>()
+            + self.data.as_ref().map_or(0, |d| d.len() * 4)
+    }
+}

@@ -1,0 +1,1 @@
+//! `volrad`: the command line and service on top of the library crates.
