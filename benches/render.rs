@@ -1,0 +1,2 @@
+//! Benchmark placeholder: filled in by the issue that owns it.
+fn main() {}
