@@ -1,1 +1,5 @@
-//! `volrad`: the command line and service on top of the library crates.
+//! `volrad`: the command line and service on top of the library crates (`medium`,
+//! `formfactor`, `solver`, `gather`). Only this crate knows files of solutions, the command
+//! line, HTTP and JSON.
+
+pub mod solution;

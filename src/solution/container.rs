@@ -1,0 +1,356 @@
+//! The on-disk container of a solution file. The only module that knows the byte layout, so
+//! the encoding can change in one place.
+//!
+//! ```text
+//! offset  size  field
+//! 0       8     magic  b"VOLRADSL"
+//! 8       4     format version (u32 LE)
+//! 12      8     payload length in bytes (u64 LE)
+//! 20      4     CRC-32 of the payload
+//! 24      ...   payload:
+//!               u64 LE metadata length, metadata (bincode 2, serde, standard config),
+//!               zero padding to a multiple of 64 bytes from the file start,
+//!               then each array as raw little-endian f32 at the offset its table entry
+//!               gives (64-byte aligned, so the file can be memory-mapped).
+//! ```
+//!
+//! Reading checks the magic, refuses newer versions by number, checks the length against the
+//! file and the checksum against the payload before decoding anything. Writing goes to a
+//! temporary file in the same directory, is synced, then renamed over the final name, so a
+//! crash never leaves a half-written file under that name.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
+
+pub const MAGIC: &[u8; 8] = b"VOLRADSL";
+pub const FORMAT_VERSION: u32 = 1;
+const FIXED_HEADER: usize = 24;
+const ALIGN: usize = 64;
+
+/// A named array and where it lives in the payload.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ArrayEntry {
+    pub name: String,
+    /// Byte offset from the start of the file.
+    pub offset: u64,
+    /// Number of f32 values.
+    pub len: u64,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Envelope<M> {
+    meta: M,
+    arrays: Vec<ArrayEntry>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ContainerError {
+    #[error("{path}: not a volrad solution file (bad magic)")]
+    BadMagic { path: PathBuf },
+    #[error("{path}: solution format version {found} is newer than this volrad understands ({supported}); upgrade volrad")]
+    NewerVersion {
+        path: PathBuf,
+        found: u32,
+        supported: u32,
+    },
+    #[error("{path}: truncated: header says {expected} bytes of payload, file has {actual}")]
+    Truncated {
+        path: PathBuf,
+        expected: u64,
+        actual: u64,
+    },
+    #[error("{path}: checksum mismatch (stored {stored:08x}, computed {computed:08x}): the file is corrupt")]
+    Checksum {
+        path: PathBuf,
+        stored: u32,
+        computed: u32,
+    },
+    #[error("{path}: malformed metadata: {message}")]
+    Malformed { path: PathBuf, message: String },
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Metadata plus named f32 arrays, as read from or written to disk.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Container<M> {
+    pub meta: M,
+    pub arrays: Vec<(String, Vec<f32>)>,
+}
+
+impl<M> Container<M> {
+    pub fn array(&self, name: &str) -> Option<&[f32]> {
+        self.arrays
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+}
+
+fn align_up(x: usize) -> usize {
+    x.div_ceil(ALIGN) * ALIGN
+}
+
+impl<M: Serialize + DeserializeOwned> Container<M> {
+    /// Encodes the whole file into memory.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+        let config = bincode::config::standard();
+        // The table's offsets depend on the metadata length, which depends on the table's
+        // encoding: iterate to a fixed point (two passes suffice in practice).
+        let mut entries: Vec<ArrayEntry> = self
+            .arrays
+            .iter()
+            .map(|(name, data)| ArrayEntry {
+                name: name.clone(),
+                offset: 0,
+                len: data.len() as u64,
+            })
+            .collect();
+        let mut envelope_bytes;
+        loop {
+            envelope_bytes = bincode::serde::encode_to_vec(
+                Envelope {
+                    meta: &self.meta,
+                    arrays: entries.clone(),
+                },
+                config,
+            )
+            .map_err(|e| e.to_string())?;
+            let mut offset = align_up(FIXED_HEADER + 8 + envelope_bytes.len());
+            let mut changed = false;
+            for e in entries.iter_mut() {
+                if e.offset != offset as u64 {
+                    e.offset = offset as u64;
+                    changed = true;
+                }
+                offset = align_up(offset + e.len as usize * 4);
+            }
+            if !changed {
+                break;
+            }
+        }
+        let end = entries
+            .last()
+            .map_or(FIXED_HEADER + 8 + envelope_bytes.len(), |e| {
+                e.offset as usize + e.len as usize * 4
+            });
+        let mut out = vec![0u8; end];
+        out[..8].copy_from_slice(MAGIC);
+        out[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+        out[12..20].copy_from_slice(&((end - FIXED_HEADER) as u64).to_le_bytes());
+        out[24..32].copy_from_slice(&(envelope_bytes.len() as u64).to_le_bytes());
+        out[32..32 + envelope_bytes.len()].copy_from_slice(&envelope_bytes);
+        for (e, (_, data)) in entries.iter().zip(&self.arrays) {
+            let start = e.offset as usize;
+            for (chunk, v) in out[start..start + data.len() * 4]
+                .chunks_exact_mut(4)
+                .zip(data)
+            {
+                chunk.copy_from_slice(&v.to_le_bytes());
+            }
+        }
+        let crc = crc32fast::hash(&out[FIXED_HEADER..]);
+        out[20..24].copy_from_slice(&crc.to_le_bytes());
+        Ok(out)
+    }
+
+    /// Decodes a file image, checking everything before trusting anything.
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ContainerError> {
+        let path_buf = || path.to_path_buf();
+        if bytes.len() < 8 || &bytes[..8] != MAGIC {
+            return Err(ContainerError::BadMagic { path: path_buf() });
+        }
+        if bytes.len() < FIXED_HEADER {
+            return Err(ContainerError::Truncated {
+                path: path_buf(),
+                expected: FIXED_HEADER as u64,
+                actual: bytes.len() as u64,
+            });
+        }
+        let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+        if version > FORMAT_VERSION || version == 0 {
+            return Err(ContainerError::NewerVersion {
+                path: path_buf(),
+                found: version,
+                supported: FORMAT_VERSION,
+            });
+        }
+        let payload_len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
+        let actual = (bytes.len() - FIXED_HEADER) as u64;
+        if payload_len != actual {
+            return Err(ContainerError::Truncated {
+                path: path_buf(),
+                expected: payload_len,
+                actual,
+            });
+        }
+        let stored = u32::from_le_bytes(bytes[20..24].try_into().unwrap());
+        let computed = crc32fast::hash(&bytes[FIXED_HEADER..]);
+        if stored != computed {
+            return Err(ContainerError::Checksum {
+                path: path_buf(),
+                stored,
+                computed,
+            });
+        }
+        let malformed = |message: String| ContainerError::Malformed {
+            path: path_buf(),
+            message,
+        };
+        if bytes.len() < FIXED_HEADER + 8 {
+            return Err(malformed("no metadata".into()));
+        }
+        let meta_len = u64::from_le_bytes(bytes[24..32].try_into().unwrap()) as usize;
+        let meta_bytes = bytes
+            .get(32..32usize.saturating_add(meta_len))
+            .ok_or_else(|| malformed(format!("metadata length {meta_len} exceeds the file")))?;
+        let (envelope, _): (Envelope<M>, usize) =
+            bincode::serde::decode_from_slice(meta_bytes, bincode::config::standard())
+                .map_err(|e| malformed(e.to_string()))?;
+        let mut arrays = Vec::with_capacity(envelope.arrays.len());
+        for e in envelope.arrays {
+            let start = e.offset as usize;
+            let end = (e.len as usize)
+                .checked_mul(4)
+                .and_then(|n| n.checked_add(start))
+                .filter(|&end| end <= bytes.len())
+                .ok_or_else(|| malformed(format!("array `{}` lies outside the file", e.name)))?;
+            let data = bytes[start..end]
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+                .collect();
+            arrays.push((e.name, data));
+        }
+        Ok(Container {
+            meta: envelope.meta,
+            arrays,
+        })
+    }
+
+    pub fn read(path: &Path) -> Result<Self, ContainerError> {
+        let bytes = fs::read(path).map_err(|source| ContainerError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Writes atomically: temp file beside the target, fsync, rename.
+    pub fn write(&self, path: &Path) -> Result<(), ContainerError> {
+        let bytes = self.to_bytes().map_err(|message| ContainerError::Malformed {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        write_atomic(path, &bytes).map_err(|source| ContainerError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+}
+
+/// Writes `bytes` to `path` so that readers see either the old file or the whole new one.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "solution".into());
+    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
+    let result = (|| {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    struct Meta {
+        name: String,
+        dims: [usize; 3],
+    }
+
+    fn sample() -> Container<Meta> {
+        Container {
+            meta: Meta {
+                name: "cloud".into(),
+                dims: [2, 3, 4],
+            },
+            arrays: vec![
+                ("a".into(), (0..24).map(|i| i as f32 * 0.5).collect()),
+                ("b".into(), vec![]),
+                ("c".into(), vec![f32::MAX, -0.0, 1e-30]),
+            ],
+        }
+    }
+
+    #[test]
+    fn round_trip_is_exact_and_aligned() {
+        let c = sample();
+        let bytes = c.to_bytes().unwrap();
+        let back = Container::<Meta>::from_bytes(&bytes, Path::new("x")).unwrap();
+        assert_eq!(back, c);
+        assert_eq!(bytes.len() % 4, 0);
+    }
+
+    #[test]
+    fn every_single_byte_corruption_is_refused() {
+        let bytes = sample().to_bytes().unwrap();
+        for i in 0..bytes.len() {
+            let mut bad = bytes.clone();
+            bad[i] ^= 0x40;
+            assert!(
+                Container::<Meta>::from_bytes(&bad, Path::new("x")).is_err(),
+                "flipping byte {i} went unnoticed"
+            );
+        }
+    }
+
+    #[test]
+    fn truncation_newer_version_and_foreign_files_are_refused() {
+        let bytes = sample().to_bytes().unwrap();
+        for cut in [0, 5, 23, 30, bytes.len() - 1] {
+            let err = Container::<Meta>::from_bytes(&bytes[..cut], Path::new("x")).unwrap_err();
+            assert!(
+                matches!(err, ContainerError::Truncated { .. } | ContainerError::BadMagic { .. }),
+                "cut at {cut}: {err}"
+            );
+        }
+        let mut newer = bytes.clone();
+        newer[8..12].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
+        let err = Container::<Meta>::from_bytes(&newer, Path::new("x")).unwrap_err();
+        assert!(matches!(err, ContainerError::NewerVersion { found, .. } if found == FORMAT_VERSION + 1));
+        assert!(err.to_string().contains("upgrade"));
+        let err = Container::<Meta>::from_bytes(b"P6\n2 2\n255\n....", Path::new("x")).unwrap_err();
+        assert!(matches!(err, ContainerError::BadMagic { .. }));
+    }
+
+    #[test]
+    fn atomic_write_leaves_no_temp_and_replaces_whole_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.volrad");
+        sample().write(&path).unwrap();
+        sample().write(&path).unwrap();
+        let names: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+        assert_eq!(Container::<Meta>::read(&path).unwrap(), sample());
+    }
+}
