@@ -1,1 +1,21 @@
-//! `gather`: the view-dependent pass.
+//! `gather`: the view-dependent pass — cameras, ray integration with front-to-back
+//! compositing through the grid, and image files.
+//!
+//! - [`Camera`] ([`camera`]): perspective and orthographic, built from a scene's
+//!   [`medium::scene::CameraSpec`].
+//! - [`render`](render::render) / [`render_image`] ([`render`]): Max's optical models along
+//!   exact per-cell segments (`nearest`) or fixed steps (`trilinear`), parallel over tiles.
+//! - [`InScattering`] ([`scattering`]): the scattered source `Q_s`, plugged in from outside.
+//! - [`Image`] ([`image_io`]): PNG, PFM and EXR output by extension; [`read_pfm`].
+
+pub mod camera;
+pub mod error;
+pub mod image_io;
+pub mod render;
+pub mod scattering;
+
+pub use camera::{Camera, CameraProjection};
+pub use error::GatherError;
+pub use image_io::{read_pfm, Image, ImageFormat};
+pub use render::{render, render_image, ImageChannel, RayIntegrator, RenderOptions};
+pub use scattering::{segment_weight, InScattering, ScatteringSum, UniformSource};

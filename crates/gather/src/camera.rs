@@ -1,0 +1,197 @@
+//! Cameras: perspective (eye, target, up, vertical field of view) and orthographic.
+//!
+//! Image coordinates are continuous: pixel `(i, j)` covers `[i, i+1] × [j, j+1]`, `(0, 0)` is the
+//! top-left corner of the image, x grows to the right and y grows downwards. So the centre of
+//! the top-left pixel is `ray(0.5, 0.5)`.
+
+use glam::DVec3;
+use medium::scene::{CameraSpec, Projection};
+use medium::traversal::Ray;
+
+use crate::GatherError;
+
+/// How rays leave the camera.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CameraProjection {
+    /// Rays from the eye; `tan_half_fov_y` is `tan(fov_y / 2)`.
+    Perspective { tan_half_fov_y: f64 },
+    /// Parallel rays along the view direction from the plane through the eye; `height` is the
+    /// world-space height of the image.
+    Orthographic { height: f64 },
+}
+
+/// A validated camera with an orthonormal frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    pub eye: DVec3,
+    /// Unit view direction (eye towards target).
+    pub forward: DVec3,
+    /// Unit vector to the image's right.
+    pub right: DVec3,
+    /// Unit vector to the image's top (the given `up` made orthogonal to `forward`).
+    pub up: DVec3,
+    pub projection: CameraProjection,
+}
+
+impl Camera {
+    /// Builds a camera from a scene's `[[camera]]` entry, refusing degenerate ones.
+    pub fn from_spec(spec: &CameraSpec) -> Result<Camera, GatherError> {
+        Camera::new(
+            &spec.name,
+            spec.eye,
+            spec.target,
+            spec.up,
+            spec.projection,
+            spec.width,
+            spec.height,
+        )
+    }
+
+    /// A perspective camera; `fov_y_degrees` is the full vertical field of view.
+    pub fn perspective(
+        eye: DVec3,
+        target: DVec3,
+        up: DVec3,
+        fov_y_degrees: f64,
+        width: u32,
+        height: u32,
+    ) -> Result<Camera, GatherError> {
+        Camera::new(
+            "perspective",
+            eye,
+            target,
+            up,
+            Projection::Perspective { fov_y_degrees },
+            width,
+            height,
+        )
+    }
+
+    /// An orthographic camera whose image is `view_height` world units tall.
+    pub fn orthographic(
+        eye: DVec3,
+        target: DVec3,
+        up: DVec3,
+        view_height: f64,
+        width: u32,
+        height: u32,
+    ) -> Result<Camera, GatherError> {
+        Camera::new(
+            "orthographic",
+            eye,
+            target,
+            up,
+            Projection::Orthographic {
+                height: view_height,
+            },
+            width,
+            height,
+        )
+    }
+
+    fn new(
+        name: &str,
+        eye: DVec3,
+        target: DVec3,
+        up: DVec3,
+        projection: Projection,
+        width: u32,
+        height: u32,
+    ) -> Result<Camera, GatherError> {
+        let err = |m: String| GatherError::camera(name, m);
+        if width == 0 || height == 0 {
+            return Err(err(format!(
+                "image size {width}×{height} must be at least 1×1"
+            )));
+        }
+        if !(eye.is_finite() && target.is_finite() && up.is_finite()) {
+            return Err(err("eye, target and up must be finite".into()));
+        }
+        let view = target - eye;
+        let distance = view.length();
+        if !(distance > 1e-12 * (1.0 + eye.length())) {
+            return Err(err(format!(
+                "eye {eye} and target {target} coincide: no view direction"
+            )));
+        }
+        let forward = view / distance;
+        if !(up.length() > 0.0) {
+            return Err(err("up vector is zero".into()));
+        }
+        let side = forward.cross(up.normalize());
+        // sin of the angle between up and the view direction; below ~1e-6 rad the frame is
+        // numerically meaningless.
+        if side.length() < 1e-6 {
+            return Err(err(format!(
+                "up {up} is parallel to the view direction {forward}"
+            )));
+        }
+        let right = side.normalize();
+        let true_up = right.cross(forward);
+        let projection = match projection {
+            Projection::Perspective { fov_y_degrees } => {
+                if !(fov_y_degrees > 0.0 && fov_y_degrees < 180.0) {
+                    return Err(err(format!(
+                        "fov_y {fov_y_degrees}° must lie strictly between 0 and 180"
+                    )));
+                }
+                CameraProjection::Perspective {
+                    tan_half_fov_y: (0.5 * fov_y_degrees.to_radians()).tan(),
+                }
+            }
+            Projection::Orthographic { height: h } => {
+                if !(h.is_finite() && h > 0.0) {
+                    return Err(err(format!(
+                        "orthographic image height {h} must be finite and positive"
+                    )));
+                }
+                CameraProjection::Orthographic { height: h }
+            }
+        };
+        Ok(Camera {
+            name: name.to_string(),
+            width,
+            height,
+            eye,
+            forward,
+            right,
+            up: true_up,
+            projection,
+        })
+    }
+
+    /// Width over height.
+    #[inline]
+    pub fn aspect(&self) -> f64 {
+        self.width as f64 / self.height as f64
+    }
+
+    /// The ray through continuous image point `(px, py)` (pixels; `(0, 0)` top-left corner,
+    /// `(width, height)` bottom-right). Its direction has unit length.
+    #[inline]
+    pub fn ray(&self, px: f64, py: f64) -> Ray {
+        // Image-plane coordinates in [-1, 1] (x right, y up).
+        let sx = 2.0 * px / self.width as f64 - 1.0;
+        let sy = 1.0 - 2.0 * py / self.height as f64;
+        match self.projection {
+            CameraProjection::Perspective { tan_half_fov_y } => {
+                let dir = self.forward
+                    + self.right * (sx * tan_half_fov_y * self.aspect())
+                    + self.up * (sy * tan_half_fov_y);
+                Ray::new(self.eye, dir)
+            }
+            CameraProjection::Orthographic { height } => {
+                let half = 0.5 * height;
+                let origin =
+                    self.eye + self.right * (sx * half * self.aspect()) + self.up * (sy * half);
+                Ray {
+                    origin,
+                    direction: self.forward,
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,308 @@
+//! Images and their files: PNG (tone-mapped 8-bit), PFM and EXR (linear float radiance).
+//!
+//! Every write goes to a temporary file beside the target and is renamed into place, so a
+//! reader never sees a half-written image.
+
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::GatherError;
+
+/// Radiance per pixel: `channels` (1 grey, 3 RGB) interleaved floats, row-major, top row first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub channels: u32,
+    pub pixels: Vec<f32>,
+}
+
+/// Output formats, chosen by file extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageFormat {
+    Png,
+    Pfm,
+    Exr,
+}
+
+impl ImageFormat {
+    /// The format named by a path's extension (case-insensitive).
+    pub fn from_path(path: &Path) -> Result<ImageFormat, GatherError> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
+        match ext.as_str() {
+            "png" => Ok(ImageFormat::Png),
+            "pfm" => Ok(ImageFormat::Pfm),
+            "exr" => Ok(ImageFormat::Exr),
+            _ => Err(GatherError::UnknownExtension {
+                file: path.to_path_buf(),
+                extension: ext,
+            }),
+        }
+    }
+}
+
+impl Image {
+    /// Checks that the sizes agree, so files are never written from inconsistent images.
+    pub fn new(
+        width: u32,
+        height: u32,
+        channels: u32,
+        pixels: Vec<f32>,
+    ) -> Result<Image, GatherError> {
+        if !(channels == 1 || channels == 3) {
+            return Err(GatherError::Render(format!(
+                "{channels} image channels (expected 1 or 3)"
+            )));
+        }
+        let expected = width as usize * height as usize * channels as usize;
+        if pixels.len() != expected || width == 0 || height == 0 {
+            return Err(GatherError::Render(format!(
+                "{} values for a {width}×{height}×{channels} image",
+                pixels.len()
+            )));
+        }
+        Ok(Image {
+            width,
+            height,
+            channels,
+            pixels,
+        })
+    }
+
+    /// Value of channel `c` at pixel `(x, y)`, `(0, 0)` top-left.
+    #[inline]
+    pub fn get(&self, x: u32, y: u32, c: u32) -> f32 {
+        self.pixels[((y * self.width + x) * self.channels + c) as usize]
+    }
+
+    /// Writes the image in the format its extension names: `.png` tone-mapped with
+    /// `exposure` (pixel = 1 − exp(−exposure · L), then sRGB), `.pfm` and `.exr` linear.
+    pub fn save(&self, path: &Path, exposure: f64) -> Result<(), GatherError> {
+        let format = ImageFormat::from_path(path)?;
+        self.check()?;
+        match format {
+            ImageFormat::Png => write_atomic(path, |tmp| self.write_png(path, tmp, exposure)),
+            ImageFormat::Pfm => write_atomic(path, |tmp| {
+                let file = fs::File::create(tmp).map_err(|e| GatherError::io(tmp, e))?;
+                let mut out = BufWriter::new(file);
+                self.write_pfm_to(&mut out)
+                    .and_then(|_| out.flush())
+                    .map_err(|e| GatherError::io(tmp, e))
+            }),
+            ImageFormat::Exr => write_atomic(path, |tmp| self.write_exr(path, tmp)),
+        }
+    }
+
+    fn check(&self) -> Result<(), GatherError> {
+        let expected = self.width as usize * self.height as usize * self.channels as usize;
+        if (self.channels == 1 || self.channels == 3)
+            && self.pixels.len() == expected
+            && expected > 0
+        {
+            Ok(())
+        } else {
+            Err(GatherError::Render(format!(
+                "inconsistent image: {} values for {}×{}×{}",
+                self.pixels.len(),
+                self.width,
+                self.height,
+                self.channels
+            )))
+        }
+    }
+
+    /// PFM: "Pf" (grey) or "PF" (RGB), scale −1 (little-endian), rows bottom first.
+    pub fn write_pfm_to(&self, out: &mut impl Write) -> std::io::Result<()> {
+        let magic = if self.channels == 1 { "Pf" } else { "PF" };
+        write!(out, "{magic}\n{} {}\n-1.0\n", self.width, self.height)?;
+        let row_len = (self.width * self.channels) as usize;
+        let mut bytes = Vec::with_capacity(row_len * 4);
+        for row in self.pixels.chunks_exact(row_len).rev() {
+            bytes.clear();
+            for v in row {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+            out.write_all(&bytes)?;
+        }
+        Ok(())
+    }
+
+    /// 8-bit display values: `1 − exp(−exposure · L)`, sRGB-encoded.
+    pub fn tone_mapped(&self, exposure: f64) -> Vec<u8> {
+        self.pixels
+            .iter()
+            .map(|&l| {
+                let l = if l.is_finite() {
+                    (l as f64).max(0.0)
+                } else {
+                    0.0
+                };
+                let v = srgb_encode(1.0 - (-exposure * l).exp());
+                (v * 255.0 + 0.5).clamp(0.0, 255.0) as u8
+            })
+            .collect()
+    }
+
+    fn write_png(&self, target: &Path, tmp: &Path, exposure: f64) -> Result<(), GatherError> {
+        let color = if self.channels == 1 {
+            image::ExtendedColorType::L8
+        } else {
+            image::ExtendedColorType::Rgb8
+        };
+        image::save_buffer_with_format(
+            tmp,
+            &self.tone_mapped(exposure),
+            self.width,
+            self.height,
+            color,
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| GatherError::Encode {
+            file: target.to_path_buf(),
+            message: e.to_string(),
+        })
+    }
+
+    fn write_exr(&self, target: &Path, tmp: &Path) -> Result<(), GatherError> {
+        use exr::prelude::*;
+        let (w, h) = (self.width as usize, self.height as usize);
+        let result = if self.channels == 1 {
+            let channels = SpecificChannels::build()
+                .with_channel("Y")
+                .with_pixel_fn(|Vec2(x, y)| (self.pixels[y * w + x],));
+            Image::from_channels((w, h), channels).write().to_file(tmp)
+        } else {
+            let px = |x: usize, y: usize, c: usize| self.pixels[(y * w + x) * 3 + c];
+            write_rgb_file(tmp, w, h, |x, y| (px(x, y, 0), px(x, y, 1), px(x, y, 2)))
+        };
+        result.map_err(|e| GatherError::Encode {
+            file: target.to_path_buf(),
+            message: e.to_string(),
+        })
+    }
+}
+
+/// The sRGB transfer curve for a linear value in [0, 1].
+#[inline]
+pub fn srgb_encode(linear: f64) -> f64 {
+    let v = linear.clamp(0.0, 1.0);
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Runs `write` on a temporary path beside `path`, then renames it into place; the temporary
+/// file is removed if anything fails.
+fn write_atomic(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), GatherError>,
+) -> Result<(), GatherError> {
+    let name = path
+        .file_name()
+        .ok_or_else(|| GatherError::format(path, "output path has no file name"))?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(format!(".tmp-{}", std::process::id()));
+    let tmp: PathBuf = path.with_file_name(tmp_name);
+    match write(&tmp).and_then(|_| fs::rename(&tmp, path).map_err(|e| GatherError::io(path, e))) {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            let _ = fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Reads a PFM file ("Pf" grey or "PF" RGB, either byte order) into an [`Image`] with the top
+/// row first. Refuses malformed headers, non-positive sizes, a zero or non-finite scale and
+/// data of the wrong length, saying which.
+pub fn read_pfm(path: &Path) -> Result<Image, GatherError> {
+    let bytes = fs::read(path).map_err(|e| GatherError::io(path, e))?;
+    parse_pfm(&bytes).map_err(|m| GatherError::format(path, format!("not a valid PFM: {m}")))
+}
+
+/// Parses PFM bytes (see [`read_pfm`]); the error says what was wrong.
+pub fn parse_pfm(bytes: &[u8]) -> Result<Image, String> {
+    let mut pos = 0usize;
+    // The header is three whitespace-separated tokens; a single whitespace byte follows the
+    // last one and the binary data starts right after it.
+    let mut token = |what: &str| -> Result<String, String> {
+        while pos < bytes.len() && bytes[pos].is_ascii_whitespace() {
+            pos += 1;
+        }
+        let start = pos;
+        while pos < bytes.len() && !bytes[pos].is_ascii_whitespace() {
+            pos += 1;
+            if pos - start > 32 {
+                return Err(format!("header {what} is not a short token"));
+            }
+        }
+        if pos == start || pos >= bytes.len() {
+            return Err(format!("header ends before the {what}"));
+        }
+        let s = std::str::from_utf8(&bytes[start..pos])
+            .map_err(|_| format!("header {what} is not text"))?
+            .to_string();
+        Ok(s)
+    };
+    let magic = token("magic")?;
+    let channels = match magic.as_str() {
+        "Pf" => 1u32,
+        "PF" => 3u32,
+        other => return Err(format!("magic `{other}` (expected `Pf` or `PF`)")),
+    };
+    let mut dim = |what: &str| -> Result<u32, String> {
+        let t = token(what)?;
+        match t.parse::<u32>() {
+            Ok(v) if v > 0 => Ok(v),
+            _ => Err(format!("{what} `{t}` is not a positive integer")),
+        }
+    };
+    let width = dim("width")?;
+    let height = dim("height")?;
+    let scale_token = token("scale")?;
+    let scale: f64 = scale_token
+        .parse()
+        .map_err(|_| format!("scale `{scale_token}` is not a number"))?;
+    if !(scale.is_finite() && scale != 0.0) {
+        return Err(format!("scale {scale} must be finite and non-zero"));
+    }
+    let little_endian = scale < 0.0;
+    let data_start = pos + 1; // the single whitespace byte after the scale
+    let count = width as u64 * height as u64 * channels as u64;
+    let data = &bytes[data_start.min(bytes.len())..];
+    if data.len() as u64 != count * 4 {
+        return Err(format!(
+            "{} data bytes for a {width}×{height} image with {channels} channel(s) (expected {})",
+            data.len(),
+            count * 4
+        ));
+    }
+    let row_len = (width * channels) as usize;
+    let mut pixels = vec![0.0f32; count as usize];
+    // File rows are bottom first; the image is top first.
+    for (file_row, chunk) in data.chunks_exact(row_len * 4).enumerate() {
+        let row = height as usize - 1 - file_row;
+        for (i, b) in chunk.chunks_exact(4).enumerate() {
+            let b = [b[0], b[1], b[2], b[3]];
+            pixels[row * row_len + i] = if little_endian {
+                f32::from_le_bytes(b)
+            } else {
+                f32::from_be_bytes(b)
+            };
+        }
+    }
+    Ok(Image {
+        width,
+        height,
+        channels,
+        pixels,
+    })
+}

@@ -1,0 +1,431 @@
+//! The renderer: front-to-back integration of `dI/ds = Q − σt I` along camera rays.
+//!
+//! `nearest` media are piecewise constant per cell, so each cell a ray crosses (found by the
+//! exact DDA of [`Grid::traverse`]) contributes the analytic segment integral of physics.md:
+//! `ΔI = T · Q · (1 − e^{−σt Δs}) / σt`, then `T ← T · e^{−σt Δs}`. `trilinear` media are
+//! marched in fixed steps (a fraction of the cell size) of the trilinearly interpolated σt and
+//! emission, each step integrated with the same formula at its midpoint values. The
+//! background adds `T · I0` at the end.
+//!
+//! Early termination: a ray stops once the rest of it cannot change the pixel by more than
+//! `termination` (default 1e-4) relative. What remains is at most
+//! `T · (I0 + Q_max · L_rest)` (`Q_max` the largest source anywhere, `L_rest` the chord still
+//! inside the grid), so the ray stops when that bound is `≤ termination · I`. When the
+//! scattered source has no known bound, the rule falls back to `T < termination`.
+
+use glam::DVec3;
+use medium::grid::Grid;
+use medium::scene::{OpticalModel, Scene};
+use medium::traversal::Ray;
+use medium::{CellValues, Interpolation, Medium};
+use rayon::prelude::*;
+
+use crate::image_io::Image;
+use crate::scattering::{segment_weight, InScattering};
+use crate::{Camera, GatherError};
+
+/// Side of the square image tiles rendered as one parallel task.
+pub const TILE: usize = 16;
+
+/// What to render and how.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderOptions {
+    /// Which of Max's optical models.
+    pub model: OpticalModel,
+    /// Samples per pixel, stratified over the pixel's area (1: the pixel centre).
+    pub spp: u32,
+    /// Background radiance `I0` seen through the volume.
+    pub background: f64,
+    /// Step of the `trilinear` march as a fraction of the cell size.
+    pub trilinear_step: f64,
+    /// Relative early-termination tolerance (see the module docs); 0 disables it.
+    pub termination: f64,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            model: OpticalModel::EmissionAbsorption,
+            spp: 1,
+            background: 0.0,
+            trilinear_step: 0.25,
+            termination: 1e-4,
+        }
+    }
+}
+
+impl RenderOptions {
+    /// The model, spp and background of a scene; defaults for the rest.
+    pub fn from_scene(scene: &Scene) -> Self {
+        RenderOptions {
+            model: scene.render.model,
+            spp: scene.render.spp,
+            background: scene.background,
+            ..RenderOptions::default()
+        }
+    }
+
+    fn validate(&self) -> Result<(), GatherError> {
+        let bad = |m: String| Err(GatherError::Render(m));
+        if self.spp == 0 {
+            return bad("spp must be at least 1".into());
+        }
+        if !(self.background.is_finite() && self.background >= 0.0) {
+            return bad(format!(
+                "background radiance {} must be finite and ≥ 0",
+                self.background
+            ));
+        }
+        if !(self.trilinear_step.is_finite() && self.trilinear_step > 0.0) {
+            return bad(format!(
+                "trilinear step {} must be a positive fraction of the cell size",
+                self.trilinear_step
+            ));
+        }
+        if !(self.termination >= 0.0 && self.termination < 1.0) {
+            return bad(format!(
+                "termination tolerance {} must lie in [0, 1)",
+                self.termination
+            ));
+        }
+        Ok(())
+    }
+
+    /// The stratification `sx × sy = spp` of a pixel: the most square factorisation, wider
+    /// than tall (a prime spp gives `spp × 1` strips).
+    pub fn strata(&self) -> (u32, u32) {
+        let n = self.spp.max(1);
+        let mut sy = (n as f64).sqrt() as u32;
+        while sy > 1 && n % sy != 0 {
+            sy -= 1;
+        }
+        (n / sy, sy)
+    }
+}
+
+/// One rendered colour channel: radiance per pixel, row-major, top row first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageChannel {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<f32>,
+}
+
+impl ImageChannel {
+    #[inline]
+    pub fn get(&self, x: u32, y: u32) -> f32 {
+        self.pixels[(y * self.width + x) as usize]
+    }
+}
+
+/// Integrates radiance along single rays through one channel of a medium. Built once per
+/// render (it precomputes the source bound); `radiance` is allocation-free.
+pub struct RayIntegrator<'a> {
+    grid: Grid,
+    sigma_t: &'a [f32],
+    emission: &'a CellValues,
+    scattering: &'a dyn InScattering,
+    interpolation: Interpolation,
+    use_sigma: bool,
+    use_emission: bool,
+    use_scattering: bool,
+    background: f64,
+    /// Upper bound on the source `Q` anywhere (for early termination); infinite if unknown.
+    q_max: f64,
+    termination: f64,
+    step: f64,
+}
+
+impl<'a> RayIntegrator<'a> {
+    /// `scattering` is used only by the scattering models; the others ignore it.
+    pub fn new(
+        medium: &'a Medium,
+        channel: usize,
+        options: &RenderOptions,
+        scattering: &'a dyn InScattering,
+    ) -> Result<Self, GatherError> {
+        options.validate()?;
+        let ch = medium.channels.get(channel).ok_or_else(|| {
+            GatherError::Render(format!(
+                "channel {channel} requested of a medium with {}",
+                medium.channels.len()
+            ))
+        })?;
+        use OpticalModel::*;
+        let use_sigma = options.model != EmissionOnly;
+        let use_emission = options.model != AbsorptionOnly && !ch.emission.is_zero();
+        let use_scattering =
+            matches!(options.model, SingleScatterUnshadowed | Scattering) && !scattering.is_zero();
+        let mut q_max = 0.0;
+        if use_emission {
+            q_max += ch.emission.max() as f64;
+        }
+        if use_scattering {
+            q_max += scattering.max_source();
+        }
+        Ok(RayIntegrator {
+            grid: medium.grid,
+            sigma_t: &ch.sigma_t,
+            emission: &ch.emission,
+            scattering,
+            interpolation: medium.interpolation,
+            use_sigma,
+            use_emission,
+            use_scattering,
+            background: options.background,
+            q_max,
+            termination: options.termination,
+            step: options.trilinear_step * medium.grid.cell_size,
+        })
+    }
+
+    /// Radiance arriving at `ray.origin` from direction `−ray.direction`, integrating from
+    /// `t = 0` (so the medium behind the origin is not seen) and adding the background.
+    #[inline]
+    pub fn radiance(&self, ray: &Ray) -> f64 {
+        let Some((t_in, t_out)) = self.grid.clip(ray, 0.0, f64::INFINITY) else {
+            return self.background;
+        };
+        match self.interpolation {
+            Interpolation::Nearest => self.radiance_nearest(ray, t_out),
+            Interpolation::Trilinear => self.radiance_trilinear(ray, t_in, t_out),
+        }
+    }
+
+    /// True when the rest of the ray (from `t` to `t_out`) cannot change the result by more
+    /// than the relative tolerance.
+    #[inline]
+    fn can_stop(&self, transmittance: f64, radiance: f64, t: f64, t_out: f64) -> bool {
+        if self.q_max.is_finite() {
+            let rest = transmittance * (self.background + self.q_max * (t_out - t).max(0.0));
+            rest <= self.termination * radiance
+        } else {
+            transmittance < self.termination
+        }
+    }
+
+    fn radiance_nearest(&self, ray: &Ray, t_out: f64) -> f64 {
+        let mut transmittance = 1.0f64;
+        let mut radiance = 0.0f64;
+        for seg in self.grid.traverse(ray, 0.0, f64::INFINITY) {
+            let len = seg.length();
+            if len <= 0.0 {
+                continue;
+            }
+            let sigma = if self.use_sigma {
+                self.sigma_t[seg.cell] as f64
+            } else {
+                0.0
+            };
+            if sigma == 0.0 && !self.use_emission && !self.use_scattering {
+                continue;
+            }
+            // One exp_m1 gives both the segment weight and the attenuation.
+            let (weight, attenuation) = if sigma > 0.0 {
+                let em = (-sigma * len).exp_m1();
+                (-em / sigma, 1.0 + em)
+            } else {
+                (len, 1.0)
+            };
+            let mut q = 0.0;
+            if self.use_emission {
+                q += self.emission.get(seg.cell) as f64 * weight;
+            }
+            if self.use_scattering {
+                q += self
+                    .scattering
+                    .segment(seg.cell, ray, seg.t_enter, seg.t_exit, sigma);
+            }
+            radiance += transmittance * q;
+            transmittance *= attenuation;
+            if self.can_stop(transmittance, radiance, seg.t_exit, t_out) {
+                return radiance;
+            }
+        }
+        radiance + transmittance * self.background
+    }
+
+    fn radiance_trilinear(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
+        let length = t_out - t_in;
+        let steps = (length / self.step).ceil().max(1.0);
+        let dt = length / steps;
+        let steps = steps as usize;
+        let flow = -ray.direction;
+        let mut transmittance = 1.0f64;
+        let mut radiance = 0.0f64;
+        for k in 0..steps {
+            let t = t_in + (k as f64 + 0.5) * dt;
+            let x = ray.at(t);
+            let corners = Trilinear::new(&self.grid, x);
+            let sigma = if self.use_sigma {
+                corners.sample(|c| self.sigma_t[c] as f64)
+            } else {
+                0.0
+            };
+            let weight = segment_weight(sigma, dt);
+            let mut q = 0.0;
+            if self.use_emission {
+                q += corners.sample(|c| self.emission.get(c) as f64);
+            }
+            if self.use_scattering {
+                q += self.scattering.at(x, corners.cell, flow);
+            }
+            radiance += transmittance * q * weight;
+            transmittance *= (-sigma * dt).exp();
+            if self.can_stop(transmittance, radiance, t + 0.5 * dt, t_out) {
+                return radiance;
+            }
+        }
+        radiance + transmittance * self.background
+    }
+}
+
+/// The 8 cell-centred neighbours of a point and their trilinear weights (values clamped to
+/// the edge cells outside the outermost centres).
+struct Trilinear {
+    /// The cell containing the point.
+    cell: usize,
+    index: [[usize; 2]; 3],
+    frac: [f64; 3],
+    strides: [usize; 3],
+}
+
+impl Trilinear {
+    #[inline]
+    fn new(grid: &Grid, x: DVec3) -> Self {
+        let mut index = [[0usize; 2]; 3];
+        let mut frac = [0.0; 3];
+        let mut own = [0usize; 3];
+        for a in 0..3 {
+            let n = grid.dims[a];
+            let q = x[a] / grid.cell_size;
+            own[a] = (q.max(0.0) as usize).min(n - 1);
+            let u = (q - 0.5).clamp(0.0, (n - 1) as f64);
+            let i0 = (u as usize).min(n.saturating_sub(2));
+            let i1 = (i0 + 1).min(n - 1);
+            index[a] = [i0, i1];
+            frac[a] = u - i0 as f64;
+        }
+        let strides = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
+        Trilinear {
+            cell: own[0] + strides[1] * own[1] + strides[2] * own[2],
+            index,
+            frac,
+            strides,
+        }
+    }
+
+    #[inline]
+    fn sample(&self, value: impl Fn(usize) -> f64) -> f64 {
+        let mut sum = 0.0;
+        for dz in 0..2 {
+            let wz = if dz == 0 {
+                1.0 - self.frac[2]
+            } else {
+                self.frac[2]
+            };
+            let oz = self.index[2][dz] * self.strides[2];
+            for dy in 0..2 {
+                let wy = if dy == 0 {
+                    1.0 - self.frac[1]
+                } else {
+                    self.frac[1]
+                };
+                let oy = oz + self.index[1][dy] * self.strides[1];
+                let wyz = wy * wz;
+                if wyz == 0.0 {
+                    continue;
+                }
+                let w0 = (1.0 - self.frac[0]) * wyz;
+                let w1 = self.frac[0] * wyz;
+                sum += w0 * value(oy + self.index[0][0]);
+                if w1 != 0.0 {
+                    sum += w1 * value(oy + self.index[0][1]);
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// Renders one colour channel of `medium` as seen by `camera`. Each pixel is the mean of
+/// `options.spp` stratified samples over its area (the stratum centres: deterministic).
+/// Parallel over 16×16 tiles.
+pub fn render(
+    medium: &Medium,
+    channel: usize,
+    camera: &Camera,
+    options: &RenderOptions,
+    scattering: &dyn InScattering,
+) -> Result<ImageChannel, GatherError> {
+    let integrator = RayIntegrator::new(medium, channel, options, scattering)?;
+    let (width, height) = (camera.width as usize, camera.height as usize);
+    let (sx, sy) = options.strata();
+    let inv_spp = 1.0 / (sx * sy) as f64;
+    let mut pixels = vec![0.0f32; width * height];
+    // A band of TILE rows per task, walked tile by tile so that neighbouring rays (which
+    // cross the same cells) run together.
+    pixels
+        .par_chunks_mut(width * TILE)
+        .enumerate()
+        .for_each(|(band, rows)| {
+            let y0 = band * TILE;
+            let band_height = rows.len() / width;
+            for x0 in (0..width).step_by(TILE) {
+                let x1 = (x0 + TILE).min(width);
+                for dy in 0..band_height {
+                    let y = y0 + dy;
+                    for x in x0..x1 {
+                        let mut sum = 0.0;
+                        for b in 0..sy {
+                            let py = y as f64 + (b as f64 + 0.5) / sy as f64;
+                            for a in 0..sx {
+                                let px = x as f64 + (a as f64 + 0.5) / sx as f64;
+                                sum += integrator.radiance(&camera.ray(px, py));
+                            }
+                        }
+                        rows[dy * width + x] = (sum * inv_spp) as f32;
+                    }
+                }
+            }
+        });
+    Ok(ImageChannel {
+        width: camera.width,
+        height: camera.height,
+        pixels,
+    })
+}
+
+/// Renders every colour channel of `medium` into an [`Image`] (1 or 3 channels, interleaved).
+/// `scattering` holds one source per channel, or is empty for none.
+pub fn render_image(
+    medium: &Medium,
+    camera: &Camera,
+    options: &RenderOptions,
+    scattering: &[&dyn InScattering],
+) -> Result<Image, GatherError> {
+    let n = medium.channels.len();
+    if !scattering.is_empty() && scattering.len() != n {
+        return Err(GatherError::Render(format!(
+            "{} scattering sources for a medium with {n} channels",
+            scattering.len()
+        )));
+    }
+    let mut channels = Vec::with_capacity(n);
+    for c in 0..n {
+        let source: &dyn InScattering = scattering.get(c).copied().unwrap_or(&());
+        channels.push(render(medium, c, camera, options, source)?);
+    }
+    let mut pixels = vec![0.0f32; camera.width as usize * camera.height as usize * n];
+    for (c, ch) in channels.iter().enumerate() {
+        for (i, &v) in ch.pixels.iter().enumerate() {
+            pixels[i * n + c] = v;
+        }
+    }
+    Ok(Image {
+        width: camera.width,
+        height: camera.height,
+        channels: n as u32,
+        pixels,
+    })
+}
