@@ -244,7 +244,7 @@ pub fn parse_pfm(bytes: &[u8]) -> Result<Image, String> {
                 return Err(format!("header {what} is not a short token"));
             }
         }
-        if pos == start || pos >= bytes.len() {
+        if pos == start {
             return Err(format!("header ends before the {what}"));
         }
         let s = std::str::from_utf8(&bytes[start..pos])

@@ -8,6 +8,9 @@
 //! - [`InScattering`] ([`scattering`]): the scattered source `Q_s`, plugged in from outside.
 //! - [`Image`] ([`image_io`]): PNG, PFM and EXR output by extension; [`read_pfm`].
 
+// `!(x > 0.0)` is deliberate in validation: it refuses NaN as well.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod camera;
 pub mod error;
 pub mod image_io;

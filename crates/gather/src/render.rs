@@ -96,7 +96,7 @@ impl RenderOptions {
     pub fn strata(&self) -> (u32, u32) {
         let n = self.spp.max(1);
         let mut sy = (n as f64).sqrt() as u32;
-        while sy > 1 && n % sy != 0 {
+        while sy > 1 && n % sy > 0 {
             sy -= 1;
         }
         (n / sy, sy)

@@ -67,7 +67,10 @@ impl<S: InScattering> InScattering for Option<S> {
         self.as_ref().map_or(0.0, |s| s.max_source())
     }
     fn is_zero(&self) -> bool {
-        self.as_ref().map_or(true, |s| s.is_zero())
+        match self {
+            None => true,
+            Some(s) => s.is_zero(),
+        }
     }
 }
 

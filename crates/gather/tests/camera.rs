@@ -1,0 +1,135 @@
+//! Camera geometry (pixel (0,0) top-left, field of view, orthographic extent) and refusal of
+//! degenerate specifications.
+
+use gather::{Camera, GatherError};
+use glam::DVec3;
+use medium::scene::{CameraSpec, Projection};
+
+fn spec(
+    eye: DVec3,
+    target: DVec3,
+    up: DVec3,
+    projection: Projection,
+    w: u32,
+    h: u32,
+) -> CameraSpec {
+    CameraSpec {
+        name: "test".into(),
+        eye,
+        target,
+        up,
+        projection,
+        width: w,
+        height: h,
+    }
+}
+
+fn persp(fov: f64) -> Projection {
+    Projection::Perspective { fov_y_degrees: fov }
+}
+
+#[test]
+fn perspective_frame_and_field_of_view() {
+    let eye = DVec3::new(1.0, -10.0, 2.0);
+    let target = DVec3::new(1.0, 0.0, 2.0);
+    let cam = Camera::from_spec(&spec(eye, target, DVec3::Z, persp(40.0), 200, 100)).unwrap();
+    // The centre of the image looks at the target.
+    let centre = cam.ray(100.0, 50.0);
+    assert_eq!(centre.origin, eye);
+    assert!((centre.direction - DVec3::Y).length() < 1e-12);
+    // Top edge middle: 20° above the view direction (vertical fov 40°).
+    let top = cam.ray(100.0, 0.0);
+    assert!((top.direction.angle_between(DVec3::Y) - 20f64.to_radians()).abs() < 1e-12);
+    assert!(top.direction.z > 0.0, "y = 0 is the top of the image");
+    // Left edge middle: atan(aspect · tan 20°) to the left (−x when looking along +y, up +z).
+    let left = cam.ray(0.0, 50.0);
+    let want = (2.0 * 20f64.to_radians().tan()).atan();
+    assert!((left.direction.angle_between(DVec3::Y) - want).abs() < 1e-12);
+    assert!(left.direction.x < 0.0, "x = 0 is the left of the image");
+    for (px, py) in [(0.0, 0.0), (13.5, 77.25), (200.0, 100.0)] {
+        assert!((cam.ray(px, py).direction.length() - 1.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn orthographic_rays_are_parallel_and_span_the_height() {
+    let eye = DVec3::new(0.0, 0.0, 10.0);
+    let cam = Camera::orthographic(eye, DVec3::ZERO, DVec3::Y, 4.0, 8, 4).unwrap();
+    let tl = cam.ray(0.0, 0.0);
+    let br = cam.ray(8.0, 4.0);
+    assert_eq!(tl.direction, -DVec3::Z);
+    assert_eq!(br.direction, -DVec3::Z);
+    // Height 4 world units, aspect 2: corners at (∓4, ±2) around the eye.
+    assert!((tl.origin - DVec3::new(-4.0, 2.0, 10.0)).length() < 1e-12);
+    assert!((br.origin - DVec3::new(4.0, -2.0, 10.0)).length() < 1e-12);
+}
+
+#[test]
+fn up_need_not_be_orthogonal_to_the_view() {
+    let cam = Camera::perspective(
+        DVec3::ZERO,
+        DVec3::new(0.0, 0.0, -5.0),
+        DVec3::new(0.0, 1.0, 0.7),
+        60.0,
+        4,
+        4,
+    )
+    .unwrap();
+    assert!((cam.up - DVec3::Y).length() < 1e-12);
+    assert!(cam.up.dot(cam.forward).abs() < 1e-12);
+    assert!((cam.right - DVec3::X).length() < 1e-12);
+}
+
+#[test]
+fn degenerate_cameras_are_refused() {
+    let (e, t, up) = (DVec3::new(0.0, 0.0, 5.0), DVec3::ZERO, DVec3::Y);
+    let bad = [
+        ("eye on target", spec(t, t, up, persp(40.0), 4, 4)),
+        ("up parallel", spec(e, t, DVec3::Z, persp(40.0), 4, 4)),
+        (
+            "up antiparallel",
+            spec(e, t, -DVec3::Z * 3.0, persp(40.0), 4, 4),
+        ),
+        ("zero up", spec(e, t, DVec3::ZERO, persp(40.0), 4, 4)),
+        ("fov 0", spec(e, t, up, persp(0.0), 4, 4)),
+        ("fov 180", spec(e, t, up, persp(180.0), 4, 4)),
+        ("fov negative", spec(e, t, up, persp(-30.0), 4, 4)),
+        ("fov NaN", spec(e, t, up, persp(f64::NAN), 4, 4)),
+        ("width 0", spec(e, t, up, persp(40.0), 0, 4)),
+        ("height 0", spec(e, t, up, persp(40.0), 4, 0)),
+        ("eye NaN", spec(DVec3::NAN, t, up, persp(40.0), 4, 4)),
+        (
+            "ortho height 0",
+            spec(e, t, up, Projection::Orthographic { height: 0.0 }, 4, 4),
+        ),
+        (
+            "ortho height < 0",
+            spec(e, t, up, Projection::Orthographic { height: -2.0 }, 4, 4),
+        ),
+        (
+            "ortho height inf",
+            spec(
+                e,
+                t,
+                up,
+                Projection::Orthographic {
+                    height: f64::INFINITY,
+                },
+                4,
+                4,
+            ),
+        ),
+    ];
+    for (what, s) in bad {
+        match Camera::from_spec(&s) {
+            Err(GatherError::Camera { name, message }) => {
+                assert_eq!(name, "test");
+                assert!(!message.is_empty());
+            }
+            other => panic!("{what}: expected a camera error, got {other:?}"),
+        }
+    }
+    // The same with sensible values is accepted.
+    assert!(Camera::from_spec(&spec(e, t, up, persp(40.0), 4, 4)).is_ok());
+    assert!(Camera::from_spec(&spec(e, t, up, persp(179.0), 4, 4)).is_ok());
+}
