@@ -1,0 +1,902 @@
+//! Scene files: the contract's example parses with its defaults, every bad input of
+//! scene-format.md is refused naming the file and the key, and the extensions work.
+
+use std::path::{Path, PathBuf};
+
+use medium::scene::{
+    max_axis_optical_depth, IterationMethod, OpticalModel, Projection, SceneOrigin, SolveMethod,
+    VolumeSource,
+};
+use medium::volume_io::{
+    write_mitsuba_vol, write_nrrd, write_raw_f32, NrrdWriteOptions, VolumeData,
+};
+use medium::{CellValues, Interpolation, Light, MediumError, PhaseFunction, Scene};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("volrad-scene-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A 4×3×2 raw volume with values 0..24 / 24 next to the scene.
+fn write_volume(dir: &Path) {
+    let values: Vec<f32> = (0..24).map(|i| i as f32 / 24.0).collect();
+    write_raw_f32(
+        &dir.join("vol.f32"),
+        &VolumeData::new([4, 3, 2], values).unwrap(),
+    )
+    .unwrap();
+}
+
+const VOLUME: &str = "[volume]\nfile = \"vol.f32\"\ndims = [4, 3, 2]\n";
+const MEDIUM: &str = "[medium]\nalbedo = 0.9\n";
+const LIGHT: &str =
+    "[[light]]\nkind = \"directional\"\ndirection = [0.0, -2.0, 0.0]\nirradiance = 1.5\n";
+const CAMERA: &str = "[[camera]]\nname = \"front\"\neye = [2.0, 1.5, -10.0]\ntarget = [2.0, 1.5, 1.0]\nup = [0.0, 1.0, 0.0]\nfov_y = 40.0\nwidth = 16\nheight = 12\n";
+
+fn scene_text(parts: &[&str]) -> String {
+    parts.join("\n")
+}
+
+fn parse_in(dir: &Path, text: &str) -> Result<Scene, MediumError> {
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).unwrap();
+    Scene::from_file(&path)
+}
+
+/// Parses `text` next to the standard volume and returns (key, full message) of the error.
+fn refused(name: &str, text: &str) -> (String, String) {
+    let dir = scratch(name);
+    write_volume(&dir);
+    let err = parse_in(&dir, text).expect_err("scene should be refused");
+    let full = err.to_string();
+    match err {
+        MediumError::Scene { file, key, .. } => {
+            assert_eq!(file, dir.join("scene.toml"), "{full}");
+            assert!(full.contains("scene.toml"), "{full}");
+            (key, full)
+        }
+        other => panic!("expected a scene error, got {other:?}"),
+    }
+}
+
+fn assert_refused(name: &str, text: &str, key: &str, words: &[&str]) {
+    let (k, msg) = refused(name, text);
+    assert_eq!(k, key, "{msg}");
+    assert!(msg.contains(key), "{msg}");
+    for w in words {
+        assert!(msg.contains(w), "expected `{w}` in: {msg}");
+    }
+}
+
+#[test]
+fn minimal_scene_gets_the_contract_defaults() {
+    let dir = scratch("minimal");
+    write_volume(&dir);
+    let s = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA])).unwrap();
+    let m = &s.medium;
+    assert_eq!(m.grid.dims, [4, 3, 2]);
+    assert_eq!(m.grid.cell_size, 1.0);
+    assert_eq!(m.interpolation, Interpolation::Nearest);
+    assert_eq!(m.phase, PhaseFunction::Isotropic);
+    assert_eq!(m.channels.len(), 1);
+    // σt = value × 1.0, x fastest.
+    assert_eq!(m.channels[0].sigma_t[5], 5.0 / 24.0);
+    assert_eq!(m.channels[0].albedo, CellValues::Uniform(0.9));
+    assert!(m.channels[0].emission.is_zero());
+    assert_eq!(m.data.as_ref().unwrap().len(), 24);
+    assert_eq!(s.background, 0.0);
+    assert_eq!(s.solve.method, SolveMethod::ZonalHierarchical);
+    assert_eq!(s.solve.iteration, IterationMethod::GaussSeidel);
+    assert_eq!(s.solve.tolerance, 1e-5);
+    assert_eq!(s.solve.max_iterations, 2000);
+    assert_eq!(s.solve.bins, 96);
+    assert_eq!(s.render.model, OpticalModel::Scattering);
+    assert_eq!(s.render.exposure, 1.0);
+    assert_eq!(s.render.spp, 1);
+    // The direction is normalised on load.
+    match s.lights[0] {
+        Light::Directional {
+            direction,
+            irradiance,
+        } => {
+            assert!((direction - glam::DVec3::new(0.0, -1.0, 0.0)).length() < 1e-12);
+            assert_eq!(irradiance, 1.5);
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(s.cameras[0].name, "front");
+    assert_eq!(
+        s.cameras[0].projection,
+        Projection::Perspective {
+            fov_y_degrees: 40.0
+        }
+    );
+    assert_eq!(s.origin, SceneOrigin::File(dir.join("scene.toml")));
+    assert_eq!(s.source, VolumeSource::File(dir.join("vol.f32")));
+}
+
+#[test]
+fn full_contract_example_parses() {
+    let dir = scratch("full");
+    write_volume(&dir);
+    let text = r#"
+[volume]
+file = "vol.f32"
+dims = [4, 3, 2]
+sigma_t_scale = 2.0
+cell_size = 0.5
+interpolation = "trilinear"
+
+[medium]
+albedo = 0.99
+phase = { kind = "henyey-greenstein", g = 0.6 }
+emission = 0.25
+
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, 0.2]
+irradiance = 1.0
+
+[background]
+radiance = 0.1
+
+[solve]
+method = "discrete-ordinates"
+bins = 54
+iteration = "jacobi"
+tolerance = 1e-4
+max_iterations = 50
+
+[[camera]]
+name = "front"
+eye = [12.0, 40.0, -30.0]
+target = [12.0, 12.0, 9.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 40.0
+width = 256
+height = 192
+"#;
+    let s = parse_in(&dir, text).unwrap();
+    assert_eq!(s.medium.channels[0].sigma_t[3], 2.0 * 3.0 / 24.0);
+    assert_eq!(s.medium.grid.cell_size, 0.5);
+    assert_eq!(s.medium.interpolation, Interpolation::Trilinear);
+    assert_eq!(s.medium.phase, PhaseFunction::HenyeyGreenstein { g: 0.6 });
+    assert_eq!(s.medium.channels[0].emission, CellValues::Uniform(0.25));
+    assert_eq!(s.background, 0.1);
+    assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
+    assert_eq!(s.solve.bins, 54);
+    assert_eq!(s.solve.iteration, IterationMethod::Jacobi);
+    assert_eq!(s.solve.tolerance, 1e-4);
+    assert_eq!(s.solve.max_iterations, 50);
+    assert_eq!((s.cameras[0].width, s.cameras[0].height), (256, 192));
+}
+
+#[test]
+fn default_method_follows_the_phase_function_and_render_model_the_method() {
+    let dir = scratch("defaults");
+    write_volume(&dir);
+    let hg = "[medium]\nalbedo = 0.9\nphase = { kind = \"henyey-greenstein\", g = 0.3 }\n";
+    let s = parse_in(&dir, &scene_text(&[VOLUME, hg, LIGHT, CAMERA])).unwrap();
+    assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
+    let none = "[solve]\nmethod = \"none\"\n";
+    let s = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, none, CAMERA])).unwrap();
+    assert_eq!(s.render.model, OpticalModel::EmissionAbsorption);
+    let render = "[render]\nmodel = \"absorption-only\"\nexposure = 2.5\nspp = 4\n";
+    let s = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, render, CAMERA])).unwrap();
+    assert_eq!(s.render.model, OpticalModel::AbsorptionOnly);
+    assert_eq!((s.render.exposure, s.render.spp), (2.5, 4));
+}
+
+// --- every bad input of the contract -------------------------------------------------------
+
+#[test]
+fn unknown_keys_are_refused_with_their_path() {
+    let t = |extra_volume: &str, extra_medium: &str, extra_light: &str, extra_top: &str| {
+        scene_text(&[
+            extra_top,
+            &format!("{VOLUME}{extra_volume}"),
+            &format!("{MEDIUM}{extra_medium}"),
+            &format!("{LIGHT}{extra_light}"),
+            CAMERA,
+        ])
+    };
+    assert_refused(
+        "unk-top",
+        &t("", "", "", "colour = 1\n"),
+        "colour",
+        &["unknown key"],
+    );
+    assert_refused(
+        "unk-vol",
+        &t("sigma_t_scal = 2.0\n", "", "", ""),
+        "volume.sigma_t_scal",
+        &["unknown key", "sigma_t_scale"],
+    );
+    assert_refused(
+        "unk-med",
+        &t("", "albdo = 0.5\n", "", ""),
+        "medium.albdo",
+        &["unknown key"],
+    );
+    assert_refused(
+        "unk-light",
+        &t("", "", "colour = 1.0\n", ""),
+        "light[0].colour",
+        &["unknown key", "directional"],
+    );
+    assert_refused(
+        "unk-phase",
+        &t(
+            "",
+            "phase = { kind = \"henyey-greenstein\", g = 0.5, k = 1 }\n",
+            "",
+            "",
+        ),
+        "medium.phase.k",
+        &["unknown key"],
+    );
+    assert_refused(
+        "unk-cam",
+        &scene_text(&[VOLUME, MEDIUM, LIGHT, &format!("{CAMERA}fov = 3\n")]),
+        "camera[0].fov",
+        &["unknown key"],
+    );
+    assert_refused(
+        "unk-solve",
+        &scene_text(&[VOLUME, MEDIUM, LIGHT, "[solve]\ntol = 1e-3\n", CAMERA]),
+        "solve.tol",
+        &["unknown key"],
+    );
+}
+
+#[test]
+fn missing_required_keys_are_refused() {
+    assert_refused(
+        "miss-vol",
+        &scene_text(&[MEDIUM, LIGHT, CAMERA]),
+        "volume",
+        &["missing"],
+    );
+    assert_refused(
+        "miss-albedo",
+        &scene_text(&[VOLUME, "[medium]\n", LIGHT, CAMERA]),
+        "medium.albedo",
+        &["missing"],
+    );
+    assert_refused(
+        "miss-dims",
+        &scene_text(&["[volume]\nfile = \"vol.f32\"\n", MEDIUM, LIGHT, CAMERA]),
+        "volume.dims",
+        &["missing"],
+    );
+    assert_refused(
+        "miss-file",
+        &scene_text(&["[volume]\ndims = [4, 3, 2]\n", MEDIUM, LIGHT, CAMERA]),
+        "volume.file",
+        &["missing"],
+    );
+    assert_refused(
+        "miss-cam",
+        &scene_text(&[VOLUME, MEDIUM, LIGHT]),
+        "camera",
+        &["missing"],
+    );
+    assert_refused(
+        "miss-irr",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            "[[light]]\nkind = \"directional\"\ndirection = [0, -1, 0]\n",
+            CAMERA,
+        ]),
+        "light[0].irradiance",
+        &["missing"],
+    );
+    assert_refused(
+        "miss-fov",
+        &scene_text(&[VOLUME, MEDIUM, LIGHT, &CAMERA.replace("fov_y = 40.0\n", "")]),
+        "camera[0].fov_y",
+        &["missing"],
+    );
+    assert_refused(
+        "miss-g",
+        &scene_text(&[
+            VOLUME,
+            "[medium]\nalbedo = 0.5\nphase = { kind = \"henyey-greenstein\" }\n",
+            LIGHT,
+            CAMERA,
+        ]),
+        "medium.phase.g",
+        &["missing"],
+    );
+}
+
+#[test]
+fn a_volume_file_of_the_wrong_size_is_refused() {
+    let (key, msg) = refused(
+        "size",
+        &scene_text(&[
+            "[volume]\nfile = \"vol.f32\"\ndims = [4, 3, 3]\n",
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+    );
+    assert_eq!(key, "volume.dims");
+    assert!(
+        msg.contains("vol.f32") && msg.contains("96 bytes") && msg.contains("144 bytes"),
+        "{msg}"
+    );
+    // A missing volume file names the file too.
+    let (key, msg) = refused(
+        "nofile",
+        &scene_text(&[
+            "[volume]\nfile = \"missing.f32\"\ndims = [4, 3, 2]\n",
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+    );
+    assert_eq!(key, "volume.file");
+    assert!(msg.contains("missing.f32"), "{msg}");
+    assert_refused(
+        "zero-dim",
+        &scene_text(&[
+            "[volume]\nfile = \"vol.f32\"\ndims = [4, 0, 2]\n",
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+        "volume.dims",
+        &["≥ 1"],
+    );
+}
+
+#[test]
+fn negative_and_non_finite_values_are_refused() {
+    let vol = |extra: &str| format!("{VOLUME}{extra}");
+    assert_refused(
+        "neg-scale",
+        &scene_text(&[&vol("sigma_t_scale = -1.0\n"), MEDIUM, LIGHT, CAMERA]),
+        "volume.sigma_t_scale",
+        &["≥ 0"],
+    );
+    assert_refused(
+        "nan-scale",
+        &scene_text(&[&vol("sigma_t_scale = nan\n"), MEDIUM, LIGHT, CAMERA]),
+        "volume.sigma_t_scale",
+        &["finite"],
+    );
+    assert_refused(
+        "inf-cell",
+        &scene_text(&[&vol("cell_size = inf\n"), MEDIUM, LIGHT, CAMERA]),
+        "volume.cell_size",
+        &["finite"],
+    );
+    assert_refused(
+        "zero-cell",
+        &scene_text(&[&vol("cell_size = 0.0\n"), MEDIUM, LIGHT, CAMERA]),
+        "volume.cell_size",
+        &["> 0"],
+    );
+    assert_refused(
+        "neg-emis",
+        &scene_text(&[
+            VOLUME,
+            "[medium]\nalbedo = 0.5\nemission = -0.1\n",
+            LIGHT,
+            CAMERA,
+        ]),
+        "medium.emission",
+        &["≥ 0"],
+    );
+    assert_refused(
+        "neg-irr",
+        &scene_text(&[VOLUME, MEDIUM, &LIGHT.replace("1.5", "-1.5"), CAMERA]),
+        "light[0].irradiance",
+        &["negative"],
+    );
+    assert_refused(
+        "nan-dir",
+        &scene_text(&[VOLUME, MEDIUM, &LIGHT.replace("-2.0", "nan"), CAMERA]),
+        "light[0].direction",
+        &["finite"],
+    );
+    assert_refused(
+        "neg-bg",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            LIGHT,
+            "[background]\nradiance = -1\n",
+            CAMERA,
+        ]),
+        "background.radiance",
+        &["negative"],
+    );
+    assert_refused(
+        "neg-tol",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            LIGHT,
+            "[solve]\ntolerance = -1e-5\n",
+            CAMERA,
+        ]),
+        "solve.tolerance",
+        &["> 0"],
+    );
+
+    // Negative or non-finite values inside the volume file.
+    let dir = scratch("neg-data");
+    let mut values: Vec<f32> = vec![0.5; 24];
+    values[13] = -2.0;
+    write_raw_f32(
+        &dir.join("vol.f32"),
+        &VolumeData::new([4, 3, 2], values.clone()).unwrap(),
+    )
+    .unwrap();
+    let err = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA]))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("volume.file") && err.contains("(1, 0, 1)") && err.contains("-2"),
+        "{err}"
+    );
+    values[13] = f32::NAN;
+    write_raw_f32(
+        &dir.join("vol.f32"),
+        &VolumeData::new([4, 3, 2], values).unwrap(),
+    )
+    .unwrap();
+    let err = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA]))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("volume.file") && err.contains("NaN"), "{err}");
+}
+
+#[test]
+fn albedo_outside_unit_interval_is_refused() {
+    for (name, albedo) in [
+        ("a-hi", "1.01"),
+        ("a-lo", "-0.1"),
+        ("a-rgb", "[0.5, 1.2, 0.5]"),
+    ] {
+        assert_refused(
+            name,
+            &scene_text(&[
+                VOLUME,
+                &format!("[medium]\nalbedo = {albedo}\n"),
+                LIGHT,
+                CAMERA,
+            ]),
+            "medium.albedo",
+            &["[0, 1]"],
+        );
+    }
+    let table =
+        "[medium]\nalbedo = { kind = \"piecewise-linear\", points = [[0.0, 0.5], [1.0, 1.5]] }\n";
+    assert_refused(
+        "a-table",
+        &scene_text(&[VOLUME, table, LIGHT, CAMERA]),
+        "medium.albedo",
+        &["[0, 1]", "1.5"],
+    );
+    let unsorted =
+        "[medium]\nalbedo = { kind = \"piecewise-linear\", points = [[1.0, 0.5], [0.0, 0.9]] }\n";
+    assert_refused(
+        "a-unsorted",
+        &scene_text(&[VOLUME, unsorted, LIGHT, CAMERA]),
+        "medium.albedo.points",
+        &["increasing"],
+    );
+    let particle = "[medium]\nalbedo = { kind = \"particle\", c = 0.5 }\n";
+    assert_refused(
+        "a-particle",
+        &scene_text(&[VOLUME, particle, LIGHT, CAMERA]),
+        "medium.albedo.kind",
+        &["unknown kind"],
+    );
+}
+
+#[test]
+fn asymmetry_of_magnitude_one_or_more_is_refused() {
+    for (name, phase, key) in [
+        (
+            "g1",
+            "{ kind = \"henyey-greenstein\", g = 1.0 }",
+            "medium.phase.g",
+        ),
+        (
+            "gneg",
+            "{ kind = \"henyey-greenstein\", g = -1.5 }",
+            "medium.phase.g",
+        ),
+        (
+            "g2",
+            "{ kind = \"two-lobe\", r = 0.12, g1 = -0.5, g2 = 1.0 }",
+            "medium.phase.g2",
+        ),
+    ] {
+        assert_refused(
+            name,
+            &scene_text(&[
+                VOLUME,
+                &format!("[medium]\nalbedo = 0.5\nphase = {phase}\n"),
+                LIGHT,
+                CAMERA,
+            ]),
+            key,
+            &["|g| < 1"],
+        );
+    }
+    assert_refused(
+        "phase-kind",
+        &scene_text(&[
+            VOLUME,
+            "[medium]\nalbedo = 0.5\nphase = { kind = \"rayleigh\" }\n",
+            LIGHT,
+            CAMERA,
+        ]),
+        "medium.phase.kind",
+        &["rayleigh", "henyey-greenstein"],
+    );
+}
+
+#[test]
+fn zero_light_direction_is_refused() {
+    assert_refused(
+        "zero-dir",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            &LIGHT.replace("[0.0, -2.0, 0.0]", "[0, 0, 0]"),
+            CAMERA,
+        ]),
+        "light[0].direction",
+        &["zero"],
+    );
+    let spot = "[[light]]\nkind = \"spot\"\nposition = [2, 8, 1]\naxis = [0, 0, 0]\nhalf_angle_degrees = 20\nintensity = 5\n";
+    assert_refused(
+        "zero-axis",
+        &scene_text(&[VOLUME, MEDIUM, spot, CAMERA]),
+        "light[0].axis",
+        &["zero"],
+    );
+    assert_refused(
+        "light-kind",
+        &scene_text(&[VOLUME, MEDIUM, "[[light]]\nkind = \"laser\"\n", CAMERA]),
+        "light[0].kind",
+        &["laser", "directional"],
+    );
+}
+
+#[test]
+fn unknown_method_names_are_refused() {
+    assert_refused(
+        "method",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            LIGHT,
+            "[solve]\nmethod = \"monte-carlo\"\n",
+            CAMERA,
+        ]),
+        "solve.method",
+        &["monte-carlo", "discrete-ordinates"],
+    );
+    assert_refused(
+        "iter",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            LIGHT,
+            "[solve]\niteration = \"sor\"\n",
+            CAMERA,
+        ]),
+        "solve.iteration",
+        &["sor"],
+    );
+    assert_refused(
+        "bins",
+        &scene_text(&[VOLUME, MEDIUM, LIGHT, "[solve]\nbins = 100\n", CAMERA]),
+        "solve.bins",
+        &["6n²"],
+    );
+    assert_refused(
+        "model",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            LIGHT,
+            "[render]\nmodel = \"xray\"\n",
+            CAMERA,
+        ]),
+        "render.model",
+        &["xray", "absorption-only"],
+    );
+    assert_refused(
+        "interp",
+        &scene_text(&[
+            &format!("{VOLUME}interpolation = \"cubic\"\n"),
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+        "volume.interpolation",
+        &["cubic"],
+    );
+}
+
+#[test]
+fn no_light_is_allowed_only_with_emission() {
+    assert_refused(
+        "dark",
+        &scene_text(&[VOLUME, MEDIUM, CAMERA]),
+        "light",
+        &["no light and no emission"],
+    );
+    let dir = scratch("glow");
+    write_volume(&dir);
+    let s = parse_in(
+        &dir,
+        &scene_text(&[VOLUME, "[medium]\nalbedo = 0.0\nemission = 0.3\n", CAMERA]),
+    )
+    .unwrap();
+    assert!(s.lights.is_empty());
+    // Zero emission everywhere still counts as none.
+    assert_refused(
+        "dark-table",
+        &scene_text(&[
+            VOLUME,
+            "[medium]\nalbedo = 0.5\nemission = { kind = \"particle\", c = 0.0 }\n",
+            CAMERA,
+        ]),
+        "light",
+        &["no light"],
+    );
+}
+
+#[test]
+fn syntax_errors_and_wrong_types_name_where() {
+    let (key, msg) = refused("syntax", &format!("{VOLUME}\n[medium\nalbedo = 0.5\n"));
+    assert!(key.starts_with("(line"), "{key}: {msg}");
+    assert_refused(
+        "type",
+        &scene_text(&[VOLUME, "[medium]\nalbedo = \"high\"\n", LIGHT, CAMERA]),
+        "medium.albedo",
+        &["a number"],
+    );
+    assert_refused(
+        "dims-type",
+        &scene_text(&[
+            "[volume]\nfile = \"vol.f32\"\ndims = [4, 3]\n",
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+        "volume.dims",
+        &["3 elements"],
+    );
+    assert_refused(
+        "dup-cam",
+        &scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA, CAMERA]),
+        "camera[1].name",
+        &["duplicate"],
+    );
+}
+
+// --- extensions ----------------------------------------------------------------------------
+
+#[test]
+fn transfer_tables_particle_emission_and_rgb_channels() {
+    let dir = scratch("transfer");
+    write_volume(&dir);
+    let text = scene_text(&[
+        "[volume]\nfile = \"vol.f32\"\ndims = [4, 3, 2]\nsigma_t_scale = [1.0, 2.0, 4.0]\n",
+        "[medium]\nalbedo = { kind = \"piecewise-linear\", points = [[0.0, 0.5], [1.0, 0.99]] }\nemission = { kind = \"particle\", c = 0.5 }\n",
+        CAMERA,
+    ]);
+    let s = parse_in(&dir, &text).unwrap();
+    assert_eq!(s.medium.channels.len(), 3);
+    for (c, scale) in [1.0f32, 2.0, 4.0].iter().enumerate() {
+        let ch = &s.medium.channels[c];
+        for cell in [0, 7, 23] {
+            let value = cell as f32 / 24.0;
+            assert!((ch.sigma_t[cell] - scale * value).abs() < 1e-6);
+            let a = 0.5 + 0.49 * value as f64;
+            assert!((ch.albedo.get(cell) as f64 - a).abs() < 1e-6);
+            // Max eq. 8: emission = C σt.
+            assert!((ch.emission.get(cell) - 0.5 * ch.sigma_t[cell]).abs() < 1e-6);
+        }
+    }
+    // A σt table, a preset and an RGB table.
+    let text = scene_text(&[
+        "[volume]\nfile = \"vol.f32\"\ndims = [4, 3, 2]\nsigma_t_scale = 3.0\nsigma_t = { kind = \"preset\", name = \"threshold\" }\n",
+        "[medium]\nalbedo = { kind = \"piecewise-linear\", points = [[0.0, 0.2, 0.4, 0.6], [1.0, 0.3, 0.5, 0.7]] }\n",
+        LIGHT,
+        CAMERA,
+    ]);
+    let s = parse_in(&dir, &text).unwrap();
+    assert_eq!(s.medium.channels.len(), 3);
+    let ch = &s.medium.channels[1];
+    assert_eq!(ch.sigma_t[0], 0.0); // value 0 < 0.2
+    assert_eq!(ch.sigma_t[23], 3.0); // value 0.958 > 0.3
+    assert!((ch.sigma_t[6] - 3.0 * 0.5).abs() < 1e-6); // value 0.25, halfway up the ramp
+    assert!((s.medium.channels[2].albedo.get(0) - 0.6).abs() < 1e-6);
+    assert_refused(
+        "preset-name",
+        &scene_text(&[
+            VOLUME,
+            "[medium]\nalbedo = { kind = \"preset\", name = \"glow\" }\n",
+            LIGHT,
+            CAMERA,
+        ]),
+        "medium.albedo.name",
+        &["glow", "smoothstep"],
+    );
+}
+
+#[test]
+fn generators_headered_files_lights_and_orthographic_cameras() {
+    let dir = scratch("gen");
+    let gen = "[volume]\ngenerator = { kind = \"cloud\", seed = 3 }\ndims = [16, 12, 10]\nsigma_t_scale = 2.0\n";
+    let spot = "[[light]]\nkind = \"spot\"\nposition = [8, 20, 5]\naxis = [0, -1, 0]\nhalf_angle_degrees = 30\nintensity = 100\n\n[[light]]\nkind = \"point\"\nposition = [8, 6, -5]\nintensity = 10\n";
+    let ortho = "[[camera]]\nname = \"side\"\neye = [-20, 6, 5]\ntarget = [8, 6, 5]\nup = [0, 1, 0]\nprojection = \"orthographic\"\northo_height = 14.0\nwidth = 8\nheight = 8\n";
+    let s = parse_in(&dir, &scene_text(&[gen, MEDIUM, spot, ortho])).unwrap();
+    assert_eq!(
+        s.source,
+        VolumeSource::Generator(medium::generators::Generator::Cloud { seed: 3 })
+    );
+    let peak = s.medium.channels[0].max_sigma_t();
+    assert!((peak - 2.0).abs() < 1e-6, "{peak}");
+    assert_eq!(s.lights.len(), 2);
+    match s.lights[0] {
+        Light::Spot { half_angle, .. } => assert!((half_angle - 30f64.to_radians()).abs() < 1e-12),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(
+        s.cameras[0].projection,
+        Projection::Orthographic { height: 14.0 }
+    );
+    assert_refused(
+        "ortho-miss",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            LIGHT,
+            &ortho.replace("ortho_height = 14.0\n", ""),
+        ]),
+        "camera[0].ortho_height",
+        &["missing"],
+    );
+    assert_refused(
+        "both",
+        &scene_text(&[
+            &format!("{VOLUME}generator = {{ kind = \"dipole\" }}\n"),
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+        "volume.generator",
+        &["not both"],
+    );
+    assert_refused(
+        "gen-kind",
+        &scene_text(&[
+            "[volume]\ngenerator = { kind = \"smoke\" }\ndims = [4, 4, 4]\n",
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+        "volume.generator.kind",
+        &["smoke", "cloud"],
+    );
+    assert_refused(
+        "gen-nodims",
+        &scene_text(&[
+            "[volume]\ngenerator = { kind = \"dipole\" }\n",
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+        "volume.dims",
+        &["missing"],
+    );
+
+    // Headered files need no dims; given dims must agree.
+    let v = VolumeData::new([2, 3, 4], (0..24).map(|i| i as f32).collect()).unwrap();
+    write_mitsuba_vol(&dir.join("v.vol"), &v, 1.0).unwrap();
+    write_nrrd(
+        &dir.join("v.nrrd"),
+        &v,
+        &NrrdWriteOptions {
+            gzip: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    for name in ["v.vol", "v.nrrd"] {
+        let s = parse_in(
+            &dir,
+            &scene_text(&[
+                &format!("[volume]\nfile = \"{name}\"\n"),
+                MEDIUM,
+                LIGHT,
+                CAMERA,
+            ]),
+        )
+        .unwrap();
+        assert_eq!(s.medium.grid.dims, [2, 3, 4]);
+        assert_eq!(s.medium.channels[0].sigma_t[23], 23.0);
+        let err = parse_in(
+            &dir,
+            &scene_text(&[
+                &format!("[volume]\nfile = \"{name}\"\ndims = [4, 3, 2]\n"),
+                MEDIUM,
+                LIGHT,
+                CAMERA,
+            ]),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("volume.file") && err.contains("[2, 3, 4]"),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn builtin_default_is_a_valid_cloud_of_optical_depth_ten() {
+    let s = Scene::builtin_default();
+    assert_eq!(s.origin, SceneOrigin::BuiltIn("cloud"));
+    assert_eq!(s.medium.grid.dims, [48, 48, 36]);
+    let depth = max_axis_optical_depth(&s.medium);
+    assert!((depth - 10.0).abs() < 1e-3, "{depth}");
+    assert_eq!(s.medium.channels[0].albedo, CellValues::Uniform(0.99));
+    assert!(s.medium.phase.is_isotropic());
+    assert_eq!(s.lights.len(), 1);
+    assert_eq!(s.cameras.len(), 1);
+    assert_eq!(
+        (
+            s.cameras[0].name.as_str(),
+            s.cameras[0].width,
+            s.cameras[0].height
+        ),
+        ("front", 512, 384)
+    );
+    assert_eq!(s.render.model, OpticalModel::Scattering);
+    assert_eq!(s.solve.method, SolveMethod::ZonalHierarchical);
+    // The camera sees the whole grid: every corner projects inside the vertical field of view.
+    let cam = &s.cameras[0];
+    let forward = (cam.target - cam.eye).normalize();
+    let right = forward.cross(cam.up).normalize();
+    let up = right.cross(forward);
+    let half = (20f64).to_radians().tan();
+    let aspect = 512.0 / 384.0;
+    let e = s.medium.grid.extent();
+    for c in 0..8 {
+        let p = glam::DVec3::new(
+            if c & 1 == 0 { 0.0 } else { e.x },
+            if c & 2 == 0 { 0.0 } else { e.y },
+            if c & 4 == 0 { 0.0 } else { e.z },
+        ) - cam.eye;
+        let z = p.dot(forward);
+        assert!((p.dot(up) / z).abs() < half && (p.dot(right) / z).abs() < half * aspect);
+    }
+}
+
+#[test]
+fn from_toml_str_resolves_paths_against_base_dir() {
+    let dir = scratch("str");
+    write_volume(&dir);
+    let text = scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA]);
+    let s = Scene::from_toml_str(&text, &dir, Path::new("inline.toml")).unwrap();
+    assert_eq!(s.medium.grid.dims, [4, 3, 2]);
+    let err = Scene::from_toml_str(&text, Path::new("/nonexistent"), Path::new("inline.toml"))
+        .unwrap_err();
+    assert!(err.to_string().starts_with("inline.toml"), "{err}");
+}
