@@ -3,7 +3,30 @@
 //! Parsing happens in two stages, as in ripgrep's flags: serde reads the raw file into
 //! structs that mirror the TOML exactly (unknown keys refused), then validation turns them
 //! into the high-level [`Scene`] with a loaded [`Medium`], naming the file and key of the
-//! first problem it finds.
+//! first problem it finds ([`MediumError::Scene`]; keys are dotted paths such as
+//! `medium.phase.g` or `light[1].direction`).
+//!
+//! Extensions to the contract, in its style:
+//! - `[volume] file` may be raw f32 (needs `dims`), Mitsuba `.vol` or NRRD `.nrrd`/`.nhdr`
+//!   (header gives the dims; `dims`, if given, must agree).
+//! - `[volume] generator = { kind = "cloud", seed = 7 }` or `{ kind = "dipole" }` (needs `dims`).
+//! - `[volume] sigma_t = { kind = "piecewise-linear", points = [[x, y], ...] }` or
+//!   `{ kind = "preset", name = "threshold" }`: σt = `sigma_t_scale` × table(value).
+//! - `albedo` and `emission`: a number, `[r, g, b]`, `{ kind = "constant", value = ... }`,
+//!   `{ kind = "piecewise-linear", points = [[x, y], ...] or [[x, r, g, b], ...], scale = 1 }`,
+//!   `{ kind = "preset", name = "...", scale = 1 }`; emission also
+//!   `{ kind = "particle", c = 0.5 or [r, g, b] }` (Max eq. 8: emission = C·σt). Transfers
+//!   read the raw data value. `sigma_t_scale` may be `[r, g, b]`. Any RGB item makes the
+//!   medium three-channel; grey items are shared by all channels.
+//! - `phase = "isotropic"` / `"lambertian-sphere"` or a table with `kind` = `isotropic`,
+//!   `henyey-greenstein` (`g`), `lambertian-sphere`, `two-lobe` (`r`, `g1`, `g2`).
+//! - `[[light]]` kinds: `directional` (direction, irradiance), `point` (position,
+//!   intensity), `spot` (position, axis, half_angle_degrees, intensity). No light is allowed
+//!   only when the medium emits.
+//! - `[render] model = "absorption-only" | "emission-only" | "emission-absorption" |
+//!   "single-scatter-unshadowed" | "scattering"` (default: emission-absorption when
+//!   `[solve] method = "none"`, else scattering), `exposure = 1.0`, `spp = 1`.
+//! - `[[camera]] projection = "orthographic"` with `ortho_height` instead of `fov_y`.
 
 use std::path::{Path, PathBuf};
 
@@ -1219,17 +1242,18 @@ impl Ctx<'_> {
                     out.bins = bins;
                 }
                 if let Some(it) = &s.iteration {
-                    out.iteration =
-                        match self.string(it, "solve.iteration")? {
-                            "gauss-seidel" => IterationMethod::GaussSeidel,
-                            "jacobi" => IterationMethod::Jacobi,
-                            other => return Err(self.err(
+                    out.iteration = match self.string(it, "solve.iteration")? {
+                        "gauss-seidel" => IterationMethod::GaussSeidel,
+                        "jacobi" => IterationMethod::Jacobi,
+                        other => {
+                            return Err(self.err(
                                 "solve.iteration",
                                 format!(
                                     "unknown iteration `{other}` (expected gauss-seidel or jacobi)"
                                 ),
-                            )),
-                        };
+                            ))
+                        }
+                    };
                 }
                 if let Some(t) = &s.tolerance {
                     out.tolerance = self.positive(t, "solve.tolerance")?;

@@ -87,7 +87,8 @@ impl PiecewiseLinear {
         let pts = &self.points;
         let first = pts[0];
         let last = pts[pts.len() - 1];
-        if !(x > first[0]) {
+        // NaN lands here too: it maps to the first value rather than poisoning σt.
+        if x.is_nan() || x <= first[0] {
             return first[1];
         }
         if x >= last[0] {

@@ -387,7 +387,7 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
                 format!("NRRD sizes `{sizes_text}` are not whole numbers"),
             )
         })?;
-    if sizes.len() != 3 || sizes.iter().any(|&s| s == 0) {
+    if sizes.len() != 3 || sizes.contains(&0) {
         return Err(vol_err(
             path,
             format!("NRRD sizes `{sizes_text}` must be three positive numbers"),
