@@ -32,10 +32,42 @@ pub trait TransportOperator: Sync {
         }
         true
     }
+
+    /// Positive weights `w` (length [`len`](Self::len)) such that `diag(w) · K` is symmetric,
+    /// when the operator has one. The zonal operator `K = diag(a) F` has `w_i = 1 / (a_i σt_i)`
+    /// by reciprocity (`F_ij / σt_i = F_ji / σt_j`). Enables conjugate gradients.
+    fn symmetrizer(&self) -> Option<&[f64]> {
+        None
+    }
+
+    /// Aggregates for a coarse-grid correction: `aggregates[i]` is the coarse unknown that fine
+    /// unknown `i` belongs to (ids `0..n_coarse`, every id used). Operators with geometry should
+    /// give spatially compact groups (e.g. 8×8×8 blocks of cells, or octree clusters); without
+    /// them the solver falls back to contiguous blocks of unknowns.
+    fn coarse_aggregates(&self) -> Option<&[u32]> {
+        None
+    }
+
+    /// The Galerkin coarse operator `Pᵀ K P` for the given aggregates (piecewise-constant
+    /// prolongation `P`), dense and row-major, `n_coarse × n_coarse`: entry `(c, d)` is the sum
+    /// of `K_ij` over `i ∈ c`, `j ∈ d`. Operators that can form it cheaply (e.g. a hierarchy that
+    /// already holds cluster-to-cluster links) override this; by default the solver builds it
+    /// from [`RowAccess::for_each_in_row`] or, failing that, from one `apply` per aggregate.
+    fn coarse_operator(&self, aggregates: &[u32], n_coarse: usize) -> Option<Vec<f64>> {
+        let _ = (aggregates, n_coarse);
+        None
+    }
 }
 
 /// Explicit rows of an operator.
 pub trait RowAccess: Sync {
     /// `(K x)_i`.
     fn row_dot(&self, row: usize, x: &[f64]) -> f64;
+
+    /// Calls `visit(j, K_ij)` for every stored entry of row `i` and returns `true`, or returns
+    /// `false` without calling it if the entries are not available (the default).
+    fn for_each_in_row(&self, row: usize, visit: &mut dyn FnMut(usize, f64)) -> bool {
+        let _ = (row, visit);
+        false
+    }
 }
