@@ -154,8 +154,9 @@ struct Ellipsoid {
     weight: f64,
 }
 
-/// Max's cloud: 4–6 random ellipsoidal blobs with smooth `(1 − d²)²` falloff, summed, then
-/// roughened by fractal gradient noise so the edges look fractal; peak 1.0, and zero within
+/// Max's cloud: a flattened body and 6–10 random ellipsoidal puffs with smooth `(1 − d²)²`
+/// falloff, summed, with a flat cumulus base, then roughened by additive fractal gradient
+/// noise so the edges break up; peak 1.0, and zero within
 /// about two cells of the grid boundary so the cloud is isolated in its grid.
 pub fn cloud(dims: [usize; 3], seed: u64) -> Vec<f32> {
     let n = dims[0] * dims[1] * dims[2];
@@ -164,40 +165,39 @@ pub fn cloud(dims: [usize; 3], seed: u64) -> Vec<f32> {
     }
     let mut rng = Pcg64::seed_from_u64(seed);
     let extent = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
-    let blobs = rng.random_range(4..=6);
-    let mut ellipsoids = Vec::with_capacity(blobs);
-    for b in 0..blobs {
-        // Radii 16–30 % of each extent; centres within the middle so blob + noise stays inside.
-        let radii = DVec3::new(
-            rng.random_range(0.2..0.3),
-            rng.random_range(0.16..0.26),
-            rng.random_range(0.2..0.3),
-        ) * extent;
-        let spread = DVec3::new(0.15, 0.1, 0.13);
-        let offset = DVec3::new(
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(-1.0..1.0),
-        ) * spread;
-        // The first blob is the body of the cloud: central and heaviest.
-        let (center, weight) = if b == 0 {
-            (extent * 0.5, 1.0)
-        } else {
-            (
-                extent * (DVec3::splat(0.5) + offset),
-                rng.random_range(0.5..0.9),
-            )
-        };
+    let min_extent = extent.min_element();
+    // A cumulus: a wide, flattened body and 6–10 round puffs on and around it; sizes are
+    // fractions of the grid, in cells.
+    let mut ellipsoids = vec![Ellipsoid {
+        center: extent * DVec3::new(0.5, 0.42, 0.5),
+        radii: extent * DVec3::new(0.4, 0.2, 0.38),
+        weight: 1.0,
+    }];
+    let puffs = rng.random_range(6..=10);
+    for _ in 0..puffs {
+        let center = extent
+            * DVec3::new(
+                0.5 + rng.random_range(-0.25..0.25),
+                rng.random_range(0.45..0.62),
+                0.5 + rng.random_range(-0.22..0.22),
+            );
+        let radius = min_extent * rng.random_range(0.17..0.28);
+        let squash = DVec3::new(
+            rng.random_range(0.85..1.25),
+            rng.random_range(0.75..1.0),
+            rng.random_range(0.85..1.25),
+        );
         ellipsoids.push(Ellipsoid {
             center,
-            radii,
-            weight,
+            radii: squash * radius,
+            weight: rng.random_range(0.6..1.0),
         });
     }
+    // The flat base typical of cumulus, a little below the body's centre.
+    let base = extent.y * 0.3;
     let noise = GradientNoise::new(seed);
-    // About three noise features across the smallest extent at the base octave.
-    let min_extent = extent.min_element();
-    let base_frequency = 3.0 / min_extent;
+    // About four noise features across the smallest extent at the base octave.
+    let base_frequency = 4.0 / min_extent;
     let noise_offset = DVec3::new(
         rng.random_range(0.0..64.0),
         rng.random_range(0.0..64.0),
@@ -226,9 +226,11 @@ pub fn cloud(dims: [usize; 3], seed: u64) -> Vec<f32> {
             if body <= 0.0 {
                 return 0.0;
             }
-            let fbm = noise.fractal(p * base_frequency + noise_offset, 4);
-            // Noise eats into thin parts (the edges) and modulates the core less.
-            let density = (body * (1.0 + 1.2 * fbm) - 0.05).max(0.0);
+            let fbm = noise.fractal(p * base_frequency + noise_offset, 5);
+            // Additive noise dominates where the body is thin (the edges, which break up into
+            // fractal wisps) and only modulates the core.
+            let density =
+                (body + 0.55 * fbm - 0.1).max(0.0) * smoothstep(base - 1.0, base + 2.5, p.y);
             // Distance to the nearest grid face, in cells: fade to zero at the boundary.
             let to_face = p.min(extent - p).min_element();
             let window = smoothstep(margin, margin + 2.0, to_face);
