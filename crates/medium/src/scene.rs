@@ -274,14 +274,15 @@ pub fn max_axis_optical_depth(medium: &Medium) -> f64 {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawScene {
-    volume: toml::Value,
-    medium: toml::Value,
-    #[serde(default)]
+    // Required sections are optional here so that problems are reported in file order
+    // (an unknown key in [volume] before a missing [[camera]]).
+    volume: Option<toml::Value>,
+    medium: Option<toml::Value>,
     light: Option<toml::Value>,
     background: Option<toml::Value>,
     solve: Option<toml::Value>,
     render: Option<toml::Value>,
-    camera: toml::Value,
+    camera: Option<toml::Value>,
 }
 
 #[derive(Deserialize)]
@@ -895,6 +896,11 @@ fn broadcast<T: Clone>(v: Vec<T>, n: usize) -> Vec<T> {
 }
 
 impl Scene {
+    /// The camera called `name`.
+    pub fn camera(&self, name: &str) -> Option<&CameraSpec> {
+        self.cameras.iter().find(|c| c.name == name)
+    }
+
     /// Reads and validates a scene file; paths inside are relative to the file's directory.
     pub fn from_file(path: &Path) -> Result<Scene, MediumError> {
         let text = std::fs::read_to_string(path).map_err(|source| MediumError::Io {
@@ -985,7 +991,9 @@ height = 384
 impl Ctx<'_> {
     fn scene(&self, raw: RawScene) -> Result<Scene, MediumError> {
         // [volume]
-        let vol: RawVolume = self.raw(raw.volume, "volume")?;
+        let missing = |key: &str| self.err(key, "required key is missing");
+        let volume = raw.volume.ok_or_else(|| missing("volume"))?;
+        let vol: RawVolume = self.raw(volume, "volume")?;
         let dims = vol
             .dims
             .as_ref()
@@ -1135,7 +1143,7 @@ impl Ctx<'_> {
         }
 
         // [medium]
-        let med: RawMedium = self.raw(raw.medium, "medium")?;
+        let med: RawMedium = self.raw(raw.medium.ok_or_else(|| missing("medium"))?, "medium")?;
         let albedo = self.transfer(&med.albedo, "medium.albedo", (0.0, 1.0), false)?;
         let emission = match &med.emission {
             Some(v) => self.transfer(v, "medium.emission", (0.0, f64::INFINITY), true)?,
@@ -1317,6 +1325,7 @@ impl Ctx<'_> {
         // [[camera]]
         let list = raw
             .camera
+            .ok_or_else(|| missing("camera"))?
             .as_array()
             .ok_or_else(|| self.err("camera", "expected an array of tables ([[camera]])"))?
             .clone();

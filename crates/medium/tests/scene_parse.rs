@@ -901,3 +901,22 @@ fn from_toml_str_resolves_paths_against_base_dir() {
         .unwrap_err();
     assert!(err.to_string().starts_with("inline.toml"), "{err}");
 }
+
+#[test]
+fn problems_are_reported_in_file_order_and_cameras_found_by_name() {
+    // Unknown key in [volume] comes before the missing [[camera]].
+    assert_refused(
+        "order",
+        &format!("{VOLUME}sigma_t_scal = 1\n{MEDIUM}{LIGHT}"),
+        "volume.sigma_t_scal",
+        &["unknown key"],
+    );
+    let dir = scratch("camname");
+    write_volume(&dir);
+    let side = CAMERA
+        .replace("\"front\"", "\"side\"")
+        .replace("[2.0, 1.5, -10.0]", "[-10.0, 1.5, 1.0]");
+    let s = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA, &side])).unwrap();
+    assert_eq!(s.camera("side").unwrap().eye.x, -10.0);
+    assert!(s.camera("top").is_none());
+}
