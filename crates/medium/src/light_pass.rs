@@ -28,7 +28,7 @@ use crate::{ChannelMedium, Grid, Light, MediumError};
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LightPassOptions {
     /// Rays per cell side (`m`): a directional light sends `m²` rays per cell of each face it
-    /// enters through (1 is exact for axis-aligned light); point lights aim for rays `h/m`
+    /// enters through (1 is exact for axis-aligned light); point lights aim for rays `h/2m`
     /// apart at the far side of the grid.
     pub rays_per_cell: usize,
     /// Largest cube-map face resolution for point and spot lights (bounds their cost).
@@ -237,10 +237,14 @@ fn point_deposit(
             (corner - position).length()
         })
         .fold(0.0, f64::max);
-    // Pixel angular size ≤ 2/n; aim for rays δ = h/m apart at r_max.
+    // Pixel angular size ≤ 2/n; aim for rays h/(2m) apart at r_max (diverging rays are
+    // sparsest there; point lights are rare and cheap next to their corner rays).
     let m = options.rays_per_cell.max(1) as f64;
-    let n = ((2.0 * m * r_max / grid.cell_size).ceil() as usize)
-        .clamp(8, options.max_cube_resolution.max(8));
+    // Even, so that no pixel centre lies on the axis planes through the light: a light on a
+    // cell face would otherwise send a whole column of rays exactly along that face.
+    let n = ((4.0 * m * r_max / grid.cell_size).ceil() as usize)
+        .clamp(8, options.max_cube_resolution.max(8))
+        .next_multiple_of(2);
     let step = 2.0 / n as f64;
     // Batches: (face, pixel row).
     deposit_parallel(grid.cell_count(), 6 * n, |batch, dep| {
@@ -253,9 +257,9 @@ fn point_deposit(
         for col in 0..n {
             let x0 = -1.0 + col as f64 * step;
             let x1 = x0 + step;
-            let omega = rect_solid_angle(x1, y1) - rect_solid_angle(x0, y1)
-                - rect_solid_angle(x1, y0)
-                + rect_solid_angle(x0, y0);
+            let omega =
+                rect_solid_angle(x1, y1) - rect_solid_angle(x0, y1) - rect_solid_angle(x1, y0)
+                    + rect_solid_angle(x0, y0);
             let mut d = DVec3::ZERO;
             d[axis] = sign;
             d[ua] = 0.5 * (x0 + x1);
@@ -352,7 +356,10 @@ impl LightPass {
             ));
         }
         if options.rays_per_cell == 0 {
-            return Err(MediumError::invalid("light pass", "rays_per_cell must be ≥ 1"));
+            return Err(MediumError::invalid(
+                "light pass",
+                "rays_per_cell must be ≥ 1",
+            ));
         }
         let sigma_t = &channel.sigma_t;
         let volume = grid.cell_volume();
@@ -366,7 +373,11 @@ impl LightPass {
                 } => {
                     // Light along an axis is exact with one ray per cell.
                     let axis_aligned = (0..3).filter(|&a| direction[a] != 0.0).count() == 1;
-                    let m = if axis_aligned { 1 } else { options.rays_per_cell };
+                    let m = if axis_aligned {
+                        1
+                    } else {
+                        options.rays_per_cell
+                    };
                     directional_deposit(grid, sigma_t, direction, irradiance, m)
                 }
                 Light::Point {
