@@ -45,7 +45,7 @@ impl Default for LightPassOptions {
 }
 
 /// Power bookkeeping of one light (in the units of irradiance × area).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LightEnergy {
     /// Power entering the grid (for a light inside the grid: all the power it emits).
     pub entering: f64,
