@@ -253,3 +253,37 @@ fn failed_write_leaves_no_partial_file() {
     assert!(!p.exists());
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
 }
+
+mod round_trip_property {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        /// Any dims and any finite values survive every writer/reader pair bit for bit.
+        #[test]
+        fn every_format_round_trips(
+            nx in 1usize..7, ny in 1usize..7, nz in 1usize..7,
+            seed in any::<u32>(),
+        ) {
+            let n = nx * ny * nz;
+            let values: Vec<f32> = (0..n)
+                .map(|i| f32::from_bits((seed as u64 * 2654435761 + i as u64 * 40503) as u32 & 0x7f7f_ffff) * if i % 3 == 0 { -1.0 } else { 1.0 })
+                .collect();
+            let v = VolumeData::new([nx, ny, nz], values).unwrap();
+            let dir = scratch(&format!("prop-{nx}-{ny}-{nz}-{seed}"));
+            let raw = dir.join("v.raw");
+            write_raw_f32(&raw, &v).unwrap();
+            prop_assert_eq!(&load_volume(&raw, Some([nx, ny, nz])).unwrap(), &v);
+            let vol = dir.join("v.vol");
+            write_mitsuba_vol(&vol, &v, 1.0).unwrap();
+            prop_assert_eq!(&load_volume(&vol, None).unwrap(), &v);
+            for gzip in [false, true] {
+                let p = dir.join(format!("v{gzip}.nrrd"));
+                write_nrrd(&p, &v, &NrrdWriteOptions { gzip, ..Default::default() }).unwrap();
+                prop_assert_eq!(&load_volume(&p, None).unwrap(), &v);
+            }
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+    }
+}
