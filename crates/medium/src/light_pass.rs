@@ -20,12 +20,13 @@ use std::f64::consts::PI;
 
 use glam::DVec3;
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use crate::traversal::Ray;
 use crate::{ChannelMedium, Grid, Light, MediumError};
 
 /// Tuning of the light pass.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LightPassOptions {
     /// Rays per cell side (`m`): a directional light sends `m²` rays per cell of each face it
     /// enters through (1 is exact for axis-aligned light); point lights aim for rays `h/2m`
@@ -66,7 +67,7 @@ impl LightEnergy {
 }
 
 /// One light's result.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LightField {
     pub light: Light,
     /// `(1/V) ∫_{V_i} E_light(x) T_L(x) dx` per cell (irradiance on a plane perpendicular to
@@ -79,7 +80,7 @@ pub struct LightField {
 }
 
 /// The light pass for one colour channel: one [`LightField`] per light, in the scene's order.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LightPass {
     pub grid: Grid,
     /// The channel's σt, kept to continue `T_L` inside cells.
