@@ -448,23 +448,26 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
     let count =
         cell_count(dims).ok_or_else(|| vol_err(path, format!("sizes {dims:?} are too large")))?;
     let needed = count * ty.size();
-    let mut payload: Vec<u8> = if gzip {
-        let skip = usize::try_from(byte_skip.max(0))
-            .unwrap_or(0)
-            .min(raw.len());
-        let mut dec = flate2::read::MultiGzDecoder::new(&raw[skip..]);
+    // NRRD's byte skip counts bytes of the decoded data; -1 means "the data are the last
+    // bytes", allowed for raw encoding only.
+    let decoded: Vec<u8> = if gzip {
+        let mut dec = flate2::read::MultiGzDecoder::new(&raw[..]);
         let mut out = Vec::with_capacity(needed);
         dec.read_to_end(&mut out)
             .map_err(|e| vol_err(&data_path, format!("gzip data cannot be decoded: {e}")))?;
         out
-    } else if byte_skip == -1 {
-        // NRRD's "the data are the last bytes of the file".
-        raw[raw.len().saturating_sub(needed)..].to_vec()
     } else {
-        let skip = usize::try_from(byte_skip)
-            .map_err(|_| vol_err(path, format!("NRRD byte skip {byte_skip} is not supported")))?
-            .min(raw.len());
-        raw[skip..].to_vec()
+        raw
+    };
+    let payload: &[u8] = match byte_skip {
+        -1 if !gzip => &decoded[decoded.len().saturating_sub(needed)..],
+        s if s >= 0 => &decoded[(s as usize).min(decoded.len())..],
+        s => {
+            return Err(vol_err(
+                path,
+                format!("NRRD byte skip {s} is not supported with encoding `{encoding}`"),
+            ))
+        }
     };
     if payload.len() != needed {
         return Err(vol_err(
@@ -479,7 +482,6 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
         .chunks_exact(ty.size())
         .map(|c| ty.decode(c, little))
         .collect();
-    payload.clear();
     Ok(VolumeData { dims, values })
 }
 

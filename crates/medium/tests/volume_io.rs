@@ -287,3 +287,51 @@ mod round_trip_property {
         }
     }
 }
+
+#[test]
+fn nrrd_byte_skip_counts_decoded_bytes() {
+    let dir = scratch("skip");
+    let floats: Vec<u8> = [1.5f32, -2.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let head = "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 1 1\nendian: little\n";
+    // Raw: skip 3 junk bytes, or take the last 8 bytes.
+    let mut junk = vec![9u8, 9, 9];
+    junk.extend_from_slice(&floats);
+    let p = nrrd_with(
+        &dir,
+        "s3.nrrd",
+        &format!("{head}encoding: raw\nbyte skip: 3\n\n"),
+        &junk,
+    );
+    assert_eq!(read_nrrd(&p).unwrap().values, vec![1.5, -2.0]);
+    let p = nrrd_with(
+        &dir,
+        "tail.nrrd",
+        &format!("{head}encoding: raw\nbyte skip: -1\n\n"),
+        &junk,
+    );
+    assert_eq!(read_nrrd(&p).unwrap().values, vec![1.5, -2.0]);
+    // Gzip: the skip applies after decompression.
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    enc.write_all(&junk).unwrap();
+    let gz = enc.finish().unwrap();
+    let p = nrrd_with(
+        &dir,
+        "gz.nrrd",
+        &format!("{head}encoding: gzip\nbyte skip: 3\n\n"),
+        &gz,
+    );
+    assert_eq!(read_nrrd(&p).unwrap().values, vec![1.5, -2.0]);
+    let p = nrrd_with(
+        &dir,
+        "gzneg.nrrd",
+        &format!("{head}encoding: gzip\nbyte skip: -1\n\n"),
+        &gz,
+    );
+    assert!(read_nrrd(&p)
+        .unwrap_err()
+        .to_string()
+        .contains("byte skip -1"));
+}
