@@ -1,0 +1,167 @@
+//! The discrete-ordinates operator as an explicit sparse matrix (cells × bins), for small
+//! grids: the reference the matrix-free sweep must agree with.
+//!
+//! Built column by column: for each piece of each bin and each source cell, a unit source is
+//! propagated through the downstream box of that cell only (not a whole-grid sweep), giving
+//! the transport "form factors" `F_{c l, c' l}`; the matrix is then
+//! `K[(c,l), (c',j)] = F_{c l, c' l} σs_{c'} P_lj Ω_j`. Vacuum sides only.
+
+use solver::operator::{RowAccess, TransportOperator};
+use sprs::{CsMat, TriMat};
+
+use super::sweep::OrdinatesOperator;
+use super::OrdinatesError;
+
+/// Largest `cells × bins` accepted (the matrix has up to `(N M)·N·M / 8` entries).
+pub const MAX_ASSEMBLED_UNKNOWNS: usize = 20_000;
+
+/// The explicit operator `K` in CSR form.
+pub struct AssembledOrdinates {
+    matrix: CsMat<f64>,
+}
+
+impl AssembledOrdinates {
+    /// Assembles the operator of `op` (same medium, bins, phase matrix and scheme).
+    pub fn from_operator(op: &OrdinatesOperator) -> Result<Self, OrdinatesError> {
+        let grid = *op.grid();
+        let [nx, ny, nz] = grid.dims;
+        let n = grid.cell_count();
+        let m = op.bins().len();
+        if n * m > MAX_ASSEMBLED_UNKNOWNS {
+            return Err(OrdinatesError::Length {
+                what: "assembled unknowns (cells × bins)",
+                got: n * m,
+                expected: MAX_ASSEMBLED_UNKNOWNS,
+            });
+        }
+        if op.options().periodic_xy {
+            return Err(OrdinatesError::Medium(
+                "the assembled operator supports vacuum sides only".into(),
+            ));
+        }
+        let h = grid.cell_size;
+        let sigma_t = op.sigma_t();
+        let sigma_s = op.sigma_s();
+        let matrix = op.phase_matrix();
+        let omega = op.bins().solid_angles();
+        let mut tri = TriMat::new((n * m, n * m));
+        let mut out = vec![0.0f64; n];
+        let mut response = vec![0.0f64; n];
+        for piece in op.pieces() {
+            let l = piece.bin;
+            let [fx, fy, fz] = piece.fractions;
+            let s = piece.projected;
+            let chord = h / s;
+            for src in 0..n {
+                if sigma_s[src] == 0.0 {
+                    continue;
+                }
+                let [si, sj, sk] = grid.coords(src);
+                // Downstream box of the source cell, walked in downwind order.
+                let range = |start: usize, len: usize, fwd: bool| -> Vec<usize> {
+                    if fwd {
+                        (start..len).collect()
+                    } else {
+                        (0..=start).rev().collect()
+                    }
+                };
+                let (xs, ys, zs) = (
+                    range(si, nx, piece.forward[0]),
+                    range(sj, ny, piece.forward[1]),
+                    range(sk, nz, piece.forward[2]),
+                );
+                let up = |v: usize, fwd: bool, first: usize| -> Option<usize> {
+                    if v == first {
+                        None
+                    } else if fwd {
+                        Some(v - 1)
+                    } else {
+                        Some(v + 1)
+                    }
+                };
+                for &k in &zs {
+                    for &j in &ys {
+                        for &i in &xs {
+                            let c = grid.index(i, j, k);
+                            let mut inflow = 0.0;
+                            if let Some(u) = up(i, piece.forward[0], si) {
+                                inflow += fx * out[grid.index(u, j, k)];
+                            }
+                            if let Some(u) = up(j, piece.forward[1], sj) {
+                                inflow += fy * out[grid.index(i, u, k)];
+                            }
+                            if let Some(u) = up(k, piece.forward[2], sk) {
+                                inflow += fz * out[grid.index(i, j, u)];
+                            }
+                            let tau = sigma_t[c] * chord;
+                            let esc = if tau < 1e-6 {
+                                1.0 - 0.5 * tau + tau * tau / 6.0
+                            } else {
+                                -(-tau).exp_m1() / tau
+                            };
+                            let smf = if tau < 1e-4 {
+                                0.5 - tau / 6.0 + tau * tau / 24.0
+                            } else {
+                                (tau + (-tau).exp_m1()) / (tau * tau)
+                            };
+                            let unit = if c == src { 1.0 } else { 0.0 };
+                            out[c] = inflow * (-tau).exp() + unit * h * esc;
+                            response[c] = inflow / s * esc + unit * chord * smf;
+                        }
+                    }
+                }
+                for &k in &zs {
+                    for &j in &ys {
+                        for &i in &xs {
+                            let c = grid.index(i, j, k);
+                            let f = piece.weight * response[c];
+                            if f != 0.0 {
+                                for jb in 0..m {
+                                    let v = f * sigma_s[src] * matrix.get(l, jb) * omega[jb];
+                                    tri.add_triplet(c * m + l, src * m + jb, v);
+                                }
+                            }
+                            out[c] = 0.0;
+                            response[c] = 0.0;
+                        }
+                    }
+                }
+            }
+        }
+        Ok(AssembledOrdinates {
+            matrix: tri.to_csr(),
+        })
+    }
+
+    pub fn matrix(&self) -> &CsMat<f64> {
+        &self.matrix
+    }
+
+    pub fn nnz(&self) -> usize {
+        self.matrix.nnz()
+    }
+}
+
+impl RowAccess for AssembledOrdinates {
+    fn row_dot(&self, row: usize, x: &[f64]) -> f64 {
+        self.matrix
+            .outer_view(row)
+            .map_or(0.0, |r| r.iter().map(|(j, v)| v * x[j]).sum())
+    }
+}
+
+impl TransportOperator for AssembledOrdinates {
+    fn len(&self) -> usize {
+        self.matrix.rows()
+    }
+
+    fn apply(&self, x: &[f64], y: &mut [f64]) {
+        for (row, yr) in y.iter_mut().enumerate() {
+            *yr = self.row_dot(row, x);
+        }
+    }
+
+    fn rows(&self) -> Option<&dyn RowAccess> {
+        Some(self)
+    }
+}

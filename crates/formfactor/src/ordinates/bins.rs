@@ -1,0 +1,184 @@
+//! Direction bins on the faces of a cube: Max's 96 bins (n = 4) and the same construction
+//! for `6·n²` bins, with closed-form solid angles.
+//!
+//! Face `f` (0..6) is the face of the cube `[-1, 1]³` on axis `f / 2` with sign `+` for even
+//! `f`; its `n × n` squares are indexed `(i, j)` along the face's `u = axis+1`, `v = axis+2`
+//! (mod 3) coordinates. Bin index: `f·n² + i·n + j`. Each bin is the cone from the cube's
+//! centre through one square.
+
+use glam::DVec3;
+
+use super::OrdinatesError;
+
+/// Largest face subdivision supported (`6·8² = 384` bins).
+pub const MAX_FACE_DIVISIONS: usize = 8;
+
+/// `atan(x y / (d √(x² + y² + d²)))`: the corner function whose signed sum over the four
+/// corners of a rectangle on the plane at distance `d` is the rectangle's solid angle.
+#[inline]
+fn corner(x: f64, y: f64, d: f64) -> f64 {
+    (x * y / (d * (x * x + y * y + d * d).sqrt())).atan()
+}
+
+/// Exact solid angle of the rectangle `[u1,u2] × [v1,v2]` on the plane at distance `d`,
+/// seen from the origin.
+pub fn rectangle_solid_angle(u1: f64, u2: f64, v1: f64, v2: f64, d: f64) -> f64 {
+    corner(u2, v2, d) - corner(u1, v2, d) - corner(u2, v1, d) + corner(u1, v1, d)
+}
+
+/// A rectangle on one cube face, in the face's `(u, v)` coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FaceRect {
+    pub face: usize,
+    pub u: [f64; 2],
+    pub v: [f64; 2],
+}
+
+impl FaceRect {
+    /// The face's axis, sign and the axes of `u` and `v`.
+    #[inline]
+    pub fn frame(face: usize) -> (usize, f64, usize, usize) {
+        let axis = face / 2;
+        let sign = if face % 2 == 0 { 1.0 } else { -1.0 };
+        (axis, sign, (axis + 1) % 3, (axis + 2) % 3)
+    }
+
+    /// The (unnormalised) point `(u, v)` on the face.
+    #[inline]
+    pub fn point(&self, u: f64, v: f64) -> DVec3 {
+        let (axis, sign, ua, va) = Self::frame(self.face);
+        let mut p = [0.0; 3];
+        p[axis] = sign;
+        p[ua] = u;
+        p[va] = v;
+        DVec3::from_array(p)
+    }
+
+    pub fn solid_angle(&self) -> f64 {
+        rectangle_solid_angle(self.u[0], self.u[1], self.v[0], self.v[1], 1.0)
+    }
+
+    /// `k × k` midpoint quadrature over the cone: unit directions at sub-square centres with
+    /// their exact sub-square solid angles as weights (the weights sum exactly to the
+    /// rectangle's solid angle).
+    pub fn quadrature(&self, k: usize, out: &mut Vec<(DVec3, f64)>) {
+        let k = k.max(1);
+        let du = (self.u[1] - self.u[0]) / k as f64;
+        let dv = (self.v[1] - self.v[0]) / k as f64;
+        for a in 0..k {
+            let u1 = self.u[0] + a as f64 * du;
+            for b in 0..k {
+                let v1 = self.v[0] + b as f64 * dv;
+                let w = rectangle_solid_angle(u1, u1 + du, v1, v1 + dv, 1.0);
+                let dir = self.point(u1 + 0.5 * du, v1 + 0.5 * dv).normalize();
+                out.push((dir, w));
+            }
+        }
+    }
+}
+
+/// A set of `6·n²` direction bins covering the sphere.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DirectionBins {
+    n: usize,
+    rects: Vec<FaceRect>,
+    solid_angles: Vec<f64>,
+    centres: Vec<DVec3>,
+}
+
+/// Sub-squares per side used to compute bin centres.
+const CENTRE_QUADRATURE: usize = 32;
+
+impl DirectionBins {
+    /// The `6·n²` bins of an `n × n × n` block of cubes, `1 ≤ n ≤ 8`.
+    pub fn cube(n: usize) -> Result<Self, OrdinatesError> {
+        if !(1..=MAX_FACE_DIVISIONS).contains(&n) {
+            return Err(OrdinatesError::FaceDivisions(n));
+        }
+        let mut rects = Vec::with_capacity(6 * n * n);
+        let step = 2.0 / n as f64;
+        for face in 0..6 {
+            for i in 0..n {
+                for j in 0..n {
+                    // Edges from integers so that neighbouring squares share exact values.
+                    let u = [-1.0 + i as f64 * step, -1.0 + (i + 1) as f64 * step];
+                    let v = [-1.0 + j as f64 * step, -1.0 + (j + 1) as f64 * step];
+                    rects.push(FaceRect { face, u, v });
+                }
+            }
+        }
+        let solid_angles = rects.iter().map(FaceRect::solid_angle).collect();
+        let mut q = Vec::new();
+        let centres = rects
+            .iter()
+            .map(|r| {
+                q.clear();
+                r.quadrature(CENTRE_QUADRATURE, &mut q);
+                q.iter()
+                    .fold(DVec3::ZERO, |acc, &(d, w)| acc + d * w)
+                    .normalize()
+            })
+            .collect();
+        Ok(DirectionBins {
+            n,
+            rects,
+            solid_angles,
+            centres,
+        })
+    }
+
+    /// Max's 96 bins (the 16 squares on each face of a 4×4×4 block of cubes).
+    pub fn max96() -> Self {
+        Self::cube(4).expect("n = 4 is in range")
+    }
+
+    /// Squares per face side.
+    pub fn face_divisions(&self) -> usize {
+        self.n
+    }
+
+    /// Number of bins `M = 6 n²`.
+    pub fn len(&self) -> usize {
+        self.rects.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rects.is_empty()
+    }
+
+    /// Exact solid angles `Ω_l`; they sum to 4π.
+    pub fn solid_angles(&self) -> &[f64] {
+        &self.solid_angles
+    }
+
+    /// Bin centres: the normalised solid-angle-weighted mean direction `∫_bin ω dω / |…|`.
+    pub fn centres(&self) -> &[DVec3] {
+        &self.centres
+    }
+
+    /// The face rectangle of bin `l`.
+    pub fn rect(&self, l: usize) -> FaceRect {
+        self.rects[l]
+    }
+
+    /// The bin containing `direction` (any non-zero length). Points on a shared boundary go
+    /// to the bin with the larger index along `u`/`v` and the lowest axis among tied faces.
+    pub fn bin_of(&self, direction: DVec3) -> usize {
+        let a = direction.abs().to_array();
+        let axis = if a[0] >= a[1] && a[0] >= a[2] {
+            0
+        } else if a[1] >= a[2] {
+            1
+        } else {
+            2
+        };
+        let d = direction.to_array();
+        let face = 2 * axis + usize::from(d[axis] < 0.0);
+        let (_, _, ua, va) = FaceRect::frame(face);
+        let m = a[axis].max(f64::MIN_POSITIVE);
+        let cell = |x: f64| {
+            (((x / m + 1.0) * 0.5 * self.n as f64).floor().max(0.0) as usize).min(self.n - 1)
+        };
+        face * self.n * self.n + cell(d[ua]) * self.n + cell(d[va])
+    }
+}

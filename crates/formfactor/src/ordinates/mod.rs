@@ -1,0 +1,38 @@
+//! Discrete ordinates (Max 1995 §VII.D): radiance in `M` direction bins per cell, for
+//! anisotropic multiple scattering.
+//!
+//! - [`bins`]: Max's 96 cube-face bins and the `6·n²` family, closed-form solid angles.
+//! - [`phase_matrix`]: the renormalised bin-to-bin phase matrix.
+//! - [`sweep`]: the matrix-free operator `K` (scatter once, transport by per-bin sweeps that
+//!   spread each bin's flux over its solid angle), the first-bounce source and energy tallies.
+//! - [`assembled`]: the same operator as an explicit sparse matrix, for small grids.
+//!
+//! Unknowns `I[cell·M + l]`: scattered radiance (the unscattered beam excluded) averaged over
+//! the cell and over bin `l`. The system is `I = T(S1 + e) + K I`.
+
+pub mod assembled;
+pub mod bins;
+pub mod phase_matrix;
+pub mod sweep;
+
+pub use assembled::AssembledOrdinates;
+pub use bins::DirectionBins;
+pub use phase_matrix::PhaseMatrix;
+pub use sweep::{EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy};
+
+/// What was wrong with an ordinates set-up.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum OrdinatesError {
+    #[error("face divisions n = {0}: must be in 1..=8")]
+    FaceDivisions(usize),
+    #[error("channel {channel} does not exist (the medium has {channels})")]
+    Channel { channel: usize, channels: usize },
+    #[error("{what}: {got} values, expected {expected}")]
+    Length {
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
+    #[error("invalid medium: {0}")]
+    Medium(String),
+}
