@@ -1,2 +1,63 @@
-//! Benchmark placeholder: filled in by the issue that owns it.
-fn main() {}
+//! Render speed: the generated 64×64×48 cloud (Max's cloud, seed 7) at 512×384, 1 sample per
+//! pixel, emission + absorption (the particle model, emission = σt), exact per-cell segments.
+//! Run with `cargo bench --bench render`.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use gather::{render, Camera, RenderOptions};
+use glam::DVec3;
+use medium::generators::cloud;
+use medium::scene::OpticalModel;
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
+
+/// σt = 0.4 × density (peak 0.4 per cell): column optical depths up to roughly 10, like the
+/// reference clouds.
+const SIGMA_T_SCALE: f32 = 0.4;
+
+fn cloud_medium(interpolation: Interpolation) -> Medium {
+    let dims = [64, 64, 48];
+    let sigma_t: Vec<f32> = cloud(dims, 7).iter().map(|d| d * SIGMA_T_SCALE).collect();
+    let emission = CellValues::PerCell(sigma_t.clone());
+    Medium::new(
+        Grid::new(dims, 1.0).unwrap(),
+        vec![ChannelMedium {
+            sigma_t,
+            albedo: CellValues::Uniform(0.0),
+            emission,
+        }],
+        PhaseFunction::Isotropic,
+        interpolation,
+        None,
+    )
+    .unwrap()
+}
+
+fn camera() -> Camera {
+    // The direction of the reference scenes' view (tests/data/cloud24-*), close enough
+    // that the cloud fills most of the frame.
+    let centre = DVec3::new(32.0, 32.0, 24.0);
+    let eye = centre + DVec3::new(-15.42, -46.26, 16.448) * 1.5;
+    Camera::perspective(eye, centre, DVec3::Z, 40.0, 512, 384).unwrap()
+}
+
+fn bench_render(c: &mut Criterion) {
+    let cam = camera();
+    let opts = RenderOptions {
+        model: OpticalModel::EmissionAbsorption,
+        spp: 1,
+        ..RenderOptions::default()
+    };
+    let mut group = c.benchmark_group("render");
+    group.sample_size(30);
+    let nearest = cloud_medium(Interpolation::Nearest);
+    group.bench_function("cloud64x64x48_512x384_nearest", |b| {
+        b.iter(|| render(&nearest, 0, &cam, &opts, &()).unwrap())
+    });
+    let trilinear = cloud_medium(Interpolation::Trilinear);
+    group.bench_function("cloud64x64x48_512x384_trilinear", |b| {
+        b.iter(|| render(&trilinear, 0, &cam, &opts, &()).unwrap())
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_render);
+criterion_main!(benches);

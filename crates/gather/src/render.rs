@@ -8,10 +8,12 @@
 //! background adds `T · I0` at the end.
 //!
 //! Early termination: a ray stops once the rest of it cannot change the pixel by more than
-//! `termination` (default 1e-4) relative. What remains is at most
-//! `T · (I0 + Q_max · L_rest)` (`Q_max` the largest source anywhere, `L_rest` the chord still
-//! inside the grid), so the ray stops when that bound is `≤ termination · I`. When the
-//! scattered source has no known bound, the rule falls back to `T < termination`.
+//! `termination` (default 1e-4) relative to what it has gathered, i.e. when
+//! `T · R ≤ termination · I`. `R` bounds what the rest of the ray can still add per unit of
+//! transmittance: `I0 + min(e_max · L, max(e/σt)) + Q_s,max · L`, with `L` the chord still
+//! inside the occupied part of the grid. (`∫ T e ds ≤ max(e/σt) ∫ T σt ds ≤ max(e/σt)`, so for
+//! the particle model, e = Cσt, the rule is just `T · (I0 + C) ≤ 10⁻⁴ I`.) When the scattered
+//! source has no known bound, the rule falls back to `T < termination`.
 
 use glam::DVec3;
 use medium::grid::Grid;
@@ -21,7 +23,7 @@ use medium::{CellValues, Interpolation, Medium};
 use rayon::prelude::*;
 
 use crate::image_io::Image;
-use crate::scattering::{segment_weight, InScattering};
+use crate::scattering::InScattering;
 use crate::{Camera, GatherError};
 
 /// Side of the square image tiles rendered as one parallel task.
@@ -93,10 +95,12 @@ impl RenderOptions {
 
     /// The stratification `sx × sy = spp` of a pixel: the most square factorisation, wider
     /// than tall (a prime spp gives `spp × 1` strips).
+    // `is_multiple_of` needs Rust 1.87; the workspace supports 1.80.
+    #[allow(clippy::manual_is_multiple_of)]
     pub fn strata(&self) -> (u32, u32) {
         let n = self.spp.max(1);
         let mut sy = (n as f64).sqrt() as u32;
-        while sy > 1 && n % sy > 0 {
+        while sy > 1 && n % sy != 0 {
             sy -= 1;
         }
         (n / sy, sy)
@@ -130,8 +134,16 @@ pub struct RayIntegrator<'a> {
     use_emission: bool,
     use_scattering: bool,
     background: f64,
-    /// Upper bound on the source `Q` anywhere (for early termination); infinite if unknown.
-    q_max: f64,
+    /// Largest emission anywhere, and largest `e/σt` (infinite if some cell emits without
+    /// extinction, or for the emission-only model): bounds for early termination.
+    emission_max: f64,
+    emission_ratio_max: f64,
+    /// Upper bound on the scattered source (0 when unused; infinite if unknown).
+    scattering_max: f64,
+    /// World-space box holding every cell that can absorb or emit (for `trilinear`, grown by
+    /// a cell for the interpolation's reach); rays are clipped to it, so the empty margins
+    /// of a volume cost nothing. `None`: the medium is empty for this model.
+    occupied: Option<(DVec3, DVec3)>,
     termination: f64,
     step: f64,
 }
@@ -156,13 +168,29 @@ impl<'a> RayIntegrator<'a> {
         let use_emission = options.model != AbsorptionOnly && !ch.emission.is_zero();
         let use_scattering =
             matches!(options.model, SingleScatterUnshadowed | Scattering) && !scattering.is_zero();
-        let mut q_max = 0.0;
-        if use_emission {
-            q_max += ch.emission.max() as f64;
-        }
-        if use_scattering {
-            q_max += scattering.max_source();
-        }
+        let (emission_max, emission_ratio_max) = if use_emission {
+            let ratio = if use_sigma {
+                emission_ratio_max(&ch.sigma_t, &ch.emission)
+            } else {
+                f64::INFINITY
+            };
+            (ch.emission.max() as f64, ratio)
+        } else {
+            (0.0, 0.0)
+        };
+        let scattering_max = if use_scattering {
+            scattering.max_source()
+        } else {
+            0.0
+        };
+        let occupied = occupied_box(
+            &medium.grid,
+            &ch.sigma_t,
+            &ch.emission,
+            use_sigma,
+            use_emission,
+            medium.interpolation,
+        );
         Ok(RayIntegrator {
             grid: medium.grid,
             sigma_t: &ch.sigma_t,
@@ -173,7 +201,10 @@ impl<'a> RayIntegrator<'a> {
             use_emission,
             use_scattering,
             background: options.background,
-            q_max,
+            emission_max,
+            emission_ratio_max,
+            scattering_max,
+            occupied,
             termination: options.termination,
             step: options.trilinear_step * medium.grid.cell_size,
         })
@@ -183,11 +214,14 @@ impl<'a> RayIntegrator<'a> {
     /// `t = 0` (so the medium behind the origin is not seen) and adding the background.
     #[inline]
     pub fn radiance(&self, ray: &Ray) -> f64 {
-        let Some((t_in, t_out)) = self.grid.clip(ray, 0.0, f64::INFINITY) else {
+        let Some((lo, hi)) = self.occupied else {
+            return self.background;
+        };
+        let Some((t_in, t_out)) = clip_box(lo, hi, ray) else {
             return self.background;
         };
         match self.interpolation {
-            Interpolation::Nearest => self.radiance_nearest(ray, t_out),
+            Interpolation::Nearest => self.radiance_nearest(ray, t_in, t_out),
             Interpolation::Trilinear => self.radiance_trilinear(ray, t_in, t_out),
         }
     }
@@ -196,18 +230,21 @@ impl<'a> RayIntegrator<'a> {
     /// than the relative tolerance.
     #[inline]
     fn can_stop(&self, transmittance: f64, radiance: f64, t: f64, t_out: f64) -> bool {
-        if self.q_max.is_finite() {
-            let rest = transmittance * (self.background + self.q_max * (t_out - t).max(0.0));
-            rest <= self.termination * radiance
+        let rest_length = (t_out - t).max(0.0);
+        let rest = self.background
+            + (self.emission_max * rest_length).min(self.emission_ratio_max)
+            + self.scattering_max * rest_length;
+        if rest.is_finite() {
+            transmittance * rest <= self.termination * radiance
         } else {
             transmittance < self.termination
         }
     }
 
-    fn radiance_nearest(&self, ray: &Ray, t_out: f64) -> f64 {
+    fn radiance_nearest(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
         let mut transmittance = 1.0f64;
         let mut radiance = 0.0f64;
-        for seg in self.grid.traverse(ray, 0.0, f64::INFINITY) {
+        for seg in self.grid.traverse(ray, t_in, t_out) {
             let len = seg.length();
             if len <= 0.0 {
                 continue;
@@ -220,13 +257,7 @@ impl<'a> RayIntegrator<'a> {
             if sigma == 0.0 && !self.use_emission && !self.use_scattering {
                 continue;
             }
-            // One exp_m1 gives both the segment weight and the attenuation.
-            let (weight, attenuation) = if sigma > 0.0 {
-                let em = (-sigma * len).exp_m1();
-                (-em / sigma, 1.0 + em)
-            } else {
-                (len, 1.0)
-            };
+            let (weight, attenuation) = weight_and_attenuation(sigma, len);
             let mut q = 0.0;
             if self.use_emission {
                 q += self.emission.get(seg.cell) as f64 * weight;
@@ -257,27 +288,58 @@ impl<'a> RayIntegrator<'a> {
             let t = t_in + (k as f64 + 0.5) * dt;
             let x = ray.at(t);
             let corners = Trilinear::new(&self.grid, x);
-            let sigma = if self.use_sigma {
-                corners.sample(|c| self.sigma_t[c] as f64)
-            } else {
-                0.0
+            let (sigma, mut q) = match (self.use_sigma, self.use_emission) {
+                (true, true) => corners.sample2(self.sigma_t, self.emission),
+                (true, false) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
+                (false, true) => (0.0, corners.sample(|c| self.emission.get(c) as f64)),
+                (false, false) => (0.0, 0.0),
             };
-            let weight = segment_weight(sigma, dt);
-            let mut q = 0.0;
-            if self.use_emission {
-                q += corners.sample(|c| self.emission.get(c) as f64);
-            }
             if self.use_scattering {
                 q += self.scattering.at(x, corners.cell, flow);
             }
+            let (weight, attenuation) = weight_and_attenuation(sigma, dt);
             radiance += transmittance * q * weight;
-            transmittance *= (-sigma * dt).exp();
+            transmittance *= attenuation;
             if self.can_stop(transmittance, radiance, t + 0.5 * dt, t_out) {
                 return radiance;
             }
         }
         radiance + transmittance * self.background
     }
+}
+
+/// `((1 − e^{−τ})/σt, e^{−τ})` with `τ = σt Δs`, from one `exp`: the source weight of a
+/// segment and its attenuation. Below τ = 1e-3 the weight comes from its series (four terms,
+/// relative error < τ⁴/120 ≈ 1e-14) to avoid cancellation in `1 − e^{−τ}`.
+#[inline]
+fn weight_and_attenuation(sigma: f64, length: f64) -> (f64, f64) {
+    let tau = sigma * length;
+    if tau <= 0.0 {
+        return (length, 1.0);
+    }
+    let attenuation = (-tau).exp();
+    let weight = if tau > 1e-3 {
+        (1.0 - attenuation) / sigma
+    } else {
+        length * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0))))
+    };
+    (weight, attenuation)
+}
+
+/// `max e/σt` over the cells that emit; infinite if one emits with σt = 0.
+fn emission_ratio_max(sigma_t: &[f32], emission: &CellValues) -> f64 {
+    let mut ratio = 0.0f64;
+    for (c, &s) in sigma_t.iter().enumerate() {
+        let e = emission.get(c) as f64;
+        if e > 0.0 {
+            if s > 0.0 {
+                ratio = ratio.max(e / s as f64);
+            } else {
+                return f64::INFINITY;
+            }
+        }
+    }
+    ratio
 }
 
 /// The 8 cell-centred neighbours of a point and their trilinear weights (values clamped to
@@ -315,6 +377,42 @@ impl Trilinear {
         }
     }
 
+    /// σt and emission at once (same weights), the common case of emission + absorption.
+    #[inline]
+    fn sample2(&self, sigma_t: &[f32], emission: &CellValues) -> (f64, f64) {
+        match emission {
+            CellValues::Uniform(e) => {
+                let sigma = self.sample(|c| sigma_t[c] as f64);
+                (sigma, *e as f64)
+            }
+            CellValues::PerCell(e) => {
+                let (mut s, mut q) = (0.0, 0.0);
+                for dz in 0..2 {
+                    let wz = if dz == 0 {
+                        1.0 - self.frac[2]
+                    } else {
+                        self.frac[2]
+                    };
+                    let oz = self.index[2][dz] * self.strides[2];
+                    for dy in 0..2 {
+                        let wy = if dy == 0 {
+                            1.0 - self.frac[1]
+                        } else {
+                            self.frac[1]
+                        };
+                        let oy = oz + self.index[1][dy] * self.strides[1];
+                        let wyz = wy * wz;
+                        let (c0, c1) = (oy + self.index[0][0], oy + self.index[0][1]);
+                        let (w0, w1) = ((1.0 - self.frac[0]) * wyz, self.frac[0] * wyz);
+                        s += w0 * sigma_t[c0] as f64 + w1 * sigma_t[c1] as f64;
+                        q += w0 * e[c0] as f64 + w1 * e[c1] as f64;
+                    }
+                }
+                (s, q)
+            }
+        }
+    }
+
     #[inline]
     fn sample(&self, value: impl Fn(usize) -> f64) -> f64 {
         let mut sum = 0.0;
@@ -346,6 +444,69 @@ impl Trilinear {
         }
         sum
     }
+}
+
+/// The world-space box of the cells that can absorb (`use_sigma`, σt > 0) or emit
+/// (`use_emission`, e > 0); scattered light needs σs = a σt > 0, so it lies inside too.
+fn occupied_box(
+    grid: &Grid,
+    sigma_t: &[f32],
+    emission: &CellValues,
+    use_sigma: bool,
+    use_emission: bool,
+    interpolation: Interpolation,
+) -> Option<(DVec3, DVec3)> {
+    let [nx, ny, nz] = grid.dims;
+    let mut lo = [usize::MAX; 3];
+    let mut hi = [0usize; 3];
+    let mut any = false;
+    for k in 0..nz {
+        for j in 0..ny {
+            let row = nx * (j + ny * k);
+            for i in 0..nx {
+                let c = row + i;
+                if (use_sigma && sigma_t[c] > 0.0) || (use_emission && emission.get(c) > 0.0) {
+                    any = true;
+                    for (a, v) in [i, j, k].into_iter().enumerate() {
+                        lo[a] = lo[a].min(v);
+                        hi[a] = hi[a].max(v + 1);
+                    }
+                }
+            }
+        }
+    }
+    if !any {
+        return None;
+    }
+    // Trilinear values reach up to one cell beyond the last non-zero centre.
+    let grow = match interpolation {
+        Interpolation::Nearest => 0,
+        Interpolation::Trilinear => 1,
+    };
+    let lo = DVec3::from_array(lo.map(|v| v.saturating_sub(grow) as f64)) * grid.cell_size;
+    let hi = DVec3::from_array([0, 1, 2].map(|a| (hi[a] + grow).min(grid.dims[a]) as f64))
+        * grid.cell_size;
+    Some((lo, hi))
+}
+
+/// The parametric interval `t ≥ 0` of a ray inside the box `[lo, hi]`, or `None`.
+#[inline]
+fn clip_box(lo: DVec3, hi: DVec3, ray: &Ray) -> Option<(f64, f64)> {
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for a in 0..3 {
+        let (o, d) = (ray.origin[a], ray.direction[a]);
+        if d == 0.0 {
+            if o < lo[a] || o > hi[a] {
+                return None;
+            }
+        } else {
+            let inv = 1.0 / d;
+            let (ta, tb) = ((lo[a] - o) * inv, (hi[a] - o) * inv);
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+    }
+    (t0 < t1).then_some((t0, t1))
 }
 
 /// Renders one colour channel of `medium` as seen by `camera`. Each pixel is the mean of
