@@ -901,6 +901,15 @@ impl Scene {
         self.cameras.iter().find(|c| c.name == name)
     }
 
+    /// The raw data values with their dims (what `volrad export` writes), when the medium
+    /// was loaded from data.
+    pub fn volume_data(&self) -> Option<VolumeData> {
+        self.medium.data.as_ref().map(|values| VolumeData {
+            dims: self.medium.grid.dims,
+            values: values.clone(),
+        })
+    }
+
     /// Reads and validates a scene file; paths inside are relative to the file's directory.
     pub fn from_file(path: &Path) -> Result<Scene, MediumError> {
         let text = std::fs::read_to_string(path).map_err(|source| MediumError::Io {

@@ -920,3 +920,37 @@ fn problems_are_reported_in_file_order_and_cameras_found_by_name() {
     assert_eq!(s.camera("side").unwrap().eye.x, -10.0);
     assert!(s.camera("top").is_none());
 }
+
+#[test]
+fn sections_of_the_wrong_shape_are_refused_and_volume_data_is_kept() {
+    let single_light = "[light]\nkind = \"directional\"\ndirection = [0, -1, 0]\nirradiance = 1\n";
+    assert_refused(
+        "light-table",
+        &scene_text(&[VOLUME, MEDIUM, single_light, CAMERA]),
+        "light",
+        &["[[light]]"],
+    );
+    assert_refused(
+        "vol-array",
+        &scene_text(&["[[volume]]\nfile = \"vol.f32\"\n", MEDIUM, LIGHT, CAMERA]),
+        "volume",
+        &["expected a table"],
+    );
+    let dir = scratch("data");
+    write_volume(&dir);
+    let s = parse_in(
+        &dir,
+        &scene_text(&[
+            &format!("{VOLUME}sigma_t_scale = 5.0\n"),
+            MEDIUM,
+            LIGHT,
+            CAMERA,
+        ]),
+    )
+    .unwrap();
+    let data = s.volume_data().unwrap();
+    assert_eq!(data.dims, [4, 3, 2]);
+    // The raw values, not σt.
+    assert_eq!(data.values[12], 12.0 / 24.0);
+    assert_eq!(s.medium.channels[0].sigma_t[12], 5.0 * 12.0 / 24.0);
+}
