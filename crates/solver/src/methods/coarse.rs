@@ -1,0 +1,244 @@
+//! The two-level method: a smoother plus a Galerkin coarse-grid correction on aggregates
+//! (additive coarse-mesh rebalance).
+//!
+//! With `P` the piecewise-constant prolongation from aggregates and restriction `Pᵀ`
+//! (summation), the coarse system `Pᵀ (I − K) P e = Pᵀ r` says that, on every aggregate, what
+//! is added equals what is scattered in plus the missing source: the aggregate's energy
+//! balance. It removes the smooth, slowly decaying error that Jacobi and Gauss–Seidel leave
+//! when the albedo approaches 1.
+
+use crate::error::SolveError;
+use crate::operator::TransportOperator;
+use crate::options::Smoother;
+use crate::solve::{Ctx, Stop};
+use crate::vecops::for_each_mut;
+
+/// Aggregates when the operator gives none and can list its entries: contiguous blocks of
+/// unknowns, about this many unknowns each (capped by [`MAX_DEFAULT_AGGREGATES`]).
+pub const DEFAULT_AGGREGATE_SIZE: usize = 512;
+/// Cap on the default aggregate count (the coarse matrix is dense and factorised by LU).
+pub const MAX_DEFAULT_AGGREGATES: usize = 512;
+/// Default aggregate count when the coarse operator must be probed with one application of
+/// `K` per aggregate (the operator has neither entries nor its own coarse operator).
+pub const PROBED_DEFAULT_AGGREGATES: usize = 16;
+
+/// Contiguous blocks `0..n` split into `count` nearly equal aggregates.
+pub fn contiguous_aggregates(n: usize, count: usize) -> Vec<u32> {
+    let count = count.clamp(1, n.max(1));
+    (0..n).map(|i| (i * count / n.max(1)) as u32).collect()
+}
+
+fn has_entries(op: &dyn TransportOperator) -> bool {
+    op.len() > 0
+        && op
+            .rows()
+            .is_some_and(|rows| rows.for_each_in_row(0, &mut |_, _| {}))
+}
+
+fn check_aggregates(aggs: &[u32], n: usize) -> Result<usize, SolveError> {
+    let bad = |reason: String| SolveError::InvalidOperatorData {
+        what: "coarse aggregates",
+        reason,
+    };
+    if aggs.len() != n {
+        return Err(bad(format!("length {} for {n} unknowns", aggs.len())));
+    }
+    let nc = aggs.iter().max().map_or(0, |&m| m as usize + 1);
+    let mut used = vec![false; nc];
+    aggs.iter().for_each(|&a| used[a as usize] = true);
+    if let Some(c) = used.iter().position(|u| !u) {
+        return Err(bad(format!("aggregate {c} of 0..{nc} has no unknowns")));
+    }
+    Ok(nc)
+}
+
+/// `Pᵀ K P`, dense row-major.
+fn coarse_k(ctx: &mut Ctx<'_>, aggs: &[u32], nc: usize) -> Result<Vec<f64>, SolveError> {
+    let op = ctx.op;
+    let n = aggs.len();
+    if let Some(kc) = op.coarse_operator(aggs, nc) {
+        if kc.len() != nc * nc || kc.iter().any(|v| !v.is_finite()) {
+            return Err(SolveError::InvalidOperatorData {
+                what: "coarse operator",
+                reason: format!("expected {} finite entries, got {}", nc * nc, kc.len()),
+            });
+        }
+        return Ok(kc);
+    }
+    let mut kc = vec![0.0; nc * nc];
+    if has_entries(op) {
+        let rows = op.rows().expect("checked");
+        for i in 0..n {
+            let row = &mut kc[aggs[i] as usize * nc..][..nc];
+            rows.for_each_in_row(i, &mut |j, v| row[aggs[j] as usize] += v);
+        }
+        return Ok(kc);
+    }
+    if nc > 64 {
+        tracing::warn!(
+            nc,
+            "probing the coarse operator with one application per aggregate"
+        );
+    }
+    let mut x = vec![0.0; n];
+    let mut y = vec![0.0; n];
+    for c in 0..nc {
+        for (xi, &a) in x.iter_mut().zip(aggs) {
+            *xi = if a as usize == c { 1.0 } else { 0.0 };
+        }
+        ctx.apply(&x, &mut y);
+        for (yi, &a) in y.iter().zip(aggs) {
+            kc[a as usize * nc + c] += yi;
+        }
+    }
+    Ok(kc)
+}
+
+/// Dense LU with partial pivoting, in place; `None` if numerically singular.
+struct Lu {
+    n: usize,
+    a: Vec<f64>,
+    perm: Vec<usize>,
+}
+
+impl Lu {
+    fn factor(mut a: Vec<f64>, n: usize) -> Option<Self> {
+        let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let mut perm: Vec<usize> = (0..n).collect();
+        for k in 0..n {
+            let p = (k..n)
+                .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
+                .expect("non-empty");
+            if !(a[p * n + k].abs() > 1e-13 * scale) {
+                return None;
+            }
+            if p != k {
+                for c in 0..n {
+                    a.swap(k * n + c, p * n + c);
+                }
+                perm.swap(k, p);
+            }
+            let pivot = a[k * n + k];
+            for i in k + 1..n {
+                let f = a[i * n + k] / pivot;
+                a[i * n + k] = f;
+                if f != 0.0 {
+                    for c in k + 1..n {
+                        a[i * n + c] -= f * a[k * n + c];
+                    }
+                }
+            }
+        }
+        Some(Self { n, a, perm })
+    }
+
+    /// Solves in place: `b` is overwritten by the solution (uses `tmp` as scratch).
+    fn solve(&self, b: &mut [f64], tmp: &mut [f64]) {
+        let n = self.n;
+        for i in 0..n {
+            tmp[i] = b[self.perm[i]];
+        }
+        for i in 0..n {
+            let mut s = tmp[i];
+            for c in 0..i {
+                s -= self.a[i * n + c] * tmp[c];
+            }
+            tmp[i] = s;
+        }
+        for i in (0..n).rev() {
+            let mut s = tmp[i];
+            for c in i + 1..n {
+                s -= self.a[i * n + c] * tmp[c];
+            }
+            tmp[i] = s / self.a[i * n + i];
+        }
+        b.copy_from_slice(tmp);
+    }
+}
+
+/// One cycle per iteration: residual (one application) → coarse correction → one smoother
+/// step (a Jacobi step costs another application; Gauss–Seidel/SOR one sweep).
+pub(crate) fn two_level(
+    ctx: &mut Ctx<'_>,
+    g: &mut [f64],
+    inner: Smoother,
+    name: String,
+) -> Result<Stop, SolveError> {
+    let op = ctx.op;
+    let n = g.len();
+    let default_aggs;
+    let aggs: &[u32] = match op.coarse_aggregates() {
+        Some(a) => a,
+        None => {
+            let count = if has_entries(op) {
+                (n / DEFAULT_AGGREGATE_SIZE).clamp(1, MAX_DEFAULT_AGGREGATES)
+            } else {
+                PROBED_DEFAULT_AGGREGATES
+            };
+            default_aggs = contiguous_aggregates(n, count);
+            &default_aggs
+        }
+    };
+    let nc = check_aggregates(aggs, n)?;
+    let lu = if nc == 0 {
+        None
+    } else {
+        let mut ac = coarse_k(ctx, aggs, nc)?;
+        ac.iter_mut().for_each(|v| *v = -*v);
+        for &a in aggs {
+            ac[a as usize * (nc + 1)] += 1.0;
+        }
+        let lu = Lu::factor(ac, nc);
+        if lu.is_none() {
+            tracing::warn!("coarse operator is singular (no leakage at albedo 1?): smoothing only");
+        }
+        lu
+    };
+    let omega = match inner {
+        Smoother::Jacobi => None,
+        Smoother::GaussSeidel => Some(1.0),
+        Smoother::Sor { omega } => Some(omega),
+    };
+    let mut kg = vec![0.0; n];
+    let mut r = vec![0.0; n];
+    let mut rc = vec![0.0; nc];
+    let mut tmp = vec![0.0; nc];
+    let mut k = 0;
+    loop {
+        let rel = ctx.residual(g, &mut kg, &mut r);
+        if let Some(reason) = ctx.mon.observe(k, rel) {
+            return Ok(Stop {
+                reason,
+                true_residual: Some(rel),
+            });
+        }
+        if let Some(lu) = &lu {
+            rc.iter_mut().for_each(|v| *v = 0.0);
+            for (&a, &ri) in aggs.iter().zip(&r) {
+                rc[a as usize] += ri;
+            }
+            lu.solve(&mut rc, &mut tmp);
+            for (gi, &a) in g.iter_mut().zip(aggs) {
+                *gi += rc[a as usize];
+            }
+        }
+        match omega {
+            None => {
+                ctx.apply(g, &mut kg);
+                let source = ctx.source;
+                let kg: &[f64] = &kg;
+                for_each_mut(g, |i, _| source[i] + kg[i]);
+            }
+            Some(omega) => {
+                if !op.sweep_in_place(g, ctx.source, omega) {
+                    return Err(SolveError::Unsupported {
+                        method: name,
+                        needs: "row access or an in-place sweep for its smoother",
+                    });
+                }
+                ctx.sweeps += 1;
+            }
+        }
+        k += 1;
+    }
+}

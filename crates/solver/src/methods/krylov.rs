@@ -1,0 +1,309 @@
+//! Krylov methods on `A = I − K`: restarted GMRES, BiCGSTAB, and conjugate gradients in the
+//! operator's symmetrizing inner product.
+
+use crate::report::StopReason;
+use crate::solve::{Ctx, Stop};
+use crate::vecops::for_each_mut;
+
+/// `y = (I − K) x`.
+fn apply_a(ctx: &mut Ctx<'_>, x: &[f64], y: &mut [f64]) {
+    ctx.apply(x, y);
+    for_each_mut(y, |i, kx| x[i] - kx);
+}
+
+/// `r = E − A x`; returns the relative residual.
+fn residual(ctx: &mut Ctx<'_>, x: &[f64], r: &mut [f64]) -> f64 {
+    apply_a(ctx, x, r);
+    let source = ctx.source;
+    let r2 = ctx.red.update(r, |off, chunk| {
+        let mut s = 0.0;
+        for (i, v) in chunk.iter_mut().enumerate() {
+            *v = source[off + i] - *v;
+            s += *v * *v;
+        }
+        s
+    });
+    r2.sqrt() / ctx.scale
+}
+
+/// `y += a x`.
+fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
+    for_each_mut(y, |i, v| v + a * x[i]);
+}
+
+/// GMRES(m), modified Gram–Schmidt, Givens rotations. One application per iteration; the
+/// least-squares residual is the estimate, confirmed by a true residual at each restart.
+pub(crate) fn gmres(ctx: &mut Ctx<'_>, x: &mut [f64], m: usize) -> Stop {
+    let n = x.len();
+    let mut basis: Vec<Vec<f64>> = (0..=m).map(|_| vec![0.0; n]).collect();
+    let mut w = vec![0.0; n];
+    // Hessenberg column-major: h[j] has m+1 entries.
+    let mut h = vec![vec![0.0; m + 1]; m];
+    let mut cs = vec![0.0; m];
+    let mut sn = vec![0.0; m];
+    let mut rhs = vec![0.0; m + 1];
+    let mut y = vec![0.0; m];
+    let mut k = 0;
+    let mut first = true;
+    loop {
+        let rel = residual(ctx, x, &mut basis[0]);
+        if first {
+            first = false;
+            if let Some(reason) = ctx.mon.observe(0, rel) {
+                return Stop {
+                    reason,
+                    true_residual: Some(rel),
+                };
+            }
+        } else if rel <= ctx.mon.tolerance {
+            return Stop {
+                reason: StopReason::Converged,
+                true_residual: Some(rel),
+            };
+        } else if let Some(reason) = ctx.mon.limits() {
+            return Stop {
+                reason,
+                true_residual: Some(rel),
+            };
+        }
+        let beta = rel * ctx.scale;
+        if beta == 0.0 {
+            return Stop {
+                reason: StopReason::Converged,
+                true_residual: Some(0.0),
+            };
+        }
+        for_each_mut(&mut basis[0], |_, v| v / beta);
+        rhs.iter_mut().for_each(|v| *v = 0.0);
+        rhs[0] = beta;
+        let mut used = 0;
+        let mut stop = None;
+        for j in 0..m {
+            apply_a(ctx, &basis[j], &mut w);
+            for i in 0..=j {
+                let hij = ctx.red.dot(&w, &basis[i]);
+                h[j][i] = hij;
+                axpy(&mut w, -hij, &basis[i]);
+            }
+            let hnext = ctx.red.norm(&w);
+            h[j][j + 1] = hnext;
+            for i in 0..j {
+                let (a, b) = (h[j][i], h[j][i + 1]);
+                h[j][i] = cs[i] * a + sn[i] * b;
+                h[j][i + 1] = -sn[i] * a + cs[i] * b;
+            }
+            let (a, b) = (h[j][j], h[j][j + 1]);
+            let d = a.hypot(b);
+            let (c, s) = if d == 0.0 { (1.0, 0.0) } else { (a / d, b / d) };
+            cs[j] = c;
+            sn[j] = s;
+            h[j][j] = d;
+            h[j][j + 1] = 0.0;
+            rhs[j + 1] = -s * rhs[j];
+            rhs[j] *= c;
+            used = j + 1;
+            k += 1;
+            let estimate = rhs[j + 1].abs() / ctx.scale;
+            // Happy breakdown: the Krylov space is invariant, the solution is in it.
+            let invariant = hnext <= 1e-14 * beta;
+            if let Some(reason) = ctx.mon.observe(k, estimate) {
+                stop = Some(reason);
+                break;
+            }
+            if invariant {
+                break;
+            }
+            let bj1 = &mut basis[j + 1];
+            bj1.copy_from_slice(&w);
+            for_each_mut(bj1, |_, v| v / hnext);
+        }
+        // Back substitution for y, then x += V y.
+        for i in (0..used).rev() {
+            let mut s = rhs[i];
+            for l in i + 1..used {
+                s -= h[l][i] * y[l];
+            }
+            y[i] = if h[i][i] != 0.0 { s / h[i][i] } else { 0.0 };
+        }
+        for i in 0..used {
+            axpy(x, y[i], &basis[i]);
+        }
+        match stop {
+            Some(StopReason::Converged) | None => {}
+            Some(reason) => {
+                return Stop {
+                    reason,
+                    true_residual: None,
+                }
+            }
+        }
+        if used == 0 {
+            return Stop {
+                reason: StopReason::Stagnated,
+                true_residual: None,
+            };
+        }
+    }
+}
+
+/// BiCGSTAB (van der Vorst). Two applications per iteration; restarts from the true
+/// residual on breakdown or when the recurrence claims convergence the true residual denies.
+pub(crate) fn bicgstab(ctx: &mut Ctx<'_>, x: &mut [f64]) -> Stop {
+    let n = x.len();
+    let mut r = vec![0.0; n];
+    let mut r_hat = vec![0.0; n];
+    let mut p = vec![0.0; n];
+    let mut v = vec![0.0; n];
+    let mut s = vec![0.0; n];
+    let mut t = vec![0.0; n];
+    let mut k = 0;
+    let mut restarts_without_progress = 0;
+    let mut first = true;
+    'restart: loop {
+        let rel = residual(ctx, x, &mut r);
+        if first {
+            first = false;
+            if let Some(reason) = ctx.mon.observe(0, rel) {
+                return Stop {
+                    reason,
+                    true_residual: Some(rel),
+                };
+            }
+        } else if rel <= ctx.mon.tolerance {
+            return Stop {
+                reason: StopReason::Converged,
+                true_residual: Some(rel),
+            };
+        } else if let Some(reason) = ctx.mon.limits() {
+            return Stop {
+                reason,
+                true_residual: Some(rel),
+            };
+        }
+        if restarts_without_progress > 3 {
+            return Stop {
+                reason: StopReason::Stagnated,
+                true_residual: Some(rel),
+            };
+        }
+        r_hat.copy_from_slice(&r);
+        p.iter_mut().for_each(|x| *x = 0.0);
+        v.iter_mut().for_each(|x| *x = 0.0);
+        let (mut rho, mut alpha, mut omega) = (1.0, 1.0, 1.0);
+        let k_at_restart = k;
+        loop {
+            let rho_new = ctx.red.dot(&r_hat, &r);
+            let rr = ctx.red.dot(&r, &r);
+            if rho_new.abs() <= 1e-30 * rr.max(f64::MIN_POSITIVE) || omega == 0.0 {
+                restarts_without_progress += usize::from(k == k_at_restart) + 1;
+                continue 'restart;
+            }
+            let beta = (rho_new / rho) * (alpha / omega);
+            rho = rho_new;
+            for_each_mut(&mut p, |i, pi| r[i] + beta * (pi - omega * v[i]));
+            apply_a(ctx, &p, &mut v);
+            let rv = ctx.red.dot(&r_hat, &v);
+            if rv == 0.0 || !rv.is_finite() {
+                restarts_without_progress += 1;
+                continue 'restart;
+            }
+            alpha = rho / rv;
+            s.copy_from_slice(&r);
+            axpy(&mut s, -alpha, &v);
+            apply_a(ctx, &s, &mut t);
+            let tt = ctx.red.dot(&t, &t);
+            omega = if tt > 0.0 {
+                ctx.red.dot(&t, &s) / tt
+            } else {
+                0.0
+            };
+            axpy(x, alpha, &p);
+            axpy(x, omega, &s);
+            r.copy_from_slice(&s);
+            axpy(&mut r, -omega, &t);
+            k += 1;
+            restarts_without_progress = 0;
+            let estimate = ctx.red.norm(&r) / ctx.scale;
+            match ctx.mon.observe(k, estimate) {
+                None => {}
+                Some(StopReason::Converged) => continue 'restart,
+                Some(reason) => {
+                    return Stop {
+                        reason,
+                        true_residual: None,
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Conjugate gradients for `A = I − K`, self-adjoint in `⟨x, y⟩_w = Σ w_i x_i y_i` because
+/// `diag(w) K` is symmetric. One application per iteration. Non-positive curvature (the
+/// operator is not contractive, so `A` is not positive definite) ends the solve as Stagnated.
+pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64]) -> Stop {
+    let n = x.len();
+    let mut r = vec![0.0; n];
+    let mut p = vec![0.0; n];
+    let mut q = vec![0.0; n];
+    let mut k = 0;
+    let mut first = true;
+    loop {
+        let rel = residual(ctx, x, &mut r);
+        if first {
+            first = false;
+            if let Some(reason) = ctx.mon.observe(0, rel) {
+                return Stop {
+                    reason,
+                    true_residual: Some(rel),
+                };
+            }
+        } else if rel <= ctx.mon.tolerance {
+            return Stop {
+                reason: StopReason::Converged,
+                true_residual: Some(rel),
+            };
+        } else if let Some(reason) = ctx.mon.limits() {
+            return Stop {
+                reason,
+                true_residual: Some(rel),
+            };
+        }
+        p.copy_from_slice(&r);
+        let mut rz = ctx.red.weighted_dot(w, &r, &r);
+        loop {
+            apply_a(ctx, &p, &mut q);
+            let curvature = ctx.red.weighted_dot(w, &p, &q);
+            if !(curvature > 0.0) {
+                tracing::warn!(
+                    curvature,
+                    "conjugate gradients: I − K is not positive definite"
+                );
+                return Stop {
+                    reason: StopReason::Stagnated,
+                    true_residual: None,
+                };
+            }
+            let alpha = rz / curvature;
+            axpy(x, alpha, &p);
+            axpy(&mut r, -alpha, &q);
+            k += 1;
+            let estimate = ctx.red.norm(&r) / ctx.scale;
+            match ctx.mon.observe(k, estimate) {
+                None => {}
+                // Confirm with the true residual (and restart from it if the recurrence drifted).
+                Some(StopReason::Converged) => break,
+                Some(reason) => {
+                    return Stop {
+                        reason,
+                        true_residual: None,
+                    }
+                }
+            }
+            let rz_new = ctx.red.weighted_dot(w, &r, &r);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for_each_mut(&mut p, |i, pi| r[i] + beta * pi);
+        }
+    }
+}

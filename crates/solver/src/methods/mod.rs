@@ -1,0 +1,5 @@
+//! The iterative methods, each driven by the shared [`Monitor`](crate::solve::Monitor).
+
+pub(crate) mod coarse;
+pub(crate) mod krylov;
+pub(crate) mod stationary;

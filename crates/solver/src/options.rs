@@ -1,0 +1,173 @@
+//! Solve options: the iterative method (parsed from strings such as `"sor:1.5"`) and the
+//! stopping rule.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+/// The smoother inside a [`Method::CoarseCorrected`] two-level iteration.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Smoother {
+    Jacobi,
+    GaussSeidel,
+    Sor { omega: f64 },
+}
+
+/// An iterative method for `(I − K) g = E`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Method {
+    /// `g ← E + K g`; one operator application per iteration, parallel inside `apply`.
+    Jacobi,
+    /// In-place sweeps (rows or the operator's own sweep); sequential.
+    GaussSeidel,
+    /// Over-relaxed Gauss–Seidel, `0 < ω < 2`.
+    Sor { omega: f64 },
+    /// Restarted GMRES(m) with modified Gram–Schmidt; one application per iteration.
+    Gmres { restart: usize },
+    /// BiCGSTAB; two applications per iteration.
+    BiCgStab,
+    /// Conjugate gradients in the inner product `⟨x, y⟩_w = Σ w_i x_i y_i`, where
+    /// `diag(w) K` is symmetric ([`TransportOperator::symmetrizer`](crate::TransportOperator::symmetrizer)).
+    /// Needs `I − K` positive definite in that product, i.e. spectral radius below 1.
+    ConjugateGradient,
+    /// Two-level iteration: a Galerkin coarse-grid correction on aggregates followed by one
+    /// sweep of `inner`. With piecewise-constant prolongation and summation restriction the
+    /// coarse equations are the energy balance of each aggregate: this is additive
+    /// coarse-mesh rebalance, the transport-practice accelerator.
+    CoarseCorrected { inner: Smoother },
+}
+
+/// Default restart length for `"gmres"` without a number.
+pub const DEFAULT_GMRES_RESTART: usize = 30;
+
+/// How to stop and what to record.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SolveOptions {
+    pub method: Method,
+    /// Stop when `‖g − E − K g‖₂ / ‖E‖₂` is at or below this (absolute residual if `E = 0`).
+    pub tolerance: f64,
+    /// Iterations at most (see [`SolveReport::iterations`](crate::SolveReport::iterations)).
+    pub max_iterations: usize,
+    /// Keep the residual of every iteration in the report.
+    pub record_history: bool,
+}
+
+impl Default for SolveOptions {
+    fn default() -> Self {
+        Self {
+            method: Method::Jacobi,
+            tolerance: 1e-5,
+            max_iterations: 1000,
+            record_history: true,
+        }
+    }
+}
+
+impl Method {
+    /// The method's canonical string (parses back with [`FromStr`]).
+    pub fn name(&self) -> String {
+        self.to_string()
+    }
+}
+
+impl fmt::Display for Smoother {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Smoother::Jacobi => write!(f, "jacobi"),
+            Smoother::GaussSeidel => write!(f, "gs"),
+            Smoother::Sor { omega } => write!(f, "sor:{omega}"),
+        }
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Method::Jacobi => write!(f, "jacobi"),
+            Method::GaussSeidel => write!(f, "gauss-seidel"),
+            Method::Sor { omega } => write!(f, "sor:{omega}"),
+            Method::Gmres { restart } => write!(f, "gmres:{restart}"),
+            Method::BiCgStab => write!(f, "bicgstab"),
+            Method::ConjugateGradient => write!(f, "cg"),
+            Method::CoarseCorrected { inner } => write!(f, "coarse-{inner}"),
+        }
+    }
+}
+
+/// A method string that could not be parsed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown solve method {input:?}: {reason} (expected one of jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-jacobi, coarse-gs, coarse-sor:OMEGA)")]
+pub struct ParseMethodError {
+    pub input: String,
+    pub reason: String,
+}
+
+fn parse_omega(input: &str, text: Option<&str>) -> Result<f64, ParseMethodError> {
+    let err = |reason: &str| ParseMethodError {
+        input: input.to_string(),
+        reason: reason.to_string(),
+    };
+    let text = text.ok_or_else(|| err("SOR needs a relaxation factor, e.g. sor:1.5"))?;
+    let omega: f64 = text
+        .parse()
+        .map_err(|_| err("the relaxation factor is not a number"))?;
+    if !(omega > 0.0 && omega < 2.0) {
+        return Err(err(
+            "the relaxation factor must lie strictly between 0 and 2",
+        ));
+    }
+    Ok(omega)
+}
+
+impl FromStr for Method {
+    type Err = ParseMethodError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let lower = s.trim().to_ascii_lowercase();
+        let (name, arg) = match lower.split_once(':') {
+            Some((n, a)) => (n, Some(a.trim())),
+            None => (lower.as_str(), None),
+        };
+        let err = |reason: &str| ParseMethodError {
+            input: s.to_string(),
+            reason: reason.to_string(),
+        };
+        let no_arg = |m: Method| match arg {
+            None => Ok(m),
+            Some(_) => Err(err("this method takes no parameter")),
+        };
+        match name.trim() {
+            "jacobi" => no_arg(Method::Jacobi),
+            "gauss-seidel" | "gs" | "gaussseidel" => no_arg(Method::GaussSeidel),
+            "sor" => Ok(Method::Sor {
+                omega: parse_omega(s, arg)?,
+            }),
+            "gmres" => {
+                let restart = match arg {
+                    None => DEFAULT_GMRES_RESTART,
+                    Some(t) => t
+                        .parse::<usize>()
+                        .ok()
+                        .filter(|&m| m >= 1)
+                        .ok_or_else(|| err("the GMRES restart must be a positive integer"))?,
+                };
+                Ok(Method::Gmres { restart })
+            }
+            "bicgstab" => no_arg(Method::BiCgStab),
+            "cg" | "conjugate-gradient" => no_arg(Method::ConjugateGradient),
+            "coarse-jacobi" => no_arg(Method::CoarseCorrected {
+                inner: Smoother::Jacobi,
+            }),
+            "coarse-gs" | "coarse-gauss-seidel" => no_arg(Method::CoarseCorrected {
+                inner: Smoother::GaussSeidel,
+            }),
+            "coarse-sor" => Ok(Method::CoarseCorrected {
+                inner: Smoother::Sor {
+                    omega: parse_omega(s, arg)?,
+                },
+            }),
+            _ => Err(err("no such method")),
+        }
+    }
+}
