@@ -1,2 +1,42 @@
-//! Benchmark placeholder: filled in by the issue that owns it.
-fn main() {}
+//! Light-pass speed: one directional light (oblique, the built-in scene's direction) through
+//! the generated 64×64×48 cloud (Max's cloud, seed 7, σt = 0.4 × density), default options
+//! (4×4 rays per cell face, exact corner transmittance). Also an axis-aligned light (one ray
+//! per cell). Run with `cargo bench --bench light_pass`.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use glam::DVec3;
+use medium::generators::cloud;
+use medium::light_pass::LightPass;
+use medium::{CellValues, ChannelMedium, Grid, Light};
+
+const SIGMA_T_SCALE: f32 = 0.4;
+
+fn bench_light_pass(c: &mut Criterion) {
+    let dims = [64, 64, 48];
+    let grid = Grid::new(dims, 1.0).unwrap();
+    let channel = ChannelMedium {
+        sigma_t: cloud(dims, 7).iter().map(|d| d * SIGMA_T_SCALE).collect(),
+        albedo: CellValues::Uniform(0.99),
+        emission: CellValues::Uniform(0.0),
+    };
+    let oblique = [Light::Directional {
+        direction: DVec3::new(0.5, -1.0, 0.35),
+        irradiance: 1.0,
+    }];
+    let axis = [Light::Directional {
+        direction: DVec3::new(0.0, -1.0, 0.0),
+        irradiance: 1.0,
+    }];
+    let mut group = c.benchmark_group("light_pass");
+    group.sample_size(20);
+    group.bench_function("cloud64x64x48_directional_oblique", |b| {
+        b.iter(|| LightPass::compute(&grid, &channel, &oblique).unwrap())
+    });
+    group.bench_function("cloud64x64x48_directional_axis", |b| {
+        b.iter(|| LightPass::compute(&grid, &channel, &axis).unwrap())
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_light_pass);
+criterion_main!(benches);
