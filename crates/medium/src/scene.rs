@@ -71,12 +71,54 @@ pub enum SolveMethod {
     None,
 }
 
-/// The linear iteration of `[solve] iteration`.
+/// The linear iteration of `[solve] iteration`. The contract's two are `jacobi` and
+/// `gauss-seidel`; the accelerated ones extend it (`sor:1.5`, `gmres:30`, `bicgstab`, `cg`,
+/// `coarse-gs`, `coarse-jacobi`). The `solver` crate maps these to its methods.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum IterationMethod {
     Jacobi,
     GaussSeidel,
+    Sor { omega: f64 },
+    Gmres { restart: usize },
+    BiCgStab,
+    ConjugateGradient,
+    CoarseJacobi,
+    CoarseGaussSeidel,
+}
+
+/// Spellings of `[solve] iteration`, for messages.
+pub const ITERATION_NAMES: &str =
+    "jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-jacobi, coarse-gs";
+
+impl IterationMethod {
+    /// Parses the scene/command-line spelling; `None` for anything else.
+    pub fn parse(text: &str) -> Option<IterationMethod> {
+        let (name, arg) = match text.split_once(':') {
+            Some((n, a)) => (n.trim(), Some(a.trim())),
+            None => (text.trim(), None),
+        };
+        Some(match (name, arg) {
+            ("jacobi", None) => IterationMethod::Jacobi,
+            ("gauss-seidel" | "gs", None) => IterationMethod::GaussSeidel,
+            ("sor", Some(a)) => {
+                let omega: f64 = a.parse().ok()?;
+                if !(omega > 0.0 && omega < 2.0) {
+                    return None;
+                }
+                IterationMethod::Sor { omega }
+            }
+            ("gmres", None) => IterationMethod::Gmres { restart: 30 },
+            ("gmres", Some(a)) => IterationMethod::Gmres {
+                restart: a.parse().ok().filter(|&r: &usize| r >= 1)?,
+            },
+            ("bicgstab", None) => IterationMethod::BiCgStab,
+            ("cg", None) => IterationMethod::ConjugateGradient,
+            ("coarse-jacobi", None) => IterationMethod::CoarseJacobi,
+            ("coarse-gs" | "coarse-gauss-seidel", None) => IterationMethod::CoarseGaussSeidel,
+            _ => return None,
+        })
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -1259,18 +1301,13 @@ impl Ctx<'_> {
                     out.bins = bins;
                 }
                 if let Some(it) = &s.iteration {
-                    out.iteration = match self.string(it, "solve.iteration")? {
-                        "gauss-seidel" => IterationMethod::GaussSeidel,
-                        "jacobi" => IterationMethod::Jacobi,
-                        other => {
-                            return Err(self.err(
-                                "solve.iteration",
-                                format!(
-                                    "unknown iteration `{other}` (expected gauss-seidel or jacobi)"
-                                ),
-                            ))
-                        }
-                    };
+                    let text = self.string(it, "solve.iteration")?;
+                    out.iteration = IterationMethod::parse(text).ok_or_else(|| {
+                        self.err(
+                            "solve.iteration",
+                            format!("unknown iteration `{text}` (expected one of {ITERATION_NAMES})"),
+                        )
+                    })?;
                 }
                 if let Some(t) = &s.tolerance {
                     out.tolerance = self.positive(t, "solve.tolerance")?;
