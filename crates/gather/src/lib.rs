@@ -16,6 +16,7 @@ pub mod error;
 pub mod image_io;
 pub mod render;
 pub mod scattering;
+pub mod single_scatter;
 
 pub use camera::{Camera, CameraProjection};
 pub use error::GatherError;
