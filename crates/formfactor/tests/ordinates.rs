@@ -1,0 +1,436 @@
+//! Discrete ordinates: bins, phase matrix, sweep conservation, the assembled reference,
+//! full-solve energy balance and the infinite-medium limit.
+
+use std::f64::consts::PI;
+
+use formfactor::ordinates::bins::rectangle_solid_angle;
+use formfactor::ordinates::phase_matrix::{bin_averaged_phase, phase_matrix_error};
+use formfactor::ordinates::{
+    AssembledOrdinates, DirectionBins, OrdinatesError, OrdinatesOperator, OrdinatesOptions,
+    PhaseMatrix,
+};
+use glam::DVec3;
+use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use rand::{Rng, SeedableRng};
+use solver::operator::TransportOperator;
+
+fn rng(seed: u64) -> rand_pcg::Pcg64Mcg {
+    rand_pcg::Pcg64Mcg::seed_from_u64(seed)
+}
+
+fn random_direction(r: &mut impl Rng) -> DVec3 {
+    let z: f64 = 1.0 - 2.0 * r.random::<f64>();
+    let phi = 2.0 * PI * r.random::<f64>();
+    let s = (1.0 - z * z).sqrt();
+    DVec3::new(s * phi.cos(), s * phi.sin(), z)
+}
+
+/// A heterogeneous channel: smooth σt with some empty cells, varying albedo.
+fn blob_channel(grid: &Grid, peak: f64, albedo: f32) -> ChannelMedium {
+    let c = grid.center();
+    let r = grid.extent().min_element() * 0.5;
+    let sigma_t = (0..grid.cell_count())
+        .map(|i| {
+            let d = (grid.cell_center(i) - c).length() / r;
+            (peak * (1.0 - d * d).max(0.0)) as f32
+        })
+        .collect();
+    let alb = (0..grid.cell_count())
+        .map(|i| albedo * (0.8 + 0.2 * ((i * 7919) % 13) as f32 / 13.0))
+        .collect();
+    ChannelMedium {
+        sigma_t,
+        albedo: CellValues::PerCell(alb),
+        emission: CellValues::Uniform(0.0),
+    }
+}
+
+#[test]
+fn solid_angles_sum_to_four_pi() {
+    for n in 1..=8 {
+        let bins = DirectionBins::cube(n).unwrap();
+        assert_eq!(bins.len(), 6 * n * n);
+        let total: f64 = bins.solid_angles().iter().sum();
+        assert!((total - 4.0 * PI).abs() < 1e-12, "n = {n}: {total}");
+        assert!(bins.solid_angles().iter().all(|&w| w > 0.0));
+    }
+    assert_eq!(DirectionBins::max96().len(), 96);
+    // One face of a cube subtends 4π/6.
+    assert!((rectangle_solid_angle(-1.0, 1.0, -1.0, 1.0, 1.0) - 4.0 * PI / 6.0).abs() < 1e-14);
+}
+
+#[test]
+fn refuses_bad_face_divisions() {
+    assert_eq!(
+        DirectionBins::cube(0).unwrap_err(),
+        OrdinatesError::FaceDivisions(0)
+    );
+    assert_eq!(
+        DirectionBins::cube(9).unwrap_err(),
+        OrdinatesError::FaceDivisions(9)
+    );
+}
+
+#[test]
+fn bin_of_is_consistent_with_bin_boundaries() {
+    let mut r = rng(5);
+    for n in [1, 3, 4, 7] {
+        let bins = DirectionBins::cube(n).unwrap();
+        // Every bin's centre lies in that bin.
+        for (l, c) in bins.centres().iter().enumerate() {
+            assert_eq!(bins.bin_of(*c), l, "n {n}: centre of bin {l}");
+            assert!((c.length() - 1.0).abs() < 1e-12);
+        }
+        // A random direction's bin is the rectangle its ray pierces on the cube face.
+        for _ in 0..2000 {
+            let d = random_direction(&mut r);
+            let l = bins.bin_of(d * 3.7);
+            let rect = bins.rect(l);
+            let axis = rect.face / 2;
+            let sign = if rect.face % 2 == 0 { 1.0 } else { -1.0 };
+            let a = d.to_array();
+            assert!(a[axis] * sign > 0.0);
+            let p = d / (a[axis] * sign);
+            let pa = p.to_array();
+            let (u, v) = (pa[(axis + 1) % 3], pa[(axis + 2) % 3]);
+            assert!(pa.iter().all(|x| x.abs() <= 1.0 + 1e-12));
+            assert!(
+                u >= rect.u[0] - 1e-12 && u <= rect.u[1] + 1e-12,
+                "u {u} {rect:?}"
+            );
+            assert!(
+                v >= rect.v[0] - 1e-12 && v <= rect.v[1] + 1e-12,
+                "v {v} {rect:?}"
+            );
+        }
+        // Bin frequency of uniform directions ∝ solid angle.
+        let samples = 200_000;
+        let mut hist = vec![0usize; bins.len()];
+        for _ in 0..samples {
+            hist[bins.bin_of(random_direction(&mut r))] += 1;
+        }
+        for (l, &h) in hist.iter().enumerate() {
+            let p = bins.solid_angles()[l] / (4.0 * PI);
+            let sigma = (p * (1.0 - p) / samples as f64).sqrt();
+            assert!(
+                (h as f64 / samples as f64 - p).abs() < 5.0 * sigma,
+                "bin {l}"
+            );
+        }
+    }
+}
+
+#[test]
+fn phase_matrix_keeps_energy_and_mean_cosine() {
+    let bins = DirectionBins::max96();
+    for g in [0.0, 0.6, 0.85] {
+        let phase = PhaseFunction::HenyeyGreenstein { g };
+        let pm = PhaseMatrix::with_default_quadrature(&bins, &phase);
+        let err = phase_matrix_error(&bins, &pm, &phase);
+        println!("96 bins, g = {g}: {err:?}");
+        assert!(err.energy < 1e-12, "g {g}: energy error {}", err.energy);
+        assert!(pm.values().iter().all(|&v| v >= 0.0));
+        // Discrete mean cosine within 5 % of g (bins ~20° wide smear the peak slightly).
+        assert!(
+            (err.mean_cosine - g).abs() < 0.05 * g + 1e-3,
+            "g {g}: {}",
+            err.mean_cosine
+        );
+        // Reciprocity of the continuous kernel: P_lj ≈ P_jl before renormalisation shifts.
+        let m = bins.len();
+        for l in 0..m {
+            for j in 0..m {
+                let (a, b) = (pm.get(l, j), pm.get(j, l));
+                assert!(
+                    (a - b).abs() <= 0.05 * a.max(b),
+                    "g {g}: P[{l},{j}] {a} vs {b}"
+                );
+            }
+        }
+    }
+    // Isotropic scattering is exactly 1/4π.
+    let pm = PhaseMatrix::new(&bins, &PhaseFunction::Isotropic, 3);
+    assert!(pm.values().iter().all(|v| (v - 0.25 / PI).abs() < 1e-14));
+}
+
+#[test]
+fn first_bounce_bin_averages_keep_energy_and_peak_forward() {
+    let bins = DirectionBins::max96();
+    let d = DVec3::new(0.3, -0.2, -0.9).normalize();
+    let p = bin_averaged_phase(&bins, &PhaseFunction::HenyeyGreenstein { g: 0.85 }, d, 12);
+    let total: f64 = p.iter().zip(bins.solid_angles()).map(|(a, b)| a * b).sum();
+    assert!((total - 1.0).abs() < 1e-12);
+    let max_bin = (0..bins.len())
+        .max_by(|&a, &b| p[a].total_cmp(&p[b]))
+        .unwrap();
+    assert_eq!(max_bin, bins.bin_of(d));
+}
+
+fn operator(
+    grid: Grid,
+    channel: &ChannelMedium,
+    g: f64,
+    n: usize,
+    periodic: bool,
+) -> OrdinatesOperator {
+    OrdinatesOperator::from_channel(
+        grid,
+        channel,
+        PhaseFunction::HenyeyGreenstein { g },
+        DirectionBins::cube(n).unwrap(),
+        OrdinatesOptions {
+            periodic_xy: periodic,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+}
+
+#[test]
+fn one_sweep_conserves_energy() {
+    let mut r = rng(9);
+    for (dims, n, periodic) in [
+        ([7, 5, 6], 4, false),
+        ([6, 6, 4], 3, false),
+        ([4, 3, 5], 4, true),
+    ] {
+        let grid = Grid::new(dims, 0.7).unwrap();
+        let ch = blob_channel(&grid, 3.0, 0.9);
+        let op = operator(grid, &ch, 0.7, n, periodic);
+        let density: Vec<f64> = (0..op.len()).map(|_| r.random::<f64>()).collect();
+        let mut out = vec![0.0; op.len()];
+        let e = op.transport(&density, &mut out);
+        let imbalance = (e.emitted - e.extinguished - e.escaped_total()).abs() / e.emitted;
+        assert!(imbalance < 1e-10, "{dims:?}: {e:?}");
+        // Extinguished power computed from the returned radiances agrees.
+        let m = op.bins().len();
+        let v = grid.cell_volume();
+        let from_radiance: f64 = (0..grid.cell_count())
+            .map(|c| {
+                op.sigma_t()[c]
+                    * v
+                    * (0..m)
+                        .map(|l| out[c * m + l] * op.bins().solid_angles()[l])
+                        .sum::<f64>()
+            })
+            .sum();
+        assert!((from_radiance - e.extinguished).abs() < 1e-10 * e.extinguished);
+        if periodic {
+            assert!(e.escaped[..4].iter().all(|&x| x == 0.0));
+        }
+    }
+}
+
+#[test]
+fn empty_grid_transmits_everything_and_extinguishes_nothing() {
+    let grid = Grid::new([4, 4, 4], 1.0).unwrap();
+    let ch = ChannelMedium {
+        sigma_t: vec![0.0; 64],
+        albedo: CellValues::Uniform(0.5),
+        emission: CellValues::Uniform(0.0),
+    };
+    let op = operator(grid, &ch, 0.0, 2, false);
+    let density = vec![1.0; op.len()];
+    let mut out = vec![0.0; op.len()];
+    let e = op.transport(&density, &mut out);
+    assert_eq!(e.extinguished, 0.0);
+    // Emitted: e · V · 4π per cell.
+    assert!((e.emitted - 64.0 * 4.0 * PI).abs() < 1e-9);
+    assert!((e.escaped_total() - e.emitted).abs() < 1e-9 * e.emitted);
+}
+
+#[test]
+fn assembled_matrix_agrees_with_sweeps() {
+    let mut r = rng(21);
+    for (dims, n, g) in [
+        ([3, 4, 3], 2, 0.6),
+        ([3, 2, 2], 4, 0.85),
+        ([2, 3, 3], 3, 0.3),
+    ] {
+        let grid = Grid::new(dims, 1.3).unwrap();
+        let ch = blob_channel(&grid, 4.0, 0.95);
+        // Make every cell scatter so that all columns are present.
+        let ch = ChannelMedium {
+            sigma_t: ch.sigma_t.iter().map(|s| s + 0.3).collect(),
+            ..ch
+        };
+        let op = operator(grid, &ch, g, n, false);
+        let asm = AssembledOrdinates::from_operator(&op).unwrap();
+        assert_eq!(asm.len(), op.len());
+        let x: Vec<f64> = (0..op.len()).map(|_| r.random::<f64>()).collect();
+        let mut y1 = vec![0.0; op.len()];
+        let mut y2 = vec![0.0; op.len()];
+        op.apply(&x, &mut y1);
+        asm.apply(&x, &mut y2);
+        let scale = y1.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+        for (a, b) in y1.iter().zip(&y2) {
+            assert!((a - b).abs() < 1e-12 * scale, "{dims:?} n {n}: {a} vs {b}");
+        }
+    }
+}
+
+#[test]
+fn assembled_refuses_periodic_and_large() {
+    let grid = Grid::new([2, 2, 2], 1.0).unwrap();
+    let ch = blob_channel(&grid, 1.0, 0.5);
+    assert!(AssembledOrdinates::from_operator(&operator(grid, &ch, 0.0, 2, true)).is_err());
+    let grid = Grid::new([8, 8, 8], 1.0).unwrap();
+    let ch = blob_channel(&grid, 1.0, 0.5);
+    assert!(AssembledOrdinates::from_operator(&operator(grid, &ch, 0.0, 4, false)).is_err());
+}
+
+/// Source iteration `x ← E + K x` to a relative change of `tol`; returns (x, iterations).
+fn jacobi(op: &OrdinatesOperator, e: &[f64], tol: f64) -> (Vec<f64>, usize) {
+    let mut x = e.to_vec();
+    let mut y = vec![0.0; x.len()];
+    let norm: f64 = e.iter().map(|v| v * v).sum::<f64>().sqrt();
+    for it in 1..=5000 {
+        op.apply(&x, &mut y);
+        let mut change = 0.0;
+        for i in 0..x.len() {
+            let new = e[i] + y[i];
+            change += (new - x[i]) * (new - x[i]);
+            x[i] = new;
+        }
+        if change.sqrt() < tol * norm {
+            return (x, it);
+        }
+    }
+    panic!("no convergence");
+}
+
+#[test]
+fn full_solve_balances_first_bounce_and_emission() {
+    let grid = Grid::new([8, 7, 6], 1.0).unwrap();
+    let mut ch = blob_channel(&grid, 2.5, 0.95);
+    ch.emission = CellValues::PerCell(
+        (0..grid.cell_count())
+            .map(|i| (i % 5) as f32 * 0.01)
+            .collect(),
+    );
+    let op = operator(grid, &ch, 0.85, 4, false);
+    // A directional light from above-left with a made-up smooth irradiance field.
+    let irradiance: Vec<f64> = (0..grid.cell_count())
+        .map(|c| (-0.3 * grid.coords(c)[0] as f64).exp())
+        .collect();
+    let emission: Vec<f64> = (0..grid.cell_count())
+        .map(|i| ch.emission.get(i) as f64)
+        .collect();
+    let dir = DVec3::new(0.5, 0.2, -0.8).normalize();
+    let external = op
+        .external_density(Some(&emission), &[(dir, &irradiance)])
+        .unwrap();
+    let mut e = vec![0.0; op.len()];
+    op.transport(&external, &mut e);
+    let (x, iters) = jacobi(&op, &e, 1e-9);
+    let b = op.energy_balance(&x, &external);
+    // Source power = emission V 4π + σs V irradiance.
+    let expect: f64 = (0..grid.cell_count())
+        .map(|c| emission[c] * 4.0 * PI + op.sigma_s()[c] * irradiance[c])
+        .sum::<f64>()
+        * grid.cell_volume();
+    assert!((b.source - expect).abs() < 1e-10 * expect);
+    assert!(
+        b.relative_imbalance() < 1e-4,
+        "{b:?} after {iters} iterations"
+    );
+    assert!(b.absorbed > 0.0 && b.escaped.iter().all(|&v| v > 0.0));
+}
+
+#[test]
+fn gauss_seidel_reaches_the_jacobi_solution_in_fewer_sweeps() {
+    let grid = Grid::new([6, 6, 5], 1.0).unwrap();
+    let ch = blob_channel(&grid, 3.0, 0.98);
+    let op = operator(grid, &ch, 0.6, 4, false);
+    let irradiance = vec![1.0; grid.cell_count()];
+    let external = op
+        .external_density(None, &[(DVec3::NEG_Z, &irradiance)])
+        .unwrap();
+    let mut e = vec![0.0; op.len()];
+    op.transport(&external, &mut e);
+    let (xj, jac_iters) = jacobi(&op, &e, 1e-10);
+    let mut g = e.clone();
+    let mut gs_iters = 0;
+    let norm: f64 = e.iter().map(|v| v * v).sum::<f64>().sqrt();
+    for it in 1..=5000 {
+        let before = g.clone();
+        assert!(op.sweep_in_place(&mut g, &e, 1.0));
+        let change: f64 = g
+            .iter()
+            .zip(&before)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        if change < 1e-10 * norm {
+            gs_iters = it;
+            break;
+        }
+    }
+    assert!(
+        gs_iters > 0 && gs_iters <= jac_iters,
+        "GS {gs_iters}, Jacobi {jac_iters}"
+    );
+    let scale = xj.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    for (a, b) in xj.iter().zip(&g) {
+        assert!((a - b).abs() < 1e-7 * scale);
+    }
+}
+
+/// Deep inside a thick periodic slab with uniform emission, radiance is isotropic and equals
+/// `e / (σt (1 − a))` whatever the phase function.
+#[test]
+fn infinite_medium_limit() {
+    let nz = 48;
+    let grid = Grid::new([1, 1, nz], 1.0).unwrap();
+    let (sigma, albedo, emission) = (1.0f32, 0.5f32, 0.2f64);
+    let ch = ChannelMedium {
+        sigma_t: vec![sigma; nz],
+        albedo: CellValues::Uniform(albedo),
+        emission: CellValues::Uniform(emission as f32),
+    };
+    for g in [0.0, 0.85] {
+        let op = operator(grid, &ch, g, 2, true);
+        let external = op.external_density(Some(&vec![emission; nz]), &[]).unwrap();
+        let mut e = vec![0.0; op.len()];
+        op.transport(&external, &mut e);
+        let (x, _) = jacobi(&op, &e, 1e-11);
+        let expect = emission / (sigma as f64 * (1.0 - albedo as f64));
+        let m = op.bins().len();
+        let centre = &x[(nz / 2) * m..(nz / 2 + 1) * m];
+        for (l, &v) in centre.iter().enumerate() {
+            assert!(
+                (v / expect - 1.0).abs() < 1e-3,
+                "g {g}, bin {l}: {v} vs {expect}"
+            );
+        }
+        let fluence = op.fluence(&x)[nz / 2];
+        assert!((fluence / (4.0 * PI * expect) - 1.0).abs() < 1e-3);
+    }
+}
+
+#[test]
+fn refuses_mismatched_inputs() {
+    let grid = Grid::new([2, 2, 2], 1.0).unwrap();
+    let ch = blob_channel(&grid, 1.0, 0.5);
+    let op = operator(grid, &ch, 0.0, 1, false);
+    assert!(matches!(
+        op.external_density(Some(&[1.0; 3]), &[]),
+        Err(OrdinatesError::Length {
+            what: "emission",
+            ..
+        })
+    ));
+    assert!(op.external_density(None, &[(DVec3::Z, &[1.0; 7])]).is_err());
+    let bad = ChannelMedium {
+        sigma_t: vec![1.0; 5],
+        ..ch
+    };
+    assert!(OrdinatesOperator::from_channel(
+        grid,
+        &bad,
+        PhaseFunction::Isotropic,
+        DirectionBins::cube(1).unwrap(),
+        OrdinatesOptions::default()
+    )
+    .is_err());
+}

@@ -1,0 +1,121 @@
+//! Plane-parallel slab against DISORT (tests/data/disort.json): flux reflectance and diffuse
+//! transmittance of the discrete-ordinates solution, one periodic column of cells.
+
+use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use glam::DVec3;
+use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use solver::operator::TransportOperator;
+
+struct SlabResult {
+    r: f64,
+    t_diffuse: f64,
+    imbalance: f64,
+}
+
+/// Solves a slab of optical depth `tau` with `nz` layers in one periodic column, beam of flux
+/// 1 (on a plane perpendicular to it) at `cos θ0 = mu0` onto the top (+z) face.
+fn solve_slab(tau: f64, albedo: f64, g: f64, mu0: f64, nz: usize, n: usize) -> SlabResult {
+    let grid = Grid::new([1, 1, nz], 1.0).unwrap();
+    let sigma = tau / nz as f64;
+    let channel = ChannelMedium {
+        sigma_t: vec![sigma as f32; nz],
+        albedo: CellValues::Uniform(albedo as f32),
+        emission: CellValues::Uniform(0.0),
+    };
+    let options = OrdinatesOptions {
+        periodic_xy: true,
+        ..Default::default()
+    };
+    let op = OrdinatesOperator::from_channel(
+        grid,
+        &channel,
+        PhaseFunction::HenyeyGreenstein { g },
+        DirectionBins::cube(n).unwrap(),
+        options,
+    )
+    .unwrap();
+    // Exact cell means of E0 T_L for the beam: layer at depth t (from the top) sees
+    // e^{−σ t h/μ0} (1 − e^{−σh/μ0}) / (σh/μ0).
+    let a = sigma / mu0;
+    let irradiance: Vec<f64> = (0..nz)
+        .map(|k| {
+            let depth = (nz - 1 - k) as f64;
+            (-a * depth).exp() * (-(-a).exp_m1()) / a
+        })
+        .collect();
+    let dir = DVec3::new((1.0 - mu0 * mu0).sqrt(), 0.0, -mu0);
+    let external = op.external_density(None, &[(dir, &irradiance)]).unwrap();
+    let len = op.len();
+    let mut e = vec![0.0; len];
+    op.transport(&external, &mut e);
+    // Source iteration I ← E + K I.
+    let mut x = e.clone();
+    let mut y = vec![0.0; len];
+    let norm_e: f64 = e.iter().map(|v| v * v).sum::<f64>().sqrt();
+    for _ in 0..2000 {
+        op.apply(&x, &mut y);
+        let mut change = 0.0;
+        for i in 0..len {
+            let new = e[i] + y[i];
+            change += (new - x[i]) * (new - x[i]);
+            x[i] = new;
+        }
+        if change.sqrt() < 1e-10 * norm_e {
+            break;
+        }
+    }
+    let balance = op.energy_balance(&x, &external);
+    SlabResult {
+        r: balance.escaped[5] / mu0,
+        t_diffuse: balance.escaped[4] / mu0,
+        imbalance: balance.relative_imbalance(),
+    }
+}
+
+fn disort_cases() -> Vec<serde_json::Value> {
+    let text = include_str!("data/disort.json");
+    let v: serde_json::Value = serde_json::from_str(text).unwrap();
+    v["cases"].as_array().unwrap().clone()
+}
+
+#[test]
+#[ignore]
+fn explore_slab_resolution() {
+    let nzs: Vec<usize> = std::env::var("SLAB_NZ")
+        .map(|v| v.split(',').map(|x| x.parse().unwrap()).collect())
+        .unwrap_or(vec![16]);
+    let ns: Vec<usize> = std::env::var("SLAB_N")
+        .map(|v| v.split(',').map(|x| x.parse().unwrap()).collect())
+        .unwrap_or(vec![4]);
+    for &nz in &nzs {
+        for &n in &ns {
+            for case in disort_cases() {
+                if case["tau"].as_f64() != Some(1.0)
+                    || std::env::var("SLAB_G").is_ok_and(|g| case["g"].as_f64() != g.parse().ok())
+                {
+                    continue;
+                }
+                let (a, g, mu0) = (
+                    case["albedo"].as_f64().unwrap(),
+                    case["g"].as_f64().unwrap(),
+                    case["mu0"].as_f64().unwrap(),
+                );
+                let res = solve_slab(1.0, a, g, mu0, nz, n);
+                let (r, t) = (
+                    case["R"].as_f64().unwrap(),
+                    case["T_diffuse"].as_f64().unwrap(),
+                );
+                println!(
+                    "nz {nz} n {n} a {a} g {g} mu0 {mu0}: R {:.4} vs {:.4} ({:+.2}%), T {:.4} vs {:.4} ({:+.2}%), imb {:.1e}",
+                    res.r,
+                    r,
+                    100.0 * (res.r / r - 1.0),
+                    res.t_diffuse,
+                    t,
+                    100.0 * (res.t_diffuse / t - 1.0),
+                    res.imbalance
+                );
+            }
+        }
+    }
+}
