@@ -1,0 +1,1 @@
+//! `montecarlo`: stochastic light transport through volrad's piecewise-constant media.
