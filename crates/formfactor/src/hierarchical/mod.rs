@@ -1,0 +1,519 @@
+//! The hierarchical zonal operator: an octree of cell clusters linked by an error oracle.
+//!
+//! Clusters form a regular pyramid: level 0 is the cells, level `l` the `2^l`-cell blocks. A
+//! cluster carries its interception sum `Σ α_i` (α = 1 − e^{−σt ℓ̄}; extinction in the thin
+//! limit), the largest escape factor `β` of its cells, its α-weighted centroid and its mean
+//! σt (the optical-depth pyramid used for transmittance between clusters).
+//!
+//! Refinement starts from the root pair and splits both clusters of a pair together (so links
+//! join clusters of one level). A pair becomes a link when (Barnes–Hut opening test, then the
+//! oracle) its boxes are more than R cells apart, `ρ = (r_A + r_B)/d ≤ θ`, and the estimated
+//! transferred fraction times the relative transfer error, `m_AB ρ² ≤ tolerance`. Leaf pairs
+//! within R cells use the exact near-field terms of [`crate::zonal`]; other leaf pairs use the
+//! exact far estimate. A link carries `K_AB = G T_AB / d²`, so that `F_ij = α_i β_j K_AB` for
+//! `i ∈ A, j ∈ B`: reciprocal (`F/σt` symmetric) by construction since each unordered pair is
+//! stored once and applied both ways. Column sums are accounted per cell after the build and
+//! any above 1 corrected by the symmetric scaling `D F D` (as for the exact matrix).
+//!
+//! `apply` is pull (gather `β x` up the pyramid), link transfer per level (parallel over
+//! receivers), push (scatter down), plus the near field.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use medium::{traversal::Ray, ChannelMedium, Grid};
+use rayon::prelude::*;
+use solver::TransportOperator;
+
+use crate::zonal::kernel::{escape, geometry_factor, interception, mean_chord, NearStencil};
+use crate::zonal::{
+    active_cells, albedo_vec, check_channel, far_entry, near_columns, near_entry, symmetrizer_weights,
+    validate_near, BuildReport, FormFactorError, NearQuadrature,
+};
+
+/// Options of [`HierarchicalOperator::build`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HierarchicalOptions {
+    pub near: NearQuadrature,
+    /// Bound on `m_AB ρ²` for a link (the one accuracy knob; smaller = more links).
+    pub tolerance: f64,
+    /// Largest opening ratio `(r_A + r_B)/d` of any cluster link.
+    pub max_opening: f64,
+}
+
+impl Default for HierarchicalOptions {
+    fn default() -> Self {
+        HierarchicalOptions {
+            near: NearQuadrature::default(),
+            tolerance: 1e-5,
+            max_opening: 0.8,
+        }
+    }
+}
+
+/// One level of the cluster pyramid.
+#[derive(Clone, Debug)]
+struct Level {
+    dims: [usize; 3],
+    /// Cells per cluster edge, `2^l`.
+    span: usize,
+    alpha_sum: Vec<f64>,
+    beta_max: Vec<f64>,
+    centroid: Vec<DVec3>,
+    sigma_mean: Vec<f32>,
+    /// Links into each cluster (receiver-sorted): `link_ptr[A]..link_ptr[A+1]`.
+    link_ptr: Vec<usize>,
+    link_src: Vec<u32>,
+    link_k: Vec<f32>,
+}
+
+impl Level {
+    fn count(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+    fn coords(&self, c: usize) -> [usize; 3] {
+        [c % self.dims[0], (c / self.dims[0]) % self.dims[1], c / (self.dims[0] * self.dims[1])]
+    }
+    fn index(&self, x: [usize; 3]) -> usize {
+        x[0] + self.dims[0] * (x[1] + self.dims[1] * x[2])
+    }
+}
+
+/// The hierarchical zonal operator `K = diag(a)·F`.
+#[derive(Clone, Debug)]
+pub struct HierarchicalOperator {
+    pub grid: Grid,
+    pub albedo: Vec<f64>,
+    pub report: BuildReport,
+    /// Unordered cluster links per level (level 0 = cell pairs beyond the near radius).
+    pub links_per_level: Vec<usize>,
+    levels: Vec<Level>,
+    alpha: Vec<f64>,
+    beta: Vec<f64>,
+    /// Symmetric energy correction `d` (1 almost everywhere).
+    scale: Vec<f64>,
+    near_ptr: Vec<usize>,
+    near_col: Vec<u32>,
+    near_val: Vec<f64>,
+    weights: Option<Vec<f64>>,
+}
+
+enum Outcome {
+    /// `(level, a, b, K)`.
+    Link(usize, u32, u32, f32),
+    Refine(u32, u32),
+}
+
+impl HierarchicalOperator {
+    pub fn build(grid: &Grid, channel: &ChannelMedium, options: &HierarchicalOptions) -> Result<Self, FormFactorError> {
+        check_channel(grid, channel)?;
+        validate_near(&options.near)?;
+        if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
+            return Err(FormFactorError::Option {
+                name: "tolerance",
+                reason: format!("{} must be finite and > 0", options.tolerance),
+            });
+        }
+        if !(options.max_opening > 0.0 && options.max_opening <= 2.0) {
+            return Err(FormFactorError::Option {
+                name: "max_opening",
+                reason: format!("{} must be in (0, 2]", options.max_opening),
+            });
+        }
+        let start = Instant::now();
+        let sigma_t = &channel.sigma_t;
+        let h = grid.cell_size;
+        let n = grid.cell_count();
+        let (active, active_index) = active_cells(sigma_t);
+        let alpha: Vec<f64> = sigma_t.iter().map(|&s| interception(s as f64, h)).collect();
+        let beta: Vec<f64> = sigma_t.iter().map(|&s| if s > 0.0 { escape(s as f64, h) } else { 0.0 }).collect();
+
+        // Near field at leaf level: symmetrised rows over the (2R+1)³ neighbourhood.
+        let stencil = NearStencil::new(&options.near);
+        let slots = stencil.slots();
+        let columns = near_columns(grid, sigma_t, &stencil, &active);
+        let near_rows: Vec<(Vec<u32>, Vec<f64>, f64)> = active
+            .par_iter()
+            .map_init(
+                || vec![0u32; slots],
+                |nb, &i| {
+                    stencil.neighbours(grid, i, nb);
+                    let (mut cols, mut vals, mut colsum) = (Vec::new(), Vec::new(), 0.0);
+                    for (slot, &j) in nb.iter().enumerate() {
+                        if j == u32::MAX || active_index[j as usize] == u32::MAX {
+                            continue;
+                        }
+                        let f = near_entry(&columns, slots, sigma_t, &active_index, i, j as usize, slot);
+                        colsum += f * sigma_t[j as usize] as f64 / sigma_t[i] as f64;
+                        cols.push(j);
+                        vals.push(f);
+                    }
+                    (cols, vals, colsum)
+                },
+            )
+            .collect();
+        drop(columns);
+        let mut near_ptr = vec![0usize; n + 1];
+        let mut near_colsum = vec![0.0f64; n];
+        for (&i, r) in active.iter().zip(&near_rows) {
+            near_ptr[i + 1] = r.0.len();
+            near_colsum[i] = r.2;
+        }
+        for i in 0..n {
+            near_ptr[i + 1] += near_ptr[i];
+        }
+        let mut near_col = Vec::with_capacity(near_ptr[n]);
+        let mut near_val = Vec::with_capacity(near_ptr[n]);
+        for r in near_rows {
+            near_col.extend_from_slice(&r.0);
+            near_val.extend_from_slice(&r.1);
+        }
+
+        // The pyramid.
+        let mut levels = vec![Level {
+            dims: grid.dims,
+            span: 1,
+            alpha_sum: alpha.clone(),
+            beta_max: beta.clone(),
+            centroid: (0..n).map(|i| grid.cell_center(i)).collect(),
+            sigma_mean: sigma_t.clone(),
+            link_ptr: Vec::new(),
+            link_src: Vec::new(),
+            link_k: Vec::new(),
+        }];
+        while levels.last().unwrap().dims.iter().any(|&d| d > 1) {
+            let fine = levels.last().unwrap();
+            let dims = fine.dims.map(|d| d.div_ceil(2));
+            let mut level = Level {
+                dims,
+                span: fine.span * 2,
+                alpha_sum: Vec::new(),
+                beta_max: Vec::new(),
+                centroid: Vec::new(),
+                sigma_mean: Vec::new(),
+                link_ptr: Vec::new(),
+                link_src: Vec::new(),
+                link_k: Vec::new(),
+            };
+            let stats: Vec<(f64, f64, DVec3, f32)> = (0..level.count())
+                .into_par_iter()
+                .map(|c| {
+                    let (mut a, mut b, mut m, mut s, mut cnt) = (0.0, 0.0f64, DVec3::ZERO, 0.0f64, 0usize);
+                    for ch in children(&level, fine, c) {
+                        a += fine.alpha_sum[ch];
+                        b = b.max(fine.beta_max[ch]);
+                        m += fine.centroid[ch] * fine.alpha_sum[ch];
+                        let cells = cells_in(grid, fine, ch);
+                        s += fine.sigma_mean[ch] as f64 * cells as f64;
+                        cnt += cells;
+                    }
+                    let centroid = if a > 0.0 { m / a } else { DVec3::ZERO };
+                    (a, b, centroid, (s / cnt as f64) as f32)
+                })
+                .collect();
+            for (a, b, c, s) in stats {
+                level.alpha_sum.push(a);
+                level.beta_max.push(b);
+                level.centroid.push(c);
+                level.sigma_mean.push(s);
+            }
+            levels.push(level);
+        }
+
+        // Refinement, level by level from the root pair.
+        let top = levels.len() - 1;
+        let radius = options.near.radius;
+        let g = geometry_factor(h);
+        let mut unordered: Vec<Vec<(u32, u32, f32)>> = vec![Vec::new(); levels.len()];
+        let mut candidates: Vec<(u32, u32)> = if levels[top].alpha_sum[0] > 0.0 { vec![(0, 0)] } else { vec![] };
+        for l in (1..=top).rev() {
+            let level = &levels[l];
+            let fine = &levels[l - 1];
+            let outcomes: Vec<Outcome> = candidates
+                .par_iter()
+                .flat_map_iter(|&(a, b)| {
+                    let mut out = Vec::new();
+                    let (a, b) = (a as usize, b as usize);
+                    if a != b && box_gap(grid, level, a, b) > radius {
+                        let d = (level.centroid[a] - level.centroid[b]).length();
+                        let rad = 3f64.sqrt() * 0.5 * level.span as f64 * h;
+                        let rho = 2.0 * rad / d;
+                        if rho <= options.max_opening {
+                            let t = (-cluster_depth(grid, level, a, b)).exp();
+                            let k = g * t / (d * d);
+                            let m = k * (level.alpha_sum[a] * level.beta_max[b]).max(level.alpha_sum[b] * level.beta_max[a]);
+                            if m * rho * rho <= options.tolerance {
+                                out.push(Outcome::Link(l, a as u32, b as u32, k as f32));
+                                return out;
+                            }
+                        }
+                    }
+                    let ca: Vec<usize> = children(level, fine, a).filter(|&c| fine.alpha_sum[c] > 0.0).collect();
+                    let cb: Vec<usize> = children(level, fine, b).filter(|&c| fine.alpha_sum[c] > 0.0).collect();
+                    for &x in &ca {
+                        for &y in &cb {
+                            if a == b && y < x {
+                                continue;
+                            }
+                            if l - 1 == 0 {
+                                // Leaf pairs: near (handled by the near rows) or the exact far estimate.
+                                if x != y && box_gap(grid, fine, x, y) > radius {
+                                    let k = far_entry(grid, sigma_t, x, y) / (alpha[x] * beta[y]);
+                                    out.push(Outcome::Link(0, x as u32, y as u32, k as f32));
+                                }
+                            } else {
+                                out.push(Outcome::Refine(x as u32, y as u32));
+                            }
+                        }
+                    }
+                    out
+                })
+                .collect();
+            candidates = Vec::new();
+            for o in outcomes {
+                match o {
+                    Outcome::Link(lev, a, b, k) => unordered[lev].push((a, b, k)),
+                    Outcome::Refine(a, b) => candidates.push((a, b)),
+                }
+            }
+        }
+        let links_per_level: Vec<usize> = unordered.iter().map(Vec::len).collect();
+
+        // Receiver-sorted directed links, both directions of each unordered pair.
+        for (level, pairs) in levels.iter_mut().zip(unordered) {
+            let count = level.count();
+            let mut ptr = vec![0usize; count + 1];
+            for &(a, b, _) in &pairs {
+                ptr[a as usize + 1] += 1;
+                ptr[b as usize + 1] += 1;
+            }
+            for c in 0..count {
+                ptr[c + 1] += ptr[c];
+            }
+            let mut fill = ptr.clone();
+            let mut src = vec![0u32; ptr[count]];
+            let mut kk = vec![0f32; ptr[count]];
+            for (a, b, k) in pairs {
+                for (r, s) in [(a, b), (b, a)] {
+                    let p = &mut fill[r as usize];
+                    src[*p] = s;
+                    kk[*p] = k;
+                    *p += 1;
+                }
+            }
+            level.link_ptr = ptr;
+            level.link_src = src;
+            level.link_k = kk;
+        }
+
+        let mut op = HierarchicalOperator {
+            grid: *grid,
+            albedo: albedo_vec(channel),
+            report: BuildReport {
+                active_cells: active.len(),
+                min_scale: 1.0,
+                near_rays: stencil.rays(),
+                ..Default::default()
+            },
+            links_per_level,
+            levels,
+            alpha,
+            beta,
+            scale: vec![1.0; n],
+            near_ptr,
+            near_col,
+            near_val,
+            weights: None,
+        };
+
+        // Per-column energy accounting: c_j = near_j + β_j Σ_levels Σ_links K α_sum(other end).
+        let far_col = op.pull_push(|_, level, c| {
+            (level.link_ptr[c]..level.link_ptr[c + 1])
+                .map(|p| level.link_k[p] as f64 * level.alpha_sum[level.link_src[p] as usize])
+                .sum()
+        });
+        let column_sums: Vec<f64> = (0..n).map(|j| near_colsum[j] + op.beta[j] * far_col[j]).collect();
+        for (j, &c) in column_sums.iter().enumerate() {
+            op.report.max_column_sum_raw = op.report.max_column_sum_raw.max(c);
+            if c > 1.0 {
+                op.scale[j] = 1.0 / c;
+                op.report.cells_scaled += 1;
+                op.report.min_scale = op.report.min_scale.min(op.scale[j]);
+            }
+        }
+        op.report.entries = op.near_val.len() + op.links_per_level.iter().sum::<usize>();
+        op.weights = symmetrizer_weights(sigma_t, &op.albedo);
+        op.report.seconds = start.elapsed().as_secs_f64();
+        Ok(op)
+    }
+
+    /// Total unordered links (all levels, leaf far pairs included).
+    pub fn link_count(&self) -> usize {
+        self.links_per_level.iter().sum()
+    }
+
+    /// Stored near-field entries.
+    pub fn near_entries(&self) -> usize {
+        self.near_val.len()
+    }
+
+    /// Bytes held by the operator's arrays.
+    pub fn memory_bytes(&self) -> usize {
+        let lv: usize = self
+            .levels
+            .iter()
+            .map(|l| l.count() * (8 + 8 + 24 + 4 + 8) + l.link_src.len() * 8)
+            .sum();
+        lv + self.near_val.len() * 12 + self.near_ptr.len() * 8 + self.alpha.len() * 8 * 5
+    }
+
+    /// Evaluates `value(level, cluster)` for every cluster and sums it down to the cells:
+    /// `out_i = Σ_levels value(level, cluster of i)`.
+    fn pull_push(&self, value: impl Fn(usize, &Level, usize) -> f64 + Sync) -> Vec<f64> {
+        let top = self.levels.len() - 1;
+        let mut acc: Vec<f64> = (0..self.levels[top].count()).map(|c| value(top, &self.levels[top], c)).collect();
+        for l in (0..top).rev() {
+            let level = &self.levels[l];
+            let parent = &acc;
+            acc = (0..level.count())
+                .into_par_iter()
+                .map(|c| {
+                    let x = level.coords(c);
+                    let p = self.levels[l + 1].index([x[0] / 2, x[1] / 2, x[2] / 2]);
+                    parent[p] + value(l, level, c)
+                })
+                .collect();
+        }
+        acc
+    }
+
+    /// `far_i = α_i Σ_levels Σ_links K u_src` with `u` the pyramid of `Σ β_j x_j`.
+    fn far_field(&self, x: &[f64]) -> Vec<f64> {
+        // Pull: u at every level.
+        let mut u: Vec<Vec<f64>> = Vec::with_capacity(self.levels.len());
+        u.push(x.iter().zip(&self.beta).map(|(x, b)| x * b).collect());
+        for l in 1..self.levels.len() {
+            let (level, fine) = (&self.levels[l], &self.levels[l - 1]);
+            let below = &u[l - 1];
+            let up: Vec<f64> = (0..level.count())
+                .into_par_iter()
+                .map(|c| children(level, fine, c).map(|ch| below[ch]).sum())
+                .collect();
+            u.push(up);
+        }
+        let mut far = self.pull_push(|l, level, c| {
+            let ul = &u[l];
+            let mut acc = 0.0;
+            for p in level.link_ptr[c]..level.link_ptr[c + 1] {
+                acc += level.link_k[p] as f64 * ul[level.link_src[p] as usize];
+            }
+            acc
+        });
+        far.par_iter_mut().zip(&self.alpha).for_each(|(f, a)| *f *= a);
+        far
+    }
+
+    /// `y = F x` (without the albedo).
+    pub fn apply_form_factors(&self, x: &[f64], y: &mut [f64]) {
+        let xs: Vec<f64> = x.iter().zip(&self.scale).map(|(x, d)| x * d).collect();
+        let far = self.far_field(&xs);
+        y.par_iter_mut().enumerate().for_each(|(i, yi)| {
+            *yi = self.scale[i] * (far[i] + self.near_dot(i, &xs));
+        });
+    }
+
+    #[inline]
+    fn near_dot(&self, i: usize, xs: &[f64]) -> f64 {
+        let mut acc = 0.0;
+        for p in self.near_ptr[i]..self.near_ptr[i + 1] {
+            acc += self.near_val[p] * xs[self.near_col[p] as usize];
+        }
+        acc
+    }
+
+    /// Column sums `Σ_i F_ij`, by applying the transpose to ones (`Fᵀ1 = diag(σt)⁻¹ F σt`
+    /// by reciprocity); inactive columns are 0.
+    pub fn column_sums(&self, sigma_t: &[f32]) -> Vec<f64> {
+        let s: Vec<f64> = sigma_t.iter().map(|&s| s as f64).collect();
+        let mut y = vec![0.0; s.len()];
+        self.apply_form_factors(&s, &mut y);
+        y.iter().zip(&s).map(|(y, s)| if *s > 0.0 { y / s } else { 0.0 }).collect()
+    }
+}
+
+/// Children (at `fine`) of cluster `c` of `level`.
+fn children<'a>(level: &Level, fine: &'a Level, c: usize) -> impl Iterator<Item = usize> + 'a {
+    let x = level.coords(c);
+    (0..8usize).filter_map(move |k| {
+        let y = [2 * x[0] + (k & 1), 2 * x[1] + ((k >> 1) & 1), 2 * x[2] + (k >> 2)];
+        (y[0] < fine.dims[0] && y[1] < fine.dims[1] && y[2] < fine.dims[2]).then(|| fine.index(y))
+    })
+}
+
+/// Leaf cells covered by cluster `c` of `level` (clipped at the grid).
+fn cells_in(grid: &Grid, level: &Level, c: usize) -> usize {
+    let x = level.coords(c);
+    (0..3).map(|a| level.span.min(grid.dims[a] - x[a] * level.span)).product()
+}
+
+/// Chebyshev gap in cells between the leaf boxes of two clusters (0 when touching at offset 1).
+fn box_gap(grid: &Grid, level: &Level, a: usize, b: usize) -> usize {
+    let (xa, xb) = (level.coords(a), level.coords(b));
+    let s = level.span;
+    let mut gap = 0usize;
+    for ax in 0..3 {
+        let (a0, a1) = (xa[ax] * s, ((xa[ax] + 1) * s).min(grid.dims[ax]) - 1);
+        let (b0, b1) = (xb[ax] * s, ((xb[ax] + 1) * s).min(grid.dims[ax]) - 1);
+        let d = if b0 > a1 { b0 - a1 } else if a0 > b1 { a0 - b1 } else { 0 };
+        gap = gap.max(d);
+    }
+    gap
+}
+
+/// Optical depth between two clusters of one level along their centroid line, through the
+/// level's mean-σt grid, less half a mean chord of each end (which the cell factors α, β hold).
+fn cluster_depth(grid: &Grid, level: &Level, a: usize, b: usize) -> f64 {
+    let (a, b) = if a < b { (a, b) } else { (b, a) };
+    let coarse = Grid {
+        dims: level.dims,
+        cell_size: grid.cell_size * level.span as f64,
+    };
+    let (ca, cb) = (level.centroid[a], level.centroid[b]);
+    let r = (cb - ca).length();
+    let ray = Ray::new(ca, cb - ca);
+    let tau: f64 = coarse
+        .traverse(&ray, 0.0, r)
+        .map(|s| level.sigma_mean[s.cell] as f64 * s.length())
+        .sum();
+    let ends = 0.5 * mean_chord(grid.cell_size) * (level.sigma_mean[a] as f64 + level.sigma_mean[b] as f64);
+    (tau - ends).max(0.0)
+}
+
+impl TransportOperator for HierarchicalOperator {
+    fn len(&self) -> usize {
+        self.albedo.len()
+    }
+
+    fn apply(&self, x: &[f64], y: &mut [f64]) {
+        self.apply_form_factors(x, y);
+        y.par_iter_mut().zip(&self.albedo).for_each(|(y, a)| *y *= a);
+    }
+
+    /// Gauss–Seidel on the near field in cell order, with the far field (links) evaluated
+    /// once per sweep from the current iterate (block Jacobi for the far part).
+    fn sweep_in_place(&self, g: &mut [f64], source: &[f64], omega: f64) -> bool {
+        let xs: Vec<f64> = g.iter().zip(&self.scale).map(|(x, d)| x * d).collect();
+        let far = self.far_field(&xs);
+        let mut xs = xs;
+        for i in 0..g.len() {
+            let kg = self.albedo[i] * self.scale[i] * (far[i] + self.near_dot(i, &xs));
+            g[i] = (1.0 - omega) * g[i] + omega * (source[i] + kg);
+            xs[i] = g[i] * self.scale[i];
+        }
+        true
+    }
+
+    fn symmetrizer(&self) -> Option<&[f64]> {
+        self.weights.as_deref()
+    }
+}
