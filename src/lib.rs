@@ -3,3 +3,11 @@
 //! line, HTTP and JSON.
 
 pub mod solution;
+pub mod app;
+pub mod cli;
+pub mod commands;
+pub mod compare;
+pub mod info;
+pub mod methods;
+pub mod pipeline;
+pub mod progress;

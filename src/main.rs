@@ -1,1 +1,28 @@
-fn main() {}
+//! The `volrad` binary: parse arguments, set up logging and threads, run, print one clear
+//! error line on failure.
+
+use clap::Parser;
+
+fn main() -> std::process::ExitCode {
+    let cli = volrad::cli::Cli::parse();
+    let default_level = match cli.verbose {
+        0 => "volrad=info,warn",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .compact()
+        .init();
+    match volrad::app::run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,6 +1,299 @@
-//! Solution files: solved source terms plus everything a render needs, so one solve serves
-//! many views. The byte layout lives in [`container`] alone.
+//! Solution files: the solved source terms plus everything a render needs (grid and σt, the
+//! light pass, the phase function, lights and background, the method and its report, a hash
+//! of the scene), so one solve serves many views. The byte layout lives in [`container`]
+//! alone; this module maps the domain types onto named arrays and metadata.
 
 pub mod container;
 
+use std::path::Path;
+
+use medium::light_pass::{LightEnergy, LightField, LightPass};
+use medium::scene::{CameraSpec, RenderSettings, SolveMethod};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
+use serde::{Deserialize, Serialize};
+
 pub use container::{write_atomic, Container, ContainerError};
+
+/// The solved scattered light of one colour channel.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ScatteredField {
+    /// Single scattering only (or no scattering): the render evaluates the first bounce from
+    /// the light pass and needs nothing else.
+    None,
+    /// Zonal: `source` is the solved `g` per cell (radiance per length, isotropic);
+    /// `higher_order = g − E` is what the render adds to the exact first bounce.
+    Isotropic {
+        source: Vec<f32>,
+        higher_order: Vec<f32>,
+    },
+    /// Discrete ordinates: `radiance[cell * bins + l]`, the scattered radiance (excluding the
+    /// unscattered beam) averaged over cell and bin, and `higher_order[cell * bins + l]`, the
+    /// source of second and higher orders scattered into bin `l` (radiance per length).
+    Binned {
+        radiance: Vec<f32>,
+        higher_order: Vec<f32>,
+    },
+}
+
+/// Direction bins as stored: what a render needs to look radiance up by direction.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StoredBins {
+    /// `n` of the `6 n²` cube-face construction.
+    pub face_resolution: usize,
+    pub directions: Vec<[f64; 3]>,
+    pub solid_angles: Vec<f64>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChannelSolution {
+    pub light_pass: LightPass,
+    pub scattered: ScatteredField,
+    pub report: Option<solver::SolveReport>,
+}
+
+/// A solved scene, as written by `volrad solve` and read by `volrad render --solution`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Solution {
+    pub scene_hash: String,
+    pub scene_origin: String,
+    pub method: SolveMethod,
+    pub medium: Medium,
+    pub lights: Vec<Light>,
+    pub background: f64,
+    pub render: RenderSettings,
+    pub cameras: Vec<CameraSpec>,
+    pub bins: Option<StoredBins>,
+    pub channels: Vec<ChannelSolution>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SolutionError {
+    #[error(transparent)]
+    Container(#[from] ContainerError),
+    #[error("{path}: inconsistent solution: {message}")]
+    Inconsistent { path: String, message: String },
+}
+
+#[derive(Serialize, Deserialize)]
+struct ChannelMeta {
+    albedo: Option<f32>,
+    emission: Option<f32>,
+    light_energy: Vec<LightEnergy>,
+    field: FieldKind,
+    report: Option<solver::SolveReport>,
+}
+
+#[derive(Serialize, Deserialize, PartialEq, Clone, Copy)]
+enum FieldKind {
+    None,
+    Isotropic,
+    Binned,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Meta {
+    volrad_version: String,
+    scene_hash: String,
+    scene_origin: String,
+    method: SolveMethod,
+    grid: Grid,
+    phase: PhaseFunction,
+    interpolation: Interpolation,
+    has_data: bool,
+    lights: Vec<Light>,
+    background: f64,
+    render: RenderSettings,
+    cameras: Vec<CameraSpec>,
+    bins: Option<StoredBins>,
+    channels: Vec<ChannelMeta>,
+}
+
+fn uniform_or_array(
+    values: &CellValues,
+    name: String,
+    arrays: &mut Vec<(String, Vec<f32>)>,
+) -> Option<f32> {
+    match values {
+        CellValues::Uniform(v) => Some(*v),
+        CellValues::PerCell(v) => {
+            arrays.push((name, v.clone()));
+            None
+        }
+    }
+}
+
+impl Solution {
+    fn to_container(&self) -> Container<Meta> {
+        let mut arrays = Vec::new();
+        let mut channels = Vec::new();
+        for (c, (ch, sol)) in self.medium.channels.iter().zip(&self.channels).enumerate() {
+            arrays.push((format!("sigma_t/{c}"), ch.sigma_t.clone()));
+            let albedo = uniform_or_array(&ch.albedo, format!("albedo/{c}"), &mut arrays);
+            let emission = uniform_or_array(&ch.emission, format!("emission/{c}"), &mut arrays);
+            for (l, f) in sol.light_pass.fields.iter().enumerate() {
+                arrays.push((format!("light/{c}/{l}/cell_irradiance"), f.cell_irradiance.clone()));
+                arrays.push((
+                    format!("light/{c}/{l}/corner_transmittance"),
+                    f.corner_transmittance.clone(),
+                ));
+            }
+            let field = match &sol.scattered {
+                ScatteredField::None => FieldKind::None,
+                ScatteredField::Isotropic { source, higher_order } => {
+                    arrays.push((format!("source/{c}"), source.clone()));
+                    arrays.push((format!("higher_order/{c}"), higher_order.clone()));
+                    FieldKind::Isotropic
+                }
+                ScatteredField::Binned { radiance, higher_order } => {
+                    arrays.push((format!("radiance/{c}"), radiance.clone()));
+                    arrays.push((format!("higher_order/{c}"), higher_order.clone()));
+                    FieldKind::Binned
+                }
+            };
+            channels.push(ChannelMeta {
+                albedo,
+                emission,
+                light_energy: sol.light_pass.fields.iter().map(|f| f.energy).collect(),
+                field,
+                report: sol.report.clone(),
+            });
+        }
+        if let Some(d) = &self.medium.data {
+            arrays.push(("data".into(), d.clone()));
+        }
+        Container {
+            meta: Meta {
+                volrad_version: env!("CARGO_PKG_VERSION").into(),
+                scene_hash: self.scene_hash.clone(),
+                scene_origin: self.scene_origin.clone(),
+                method: self.method,
+                grid: self.medium.grid,
+                phase: self.medium.phase,
+                interpolation: self.medium.interpolation,
+                has_data: self.medium.data.is_some(),
+                lights: self.lights.clone(),
+                background: self.background,
+                render: self.render.clone(),
+                cameras: self.cameras.clone(),
+                bins: self.bins.clone(),
+                channels,
+            },
+            arrays,
+        }
+    }
+
+    fn from_container(mut c: Container<Meta>, path: &Path) -> Result<Solution, SolutionError> {
+        let bad = |message: String| SolutionError::Inconsistent {
+            path: path.display().to_string(),
+            message,
+        };
+        let meta = c.meta;
+        let grid = Grid::new(meta.grid.dims, meta.grid.cell_size).map_err(|e| bad(e.to_string()))?;
+        let cells = grid.cell_count();
+        let mut take = |name: String, len: usize| -> Result<Vec<f32>, SolutionError> {
+            let pos = c
+                .arrays
+                .iter()
+                .position(|(n, _)| *n == name)
+                .ok_or_else(|| bad(format!("array `{name}` is missing")))?;
+            let v = std::mem::take(&mut c.arrays[pos].1);
+            if v.len() != len {
+                return Err(bad(format!("array `{name}` has {} values, expected {len}", v.len())));
+            }
+            Ok(v)
+        };
+        let bins = meta.bins.as_ref().map_or(0, |b| b.directions.len());
+        let mut medium_channels = Vec::new();
+        let mut channels = Vec::new();
+        for (ci, cm) in meta.channels.into_iter().enumerate() {
+            let sigma_t = take(format!("sigma_t/{ci}"), cells)?;
+            let albedo = match cm.albedo {
+                Some(v) => CellValues::Uniform(v),
+                None => CellValues::PerCell(take(format!("albedo/{ci}"), cells)?),
+            };
+            let emission = match cm.emission {
+                Some(v) => CellValues::Uniform(v),
+                None => CellValues::PerCell(take(format!("emission/{ci}"), cells)?),
+            };
+            if cm.light_energy.len() != meta.lights.len() {
+                return Err(bad(format!("channel {ci} has {} light fields for {} lights", cm.light_energy.len(), meta.lights.len())));
+            }
+            let mut fields = Vec::new();
+            for (l, (light, energy)) in meta.lights.iter().zip(cm.light_energy).enumerate() {
+                fields.push(LightField {
+                    light: *light,
+                    cell_irradiance: take(format!("light/{ci}/{l}/cell_irradiance"), cells)?,
+                    corner_transmittance: take(
+                        format!("light/{ci}/{l}/corner_transmittance"),
+                        grid.corner_count(),
+                    )?,
+                    energy,
+                });
+            }
+            let scattered = match cm.field {
+                FieldKind::None => ScatteredField::None,
+                FieldKind::Isotropic => ScatteredField::Isotropic {
+                    source: take(format!("source/{ci}"), cells)?,
+                    higher_order: take(format!("higher_order/{ci}"), cells)?,
+                },
+                FieldKind::Binned => {
+                    if bins == 0 {
+                        return Err(bad("binned radiance without direction bins".into()));
+                    }
+                    ScatteredField::Binned {
+                        radiance: take(format!("radiance/{ci}"), cells * bins)?,
+                        higher_order: take(format!("higher_order/{ci}"), cells * bins)?,
+                    }
+                }
+            };
+            channels.push(ChannelSolution {
+                light_pass: LightPass {
+                    grid,
+                    sigma_t: sigma_t.clone(),
+                    fields,
+                },
+                scattered,
+                report: cm.report,
+            });
+            medium_channels.push(ChannelMedium {
+                sigma_t,
+                albedo,
+                emission,
+            });
+        }
+        let data = if meta.has_data { Some(take("data".into(), cells)?) } else { None };
+        let medium = Medium::new(grid, medium_channels, meta.phase, meta.interpolation, data)
+            .map_err(|e| bad(e.to_string()))?;
+        Ok(Solution {
+            scene_hash: meta.scene_hash,
+            scene_origin: meta.scene_origin,
+            method: meta.method,
+            medium,
+            lights: meta.lights,
+            background: meta.background,
+            render: meta.render,
+            cameras: meta.cameras,
+            bins: meta.bins,
+            channels,
+        })
+    }
+
+    /// Writes atomically (temporary file, then rename).
+    pub fn write(&self, path: &Path) -> Result<(), SolutionError> {
+        Ok(self.to_container().write(path)?)
+    }
+
+    pub fn read(path: &Path) -> Result<Solution, SolutionError> {
+        Self::from_container(Container::read(path)?, path)
+    }
+
+    pub fn to_bytes(&self) -> Vec<u8> {
+        self.to_container()
+            .to_bytes()
+            .expect("solution metadata always encodes")
+    }
+
+    pub fn from_bytes(bytes: &[u8], label: &Path) -> Result<Solution, SolutionError> {
+        Self::from_container(Container::from_bytes(bytes, label)?, label)
+    }
+}

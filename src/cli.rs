@@ -1,0 +1,186 @@
+//! Command-line arguments, stage one: what the user typed, parsed by clap. Stage two
+//! (`app.rs`) validates them against the scene and turns them into work.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "volrad",
+    version,
+    about = "Volume radiosity: solve multiple scattering in a participating medium once, render many views.",
+    long_about = "Volume radiosity: solve multiple scattering in a participating medium once, render many views.\n\n\
+With no command, volrad solves the built-in procedural cloud and renders it to volrad-default.png.\n\
+Scene files are TOML (see docs/scene-format.md); solutions are binary files that `render --solution` reads."
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Option<Command>,
+
+    /// More log output (-v: debug, -vv: trace). RUST_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
+
+    /// No progress bars or summaries on stderr.
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    pub threads: Option<usize>,
+
+    /// Output file for the default run (no command).
+    #[arg(short = 'o', long = "output", default_value = "volrad-default.png")]
+    pub default_output: PathBuf,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Render one camera (or all, when OUT is a directory) to PNG, EXR or PFM.
+    Render(RenderArgs),
+    /// Solve the scene's light transport and write the solution file.
+    Solve(SolveArgs),
+    /// Describe a scene: dims, σt range, optical depth, memory estimate.
+    Info(InfoArgs),
+    /// Write a solved per-cell field (fluence, source, sigma-t) as raw f32 or NRRD.
+    Export(ExportArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Scene file (TOML). Optional with --solution, which carries the medium.
+    pub scene: Option<PathBuf>,
+    /// Output image (.png, .exr, .pfm) or a directory (all cameras, PNG).
+    #[arg(short = 'o', long = "output")]
+    pub output: PathBuf,
+    /// Camera name from the scene (default: the first).
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Render from a stored solution instead of solving.
+    #[arg(long)]
+    pub solution: Option<PathBuf>,
+    /// Stratified samples per pixel (default: the scene's, else 1).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// PNG exposure (default: the scene's).
+    #[arg(long)]
+    pub exposure: Option<f64>,
+    #[command(flatten)]
+    pub view: ViewArgs,
+    /// Render N views on a circle around the volume (one solve or solution read for all).
+    /// OUT names a directory, or a file stem to which _000, _001, ... are appended.
+    #[arg(long)]
+    pub orbit: Option<u32>,
+}
+
+/// A camera given on the command line; overrides parts of the scene's camera.
+#[derive(Debug, Args, Default, Clone)]
+pub struct ViewArgs {
+    /// Eye position "x,y,z".
+    #[arg(long, value_parser = parse_vec3)]
+    pub eye: Option<[f64; 3]>,
+    /// Look-at point "x,y,z" (default: the volume's centre).
+    #[arg(long, value_parser = parse_vec3)]
+    pub target: Option<[f64; 3]>,
+    /// Up vector "x,y,z" (default 0,0,1).
+    #[arg(long, value_parser = parse_vec3)]
+    pub up: Option<[f64; 3]>,
+    /// Vertical field of view in degrees.
+    #[arg(long)]
+    pub fov: Option<f64>,
+    #[arg(long)]
+    pub width: Option<u32>,
+    #[arg(long)]
+    pub height: Option<u32>,
+}
+
+#[derive(Debug, Args)]
+pub struct SolveArgs {
+    /// Scene file (TOML).
+    pub scene: PathBuf,
+    /// Where to write the solution.
+    #[arg(short = 'o', long = "output")]
+    pub output: PathBuf,
+    /// Print the report as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Override `[solve] method`.
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Override `[solve] iteration` (jacobi, gauss-seidel, sor:1.5, gmres:30, bicgstab, ...).
+    #[arg(long)]
+    pub iteration: Option<String>,
+    /// Override `[solve] tolerance`.
+    #[arg(long)]
+    pub tolerance: Option<f64>,
+    /// Override `[solve] max_iterations`.
+    #[arg(long)]
+    pub max_iterations: Option<usize>,
+}
+
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    pub scene: PathBuf,
+    /// Print as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum ExportField {
+    /// ∫ I dω per cell, including unscattered light.
+    Fluence,
+    /// The solved source g per cell (radiance per unit length).
+    Source,
+    /// Extinction coefficient per cell.
+    SigmaT,
+}
+
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    pub solution: PathBuf,
+    #[arg(long, value_enum)]
+    pub field: ExportField,
+    /// Output .raw (with a .json sidecar) or .nrrd.
+    #[arg(short = 'o', long = "output")]
+    pub output: PathBuf,
+    /// Colour channel (0 for grey scenes).
+    #[arg(long, default_value_t = 0)]
+    pub channel: usize,
+}
+
+fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!("expected three comma-separated numbers, got `{s}`"));
+    }
+    let mut v = [0.0; 3];
+    for (slot, p) in v.iter_mut().zip(&parts) {
+        *slot = p
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("`{p}` is not a finite number"))?;
+    }
+    Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vectors_parse_and_bad_ones_are_refused() {
+        assert_eq!(parse_vec3("1, 2.5,-3").unwrap(), [1.0, 2.5, -3.0]);
+        assert!(parse_vec3("1,2").is_err());
+        assert!(parse_vec3("1,2,x").is_err());
+        assert!(parse_vec3("1,2,inf").is_err());
+    }
+
+    #[test]
+    fn command_line_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+}

@@ -1,0 +1,211 @@
+//! The commands behind the command line: each validates its inputs, does the work through
+//! [`crate::pipeline`], and reports what it wrote.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use medium::scene::SolveMethod;
+use medium::Scene;
+
+use crate::app::{choose_camera, load_scene, orbit_cameras, view_outputs};
+use crate::cli::{ExportArgs, ExportField, RenderArgs, SolveArgs};
+use crate::pipeline::{render_view, solve_scene, SolveHooks};
+use crate::progress::SolveProgress;
+use crate::solution::Solution;
+
+/// `volrad` with no command: the built-in cloud, solved with its default method, rendered.
+pub fn run_default(output: &Path, quiet: bool) -> Result<()> {
+    let scene = Scene::builtin_default();
+    let started = Instant::now();
+    let solution = solve_with_progress(&scene, &scene.solve, quiet)?;
+    let camera = scene.cameras.first().context("the built-in scene has a camera")?;
+    let image = render_view(&solution, camera, None)?;
+    image
+        .save(output, solution.render.exposure)
+        .with_context(|| format!("writing {}", output.display()))?;
+    if !quiet {
+        eprintln!(
+            "volrad: built-in cloud {:?} solved by {} and rendered in {:.1} s",
+            scene.medium.grid.dims,
+            scene.solve.method.name(),
+            started.elapsed().as_secs_f64()
+        );
+    }
+    println!("wrote {}", output.display());
+    Ok(())
+}
+
+/// Solves with a progress bar and Ctrl-C cancellation.
+pub fn solve_with_progress(
+    scene: &Scene,
+    settings: &medium::scene::SolveSettings,
+    quiet: bool,
+) -> Result<Solution> {
+    let progress = SolveProgress::start(settings, quiet);
+    let hooks = SolveHooks {
+        control: Arc::new(progress.control()),
+    };
+    crate::progress::cancel_on_ctrl_c(hooks.control.clone());
+    let solution = solve_scene(scene, settings, &hooks);
+    progress.finish();
+    let solution = solution?;
+    for (c, ch) in solution.channels.iter().enumerate() {
+        if let Some(r) = &ch.report {
+            if r.cancelled {
+                bail!("solve cancelled after {} iterations", r.iterations);
+            }
+            if !r.converged && !quiet {
+                eprintln!(
+                    "warning: channel {c} did not converge: relative residual {:.3e} after {} iterations ({:?})",
+                    r.final_residual, r.iterations, r.stop_reason
+                );
+            }
+        }
+    }
+    Ok(solution)
+}
+
+pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
+    let solution = match (&args.solution, &args.scene) {
+        (Some(path), _) => Solution::read(path)?,
+        (None, Some(scene_path)) => {
+            let scene = load_scene(scene_path)?;
+            solve_with_progress(&scene, &scene.solve, quiet)?
+        }
+        (None, None) => bail!("render needs a scene file or --solution FILE"),
+    };
+    // A scene given together with a solution supplies cameras only.
+    let cameras = match (&args.solution, &args.scene) {
+        (Some(_), Some(scene_path)) => load_scene(scene_path)?.cameras,
+        _ => solution.cameras.clone(),
+    };
+    let center = solution.medium.grid.center();
+    let mut views = Vec::new();
+    let all_cameras = args.camera.is_none() && args.orbit.is_none() && args.output.is_dir();
+    if all_cameras {
+        views.extend(cameras.iter().map(|c| crate::app::apply_view(c.clone(), &args.view)));
+    } else {
+        let base = choose_camera(&cameras, args.camera.as_deref(), &args.view, center)?;
+        match args.orbit {
+            Some(0) => bail!("--orbit needs at least one view"),
+            Some(n) => views.extend(orbit_cameras(&base, n)),
+            None => views.push(base),
+        }
+    }
+    let outputs = if views.len() == 1 && !all_cameras {
+        vec![args.output.clone()]
+    } else {
+        let names: Vec<String> = views.iter().map(|v| v.name.clone()).collect();
+        view_outputs(&args.output, &names)
+    };
+    let exposure = args.exposure.unwrap_or(solution.render.exposure);
+    for (view, out) in views.iter().zip(&outputs) {
+        let started = Instant::now();
+        let image = render_view(&solution, view, args.spp)?;
+        image
+            .save(out, exposure)
+            .with_context(|| format!("writing {}", out.display()))?;
+        tracing::info!(camera = %view.name, seconds = started.elapsed().as_secs_f64(), "rendered");
+        println!("wrote {}", out.display());
+    }
+    Ok(())
+}
+
+pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
+    let scene = load_scene(&args.scene)?;
+    let mut settings = scene.solve.clone();
+    if let Some(m) = &args.method {
+        settings.method = SolveMethod::parse(m).with_context(|| {
+            format!(
+                "--method `{m}`: expected one of {}",
+                medium::scene::SOLVE_METHOD_NAMES.join(", ")
+            )
+        })?;
+    }
+    if let Some(it) = &args.iteration {
+        crate::methods::set_iteration(&mut settings, it)?;
+    }
+    if let Some(t) = args.tolerance {
+        if !(t.is_finite() && t > 0.0) {
+            bail!("--tolerance {t}: must be a positive number");
+        }
+        settings.tolerance = t;
+    }
+    if let Some(n) = args.max_iterations {
+        settings.max_iterations = n;
+    }
+    let started = Instant::now();
+    let solution = solve_with_progress(&scene, &settings, quiet || args.json)?;
+    solution
+        .write(&args.output)
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    let summary = crate::methods::SolveSummary::of(&solution, started.elapsed().as_secs_f64());
+    if args.json {
+        println!("{}", serde_json::to_string(&summary)?);
+    } else {
+        print!("{summary}");
+        println!("wrote {}", args.output.display());
+    }
+    Ok(())
+}
+
+pub fn export(args: &ExportArgs) -> Result<()> {
+    let solution = Solution::read(&args.solution)?;
+    let (values, units) = crate::methods::export_field(&solution, args.channel, args.field)?;
+    let dims = solution.medium.grid.dims;
+    let field_name = match args.field {
+        ExportField::Fluence => "fluence",
+        ExportField::Source => "source",
+        ExportField::SigmaT => "sigma-t",
+    };
+    let volume = medium::volume_io::VolumeData::new(dims, values)?;
+    let ext = args
+        .output
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let comments = vec![
+        ("field".to_string(), field_name.to_string()),
+        ("units".to_string(), units.to_string()),
+        ("channel".to_string(), args.channel.to_string()),
+        ("solution".to_string(), args.solution.display().to_string()),
+        ("cell_size".to_string(), solution.medium.grid.cell_size.to_string()),
+    ];
+    match ext.as_str() {
+        "nrrd" => medium::volume_io::write_nrrd(
+            &args.output,
+            &volume,
+            &medium::volume_io::NrrdWriteOptions {
+                comments,
+                units: Some("length".into()),
+                spacings: Some([solution.medium.grid.cell_size; 3]),
+                gzip: false,
+            },
+        )?,
+        "raw" => {
+            medium::volume_io::write_raw_f32(&args.output, &volume)?;
+            let sidecar = args.output.with_extension("json");
+            let meta = serde_json::json!({
+                "field": field_name,
+                "units": units,
+                "dims": dims,
+                "order": "x fastest: index = i + nx * (j + ny * k)",
+                "dtype": "float32 little-endian",
+                "cell_size": solution.medium.grid.cell_size,
+                "channel": args.channel,
+            });
+            crate::solution::write_atomic(&sidecar, serde_json::to_string_pretty(&meta)?.as_bytes())
+                .with_context(|| format!("writing {}", sidecar.display()))?;
+            println!("wrote {}", sidecar.display());
+        }
+        _ => bail!(
+            "{}: unknown extension `{ext}` (expected .raw or .nrrd)",
+            args.output.display()
+        ),
+    }
+    println!("wrote {}", args.output.display());
+    Ok(())
+}

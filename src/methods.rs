@@ -1,0 +1,401 @@
+//! The solve methods wired end to end (light pass → operator → solver → stored field), the
+//! scattered-light sources a render adds, and the per-cell fields `volrad export` writes.
+
+use std::f64::consts::PI;
+use std::fmt;
+
+use anyhow::{bail, Context, Result};
+use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
+use gather::single_scatter::{SingleScatter, SingleScatterOptions};
+use gather::InScattering;
+use glam::DVec3;
+use medium::light_pass::LightPass;
+use medium::scene::{IterationMethod, OpticalModel, SolveMethod, SolveSettings, ITERATION_NAMES};
+use medium::traversal::Ray;
+use medium::Scene;
+use serde::Serialize;
+use solver::{Method, Smoother, SolveOptions, SolveReport, TransportOperator};
+
+use crate::cli::ExportField;
+use crate::pipeline::{CellSource, SolveHooks};
+use crate::solution::{ChannelSolution, ScatteredField, Solution, StoredBins};
+
+/// The solver method for a scene's `[solve] iteration`.
+pub fn solver_method(it: IterationMethod) -> Method {
+    match it {
+        IterationMethod::Jacobi => Method::Jacobi,
+        IterationMethod::GaussSeidel => Method::GaussSeidel,
+        IterationMethod::Sor { omega } => Method::Sor { omega },
+        IterationMethod::Gmres { restart } => Method::Gmres { restart },
+        IterationMethod::BiCgStab => Method::BiCgStab,
+        IterationMethod::ConjugateGradient => Method::ConjugateGradient,
+        IterationMethod::CoarseJacobi => Method::CoarseCorrected {
+            inner: Smoother::Jacobi,
+        },
+        IterationMethod::CoarseGaussSeidel => Method::CoarseCorrected {
+            inner: Smoother::GaussSeidel,
+        },
+    }
+}
+
+/// `--iteration TEXT` on top of the scene's setting.
+pub fn set_iteration(settings: &mut SolveSettings, text: &str) -> Result<()> {
+    settings.iteration = IterationMethod::parse(text)
+        .with_context(|| format!("--iteration `{text}`: expected one of {ITERATION_NAMES}"))?;
+    Ok(())
+}
+
+fn solve_options(settings: &SolveSettings) -> SolveOptions {
+    SolveOptions {
+        method: solver_method(settings.iteration),
+        tolerance: settings.tolerance,
+        max_iterations: settings.max_iterations,
+        record_history: true,
+    }
+}
+
+fn run_solver(
+    op: &dyn TransportOperator,
+    source: &[f64],
+    settings: &SolveSettings,
+    hooks: &SolveHooks,
+) -> Result<(Vec<f64>, SolveReport)> {
+    let options = solve_options(settings);
+    let (g, report) = solver::solve(op, source, None, &options, &hooks.control)
+        .with_context(|| format!("solving with {}", options.method))?;
+    tracing::info!(
+        method = %report.method,
+        iterations = report.iterations,
+        residual = report.final_residual,
+        converged = report.converged,
+        seconds = report.seconds,
+        "solved"
+    );
+    Ok((g, report))
+}
+
+/// Zonal multiple scattering (exact or hierarchical form factors) for channel `c`.
+pub fn solve_zonal(
+    scene: &Scene,
+    c: usize,
+    light_pass: &LightPass,
+    settings: &SolveSettings,
+    hooks: &SolveHooks,
+) -> Result<(ScatteredField, Option<SolveReport>)> {
+    let grid = &scene.medium.grid;
+    let channel = &scene.medium.channels[c];
+    let source = light_pass.zonal_source(channel);
+    let (g, report) = match settings.method {
+        SolveMethod::Zonal => {
+            let op = FormFactorMatrix::build(grid, channel, &ExactOptions::default(), None)
+                .context("building the exact form factors")?;
+            tracing::info!(entries = op.report.entries, seconds = op.report.seconds, "form factors built");
+            run_solver(&op, &source, settings, hooks)?
+        }
+        _ => {
+            let op = HierarchicalOperator::build(grid, channel, &HierarchicalOptions::default())
+                .context("building the hierarchical form factors")?;
+            tracing::info!(links = op.report.entries, seconds = op.report.seconds, "hierarchy built");
+            run_solver(&op, &source, settings, hooks)?
+        }
+    };
+    let higher_order = g.iter().zip(&source).map(|(g, e)| (g - e).max(0.0) as f32).collect();
+    Ok((
+        ScatteredField::Isotropic {
+            source: g.iter().map(|&v| v as f32).collect(),
+            higher_order,
+        },
+        Some(report),
+    ))
+}
+
+/// Face divisions `n` of a `6 n²` bin count.
+fn face_divisions(bins: usize) -> Result<usize> {
+    (1..=8)
+        .find(|n| 6 * n * n == bins)
+        .with_context(|| format!("{bins} bins: expected 6n² for n = 1..=8"))
+}
+
+/// Discrete-ordinates multiple scattering for channel `c`.
+pub fn solve_ordinates(
+    scene: &Scene,
+    c: usize,
+    light_pass: &LightPass,
+    settings: &SolveSettings,
+    hooks: &SolveHooks,
+) -> Result<(ScatteredField, Option<SolveReport>)> {
+    let bins = DirectionBins::cube(face_divisions(settings.bins)?)?;
+    let channel = &scene.medium.channels[c];
+    let op = OrdinatesOperator::from_channel(
+        scene.medium.grid,
+        channel,
+        scene.medium.phase,
+        bins,
+        OrdinatesOptions::default(),
+    )?;
+    // I = T(S1 + e) + K I: the once-transported external density is the system's source.
+    let external = op.external_density_from_pass(light_pass, channel)?;
+    let mut source = vec![0.0; op.len()];
+    op.transport(&external, &mut source);
+    let (radiance, report) = run_solver(&op, &source, settings, hooks)?;
+    // What the render adds to the exact first bounce: scattering of the solved (already
+    // once-scattered) radiance, i.e. second and higher orders.
+    let mut higher = vec![0.0; op.len()];
+    op.scatter_density(&radiance, &mut higher);
+    Ok((
+        ScatteredField::Binned {
+            radiance: radiance.iter().map(|&v| v as f32).collect(),
+            higher_order: higher.iter().map(|&v| v.max(0.0) as f32).collect(),
+        },
+        Some(report),
+    ))
+}
+
+/// The direction bins a solution stores (discrete ordinates only).
+pub fn stored_bins(settings: &SolveSettings) -> Option<StoredBins> {
+    if settings.method != SolveMethod::DiscreteOrdinates {
+        return None;
+    }
+    let n = face_divisions(settings.bins).ok()?;
+    let bins = DirectionBins::cube(n).ok()?;
+    Some(StoredBins {
+        face_resolution: n,
+        directions: bins.centres().iter().map(|d| d.to_array()).collect(),
+        solid_angles: bins.solid_angles().to_vec(),
+    })
+}
+
+/// A per-cell, per-bin source looked up by direction: bilinear between the bin centres of one
+/// cube face (the layout of `formfactor::ordinates::bins`: bin `f n² + i n + j`).
+pub struct BinnedSource<'a> {
+    values: &'a [f32],
+    n: usize,
+    max: f64,
+}
+
+impl<'a> BinnedSource<'a> {
+    pub fn new(values: &'a [f32], n: usize) -> Self {
+        let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
+        BinnedSource { values, n, max }
+    }
+
+    #[inline]
+    fn lookup(&self, cell: usize, w: DVec3) -> f64 {
+        let n = self.n;
+        let a = w.abs();
+        let axis = if a.x >= a.y && a.x >= a.z {
+            0
+        } else if a.y >= a.z {
+            1
+        } else {
+            2
+        };
+        let sign_positive = w[axis] >= 0.0;
+        let face = 2 * axis + if sign_positive { 0 } else { 1 };
+        let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
+        let inv = 1.0 / a[axis];
+        let (u, v) = (w[ua] * inv, w[va] * inv);
+        // Continuous bin coordinates with bin centres at integers (approximately: the true
+        // centres are the solid-angle-weighted means, within a fraction of a bin).
+        let s = ((u + 1.0) * 0.5 * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+        let t = ((v + 1.0) * 0.5 * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+        let (i0, j0) = (s.floor() as usize, t.floor() as usize);
+        let (i1, j1) = ((i0 + 1).min(n - 1), (j0 + 1).min(n - 1));
+        let (fs, ft) = (s - i0 as f64, t - j0 as f64);
+        let base = cell * 6 * n * n + face * n * n;
+        let at = |i: usize, j: usize| self.values[base + i * n + j] as f64;
+        (1.0 - fs) * ((1.0 - ft) * at(i0, j0) + ft * at(i0, j1))
+            + fs * ((1.0 - ft) * at(i1, j0) + ft * at(i1, j1))
+    }
+}
+
+impl InScattering for BinnedSource<'_> {
+    #[inline]
+    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
+        self.lookup(cell, -ray.direction) * gather::segment_weight(sigma_t, t1 - t0)
+    }
+    #[inline]
+    fn at(&self, _x: DVec3, cell: usize, w: DVec3) -> f64 {
+        self.lookup(cell, w)
+    }
+    fn max_source(&self) -> f64 {
+        self.max
+    }
+    fn is_zero(&self) -> bool {
+        self.max == 0.0
+    }
+}
+
+/// All scattered light of channel `c` for a render with `model`: the exact first bounce
+/// (true phase function, shadowed or "Utah") plus the solved higher orders.
+pub fn channel_scattering<'a>(
+    solution: &'a Solution,
+    c: usize,
+    ch: &'a ChannelSolution,
+    model: OpticalModel,
+) -> Result<Box<dyn InScattering + 'a>> {
+    let shadows = match model {
+        OpticalModel::Scattering => true,
+        OpticalModel::SingleScatterUnshadowed => false,
+        _ => return Ok(Box::new(())),
+    };
+    let options = SingleScatterOptions {
+        shadows,
+        ..SingleScatterOptions::default()
+    };
+    let first = SingleScatter::new(&solution.medium, c, &ch.light_pass, options)?;
+    if !shadows {
+        return Ok(Box::new(first));
+    }
+    Ok(match (&ch.scattered, &solution.bins) {
+        (ScatteredField::Isotropic { higher_order, .. }, _) => {
+            Box::new((first, CellSource::new(higher_order)))
+        }
+        (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
+            Box::new((first, BinnedSource::new(higher_order, bins.face_resolution)))
+        }
+        _ => Box::new(first),
+    })
+}
+
+/// What `volrad solve` prints: per channel, the method, iterations and residual.
+#[derive(Debug, Serialize)]
+pub struct SolveSummary {
+    pub method: String,
+    pub scene_hash: String,
+    pub seconds: f64,
+    pub channels: Vec<ChannelSummary>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct ChannelSummary {
+    pub iteration: Option<String>,
+    pub iterations: usize,
+    pub converged: bool,
+    pub final_residual: Option<f64>,
+    pub stop_reason: Option<String>,
+    pub solve_seconds: Option<f64>,
+    pub light_energy_imbalance: f64,
+}
+
+impl SolveSummary {
+    pub fn of(solution: &Solution, seconds: f64) -> SolveSummary {
+        SolveSummary {
+            method: solution.method.name().to_string(),
+            scene_hash: solution.scene_hash.clone(),
+            seconds,
+            channels: solution
+                .channels
+                .iter()
+                .map(|ch| ChannelSummary {
+                    iteration: ch.report.as_ref().map(|r| r.method.clone()),
+                    iterations: ch.report.as_ref().map_or(0, |r| r.iterations),
+                    converged: ch.report.as_ref().is_none_or(|r| r.converged),
+                    final_residual: ch.report.as_ref().map(|r| r.final_residual),
+                    stop_reason: ch.report.as_ref().map(|r| format!("{:?}", r.stop_reason)),
+                    solve_seconds: ch.report.as_ref().map(|r| r.seconds),
+                    light_energy_imbalance: ch
+                        .light_pass
+                        .fields
+                        .iter()
+                        .map(|f| f.energy.relative_imbalance())
+                        .fold(0.0, f64::max),
+                })
+                .collect(),
+        }
+    }
+}
+
+impl fmt::Display for SolveSummary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "method      {}", self.method)?;
+        for (c, ch) in self.channels.iter().enumerate() {
+            match (&ch.iteration, ch.final_residual) {
+                (Some(it), Some(res)) => writeln!(
+                    f,
+                    "channel {c}   {it}: {} iterations, relative residual {res:.3e}, {} ({:.2} s)",
+                    ch.iterations,
+                    if ch.converged { "converged" } else { "NOT converged" },
+                    ch.solve_seconds.unwrap_or(0.0)
+                )?,
+                _ => writeln!(f, "channel {c}   light pass only (no linear solve)")?,
+            }
+        }
+        writeln!(f, "total       {:.2} s, scene hash {}", self.seconds, self.scene_hash)
+    }
+}
+
+/// A per-cell field of a solution for export, with its units.
+pub fn export_field(
+    solution: &Solution,
+    channel: usize,
+    field: ExportField,
+) -> Result<(Vec<f32>, &'static str)> {
+    let Some(ch) = solution.channels.get(channel) else {
+        bail!(
+            "--channel {channel}: the solution has {} channel(s)",
+            solution.channels.len()
+        );
+    };
+    let medium = &solution.medium.channels[channel];
+    let cells = solution.medium.grid.cell_count();
+    Ok(match field {
+        ExportField::SigmaT => (medium.sigma_t.clone(), "1/length"),
+        ExportField::Source => match &ch.scattered {
+            ScatteredField::Isotropic { source, .. } => (source.clone(), "radiance/length"),
+            _ => {
+                // Angular mean of the source: emission + σs (fluence / 4π).
+                let fluence = fluence(solution, channel);
+                let values = (0..cells)
+                    .map(|i| {
+                        (medium.emission.get(i) as f64
+                            + medium.sigma_s(i) as f64 * fluence[i] / (4.0 * PI))
+                            as f32
+                    })
+                    .collect();
+                (values, "radiance/length (angular mean)")
+            }
+        },
+        ExportField::Fluence => (
+            fluence(solution, channel)
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+            "radiance × steradian (∫ I dω)",
+        ),
+    })
+}
+
+/// `∫ I dω` per cell of channel `c`, including the unscattered light.
+pub fn fluence(solution: &Solution, c: usize) -> Vec<f64> {
+    let ch = &solution.channels[c];
+    let m = &solution.medium.channels[c];
+    let unscattered = ch.light_pass.total_cell_irradiance();
+    match (&ch.scattered, &solution.bins) {
+        (ScatteredField::Isotropic { source, .. }, _) => (0..unscattered.len())
+            .map(|i| {
+                // g = e + σs φ / 4π for isotropic scattering; where σs = 0 the scattered part
+                // cannot be recovered from g, so only the unscattered light is counted there.
+                let ss = m.sigma_s(i) as f64;
+                if ss > 0.0 {
+                    4.0 * PI * (source[i] as f64 - m.emission.get(i) as f64) / ss
+                } else {
+                    unscattered[i]
+                }
+            })
+            .collect(),
+        (ScatteredField::Binned { radiance, .. }, Some(bins)) => radiance
+            .chunks(bins.solid_angles.len())
+            .zip(&unscattered)
+            .map(|(r, u)| {
+                u + r
+                    .iter()
+                    .zip(&bins.solid_angles)
+                    .map(|(a, w)| *a as f64 * w)
+                    .sum::<f64>()
+            })
+            .collect(),
+        _ => unscattered,
+    }
+}

@@ -1,0 +1,135 @@
+//! Orchestration shared by the command line and the service: scene → light pass → operator →
+//! solve → [`Solution`]; solution + camera → image.
+
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use gather::{Camera, Image, InScattering, RenderOptions};
+use glam::DVec3;
+use medium::light_pass::LightPass;
+use medium::scene::{CameraSpec, SceneOrigin, SolveMethod, SolveSettings};
+use medium::traversal::Ray;
+use medium::Scene;
+
+use crate::solution::{ChannelSolution, ScatteredField, Solution};
+
+/// Progress and cancellation for a solve, shared with whoever started it.
+#[derive(Clone, Default)]
+pub struct SolveHooks {
+    pub control: Arc<solver::SolveControl>,
+}
+
+/// A stable hash of everything that determines a solution (medium, lights, solve settings).
+pub fn scene_hash(scene: &Scene) -> String {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    let cfg = bincode::config::standard();
+    let mut feed = |bytes: Vec<u8>| {
+        h.update((bytes.len() as u64).to_le_bytes());
+        h.update(bytes);
+    };
+    feed(bincode::serde::encode_to_vec(&scene.medium, cfg).unwrap_or_default());
+    feed(bincode::serde::encode_to_vec(&scene.lights, cfg).unwrap_or_default());
+    feed(bincode::serde::encode_to_vec(&scene.solve, cfg).unwrap_or_default());
+    feed(scene.background.to_le_bytes().to_vec());
+    let digest = h.finalize();
+    digest.iter().take(16).map(|b| format!("{b:02x}")).collect()
+}
+
+fn origin_label(scene: &Scene) -> String {
+    match &scene.origin {
+        SceneOrigin::File(p) => p.display().to_string(),
+        SceneOrigin::BuiltIn(n) => format!("<built-in {n}>"),
+    }
+}
+
+/// Solves the scene's light transport with `settings` (usually `scene.solve`).
+pub fn solve_scene(scene: &Scene, settings: &SolveSettings, hooks: &SolveHooks) -> Result<Solution> {
+    let medium = &scene.medium;
+    let mut channels = Vec::with_capacity(medium.channels.len());
+    for (c, channel) in medium.channels.iter().enumerate() {
+        let span = tracing::info_span!("channel", c);
+        let _enter = span.enter();
+        let light_pass = LightPass::compute(&medium.grid, channel, &scene.lights)
+            .with_context(|| format!("light pass of channel {c}"))?;
+        let (scattered, report) = match settings.method {
+            SolveMethod::None | SolveMethod::SingleScatter => (ScatteredField::None, None),
+            SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
+                crate::methods::solve_zonal(scene, c, &light_pass, settings, hooks)?
+            }
+            SolveMethod::DiscreteOrdinates => {
+                crate::methods::solve_ordinates(scene, c, &light_pass, settings, hooks)?
+            }
+        };
+        channels.push(ChannelSolution {
+            light_pass,
+            scattered,
+            report,
+        });
+    }
+    Ok(Solution {
+        scene_hash: scene_hash(scene),
+        scene_origin: origin_label(scene),
+        method: settings.method,
+        medium: scene.medium.clone(),
+        lights: scene.lights.clone(),
+        background: scene.background,
+        render: scene.render.clone(),
+        cameras: scene.cameras.clone(),
+        bins: crate::methods::stored_bins(settings),
+        channels,
+    })
+}
+
+/// Higher-order isotropic source per cell (zonal `g − E`): constant in each cell and direction.
+pub struct CellSource<'a> {
+    pub values: &'a [f32],
+    pub max: f64,
+}
+
+impl<'a> CellSource<'a> {
+    pub fn new(values: &'a [f32]) -> Self {
+        let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
+        CellSource { values, max }
+    }
+}
+
+impl InScattering for CellSource<'_> {
+    #[inline]
+    fn segment(&self, cell: usize, _ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
+        self.values[cell] as f64 * gather::segment_weight(sigma_t, t1 - t0)
+    }
+    #[inline]
+    fn at(&self, _x: DVec3, cell: usize, _w: DVec3) -> f64 {
+        self.values[cell] as f64
+    }
+    fn max_source(&self) -> f64 {
+        self.max
+    }
+    fn is_zero(&self) -> bool {
+        self.max == 0.0
+    }
+}
+
+/// Renders one view of a solution.
+pub fn render_view(
+    solution: &Solution,
+    camera: &CameraSpec,
+    spp: Option<u32>,
+) -> Result<Image> {
+    let camera = Camera::from_spec(camera)?;
+    let options = RenderOptions {
+        model: solution.render.model,
+        spp: spp.unwrap_or(solution.render.spp),
+        background: solution.background,
+        ..RenderOptions::default()
+    };
+    let sources = solution
+        .channels
+        .iter()
+        .enumerate()
+        .map(|(c, ch)| crate::methods::channel_scattering(solution, c, ch, options.model))
+        .collect::<Result<Vec<Box<dyn InScattering + '_>>>>()?;
+    let refs: Vec<&dyn InScattering> = sources.iter().map(|b| b.as_ref()).collect();
+    Ok(gather::render_image(&solution.medium, &camera, &options, &refs)?)
+}
