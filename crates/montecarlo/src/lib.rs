@@ -1,1 +1,17 @@
 //! `montecarlo`: stochastic light transport through volrad's piecewise-constant media.
+//!
+//! - [`path_trace`] / [`path_trace_with_error`] / [`path_trace_image`] ([`path_trace`](mod@path_trace)):
+//!   the unbiased volumetric path tracer (exact per-cell free paths, next-event estimation,
+//!   Russian roulette), the reference for every deterministic method.
+//! - [`flight`]: exact free-flight sampling and transmittance along [`medium::Grid::traverse`].
+//! - [`rng`]: deterministic per-task random streams.
+
+pub mod error;
+pub mod flight;
+pub mod path_trace;
+pub mod rng;
+
+pub use error::MonteCarloError;
+pub use path_trace::{
+    path_trace, path_trace_image, path_trace_with_error, PathTraceOptions, PathTraced, PathTracer,
+};
