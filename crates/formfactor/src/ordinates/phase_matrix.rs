@@ -61,6 +61,52 @@ impl PhaseMatrix {
         PhaseMatrix { m, values }
     }
 
+    /// Tilts every column `j` as `P_lj ← P_lj e^{α_j + β_j ω_l·ω_j}` (bin centres) so that,
+    /// besides energy (`Σ_l P_lj Ω_l = 1`), the discrete mean cosine `Σ_l P_lj Ω_l ω_l·ω_j`
+    /// equals `g` exactly (Hunter & Guo's idea of phase-function normalisation that keeps the
+    /// asymmetry factor): coarse bins otherwise lose part of a forward peak's asymmetry.
+    /// Columns where `g` is out of reach of the tilt are left energy-normalised.
+    pub fn match_asymmetry(&mut self, bins: &DirectionBins, g: f64) {
+        let m = self.m;
+        let omega = bins.solid_angles();
+        let c = bins.centres();
+        for j in 0..m {
+            let w: Vec<f64> = (0..m).map(|l| self.values[l * m + j] * omega[l]).collect();
+            let mu: Vec<f64> = (0..m).map(|l| c[l].dot(c[j])).collect();
+            // Mean cosine under the tilt β (monotone increasing in β).
+            let mean = |beta: f64| -> f64 {
+                let (mut z, mut zm) = (0.0, 0.0);
+                for (wl, ml) in w.iter().zip(&mu) {
+                    let e = wl * (beta * (ml - 1.0)).exp();
+                    z += e;
+                    zm += e * ml;
+                }
+                zm / z
+            };
+            let (mut lo, mut hi) = (-200.0f64, 200.0f64);
+            if !(mean(lo) < g && mean(hi) > g) {
+                continue;
+            }
+            for _ in 0..200 {
+                let mid = 0.5 * (lo + hi);
+                if mean(mid) < g {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            let beta = 0.5 * (lo + hi);
+            let z: f64 = w
+                .iter()
+                .zip(&mu)
+                .map(|(wl, ml)| wl * (beta * (ml - 1.0)).exp())
+                .sum();
+            for l in 0..m {
+                self.values[l * m + j] *= (beta * (mu[l] - 1.0)).exp() / z;
+            }
+        }
+    }
+
     /// With [`default_quadrature`].
     pub fn with_default_quadrature(bins: &DirectionBins, phase: &PhaseFunction) -> Self {
         Self::new(bins, phase, default_quadrature(bins))

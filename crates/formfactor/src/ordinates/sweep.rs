@@ -38,6 +38,9 @@ pub struct OrdinatesOptions {
     pub first_bounce_quadrature: usize,
     /// Bins updated together in one Gauss–Seidel step (they are swept in parallel).
     pub gauss_seidel_group: usize,
+    /// Tilt the phase matrix so its discrete mean cosine equals the phase function's
+    /// ([`PhaseMatrix::match_asymmetry`]).
+    pub match_asymmetry: bool,
 }
 
 impl Default for OrdinatesOptions {
@@ -47,6 +50,7 @@ impl Default for OrdinatesOptions {
             phase_quadrature: None,
             first_bounce_quadrature: 12,
             gauss_seidel_group: 8,
+            match_asymmetry: true,
         }
     }
 }
@@ -250,7 +254,10 @@ impl OrdinatesOperator {
         let k = options
             .phase_quadrature
             .unwrap_or_else(|| default_quadrature(&bins));
-        let matrix = PhaseMatrix::new(&bins, &phase, k);
+        let mut matrix = PhaseMatrix::new(&bins, &phase, k);
+        if options.match_asymmetry && !phase.is_isotropic() {
+            matrix.match_asymmetry(&bins, phase.mean_cosine());
+        }
         let m = bins.len();
         let omega = bins.solid_angles();
         let scatter = (0..m * m)
@@ -501,6 +508,13 @@ impl OrdinatesOperator {
         let s = piece.projected;
         let chord = h / s;
         let periodic = self.options.periodic_xy;
+        let self_loop = if periodic {
+            (if nx == 1 { fx } else { 0.0 }) + (if ny == 1 { fy } else { 0.0 })
+        } else {
+            0.0
+        };
+        // Whether wrapped inflows from other cells lag one pass.
+        let lagged = periodic && (nx > 1 || ny > 1);
         let order = |len: usize, fwd: bool| -> Box<dyn Fn(usize) -> usize> {
             if fwd {
                 Box::new(|t| t)
@@ -534,14 +548,14 @@ impl OrdinatesOperator {
                         let c = base + lc;
                         let in_x = if tx > 0 {
                             fx * buf.out[ix(tx - 1) + nx * j]
-                        } else if periodic {
+                        } else if periodic && nx > 1 {
                             fx * buf.out[ix(nx - 1) + nx * j]
                         } else {
                             0.0
                         };
                         let in_y = if ty > 0 {
                             fy * buf.out[i + nx * iy(ty - 1)]
-                        } else if periodic {
+                        } else if periodic && ny > 1 {
                             fy * buf.out[i + nx * iy(ny - 1)]
                         } else {
                             0.0
@@ -549,14 +563,17 @@ impl OrdinatesOperator {
                         let inflow = in_x + in_y + buf.inz[lc];
                         let tau = self.sigma_t[c] * chord;
                         let src = density[c * m + piece.bin] * h;
-                        let new = inflow * (-tau).exp() + src * escape_fraction(tau);
+                        let t = (-tau).exp();
+                        // A one-cell-wide periodic axis feeds the cell's own outflow back
+                        // into it: solve that self-loop exactly.
+                        let new = (inflow * t + src * escape_fraction(tau)) / (1.0 - self_loop * t);
                         change = change.max((new - buf.out[lc]).abs());
                         scale = scale.max(new.abs());
                         buf.out[lc] = new;
                     }
                 }
                 passes += 1;
-                if !periodic || change <= 1e-15 * scale || passes >= 100_000 {
+                if !lagged || change <= 1e-15 * scale || passes >= 100_000 {
                     break;
                 }
             }
@@ -581,6 +598,7 @@ impl OrdinatesOperator {
                     } else {
                         0.0
                     };
+                    // (Self-loops included here: the converged outflow is known.)
                     let inflow = in_x + in_y + buf.inz[lc];
                     let tau = self.sigma_t[c] * chord;
                     let sd = density[c * m + piece.bin];
