@@ -12,6 +12,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod camera;
+mod empty_space;
 pub mod error;
 pub mod image_io;
 pub mod render;

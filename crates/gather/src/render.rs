@@ -22,6 +22,7 @@ use medium::traversal::Ray;
 use medium::{CellValues, Interpolation, Medium};
 use rayon::prelude::*;
 
+use crate::empty_space::EmptySpace;
 use crate::image_io::Image;
 use crate::scattering::InScattering;
 use crate::{Camera, GatherError};
@@ -144,6 +145,8 @@ pub struct RayIntegrator<'a> {
     /// a cell for the interpolation's reach); rays are clipped to it, so the empty margins
     /// of a volume cost nothing. `None`: the medium is empty for this model.
     occupied: Option<(DVec3, DVec3)>,
+    /// Distances to the nearest occupied cell, for jumping over empty space.
+    empty: EmptySpace,
     termination: f64,
     step: f64,
 }
@@ -183,14 +186,9 @@ impl<'a> RayIntegrator<'a> {
         } else {
             0.0
         };
-        let occupied = occupied_box(
-            &medium.grid,
-            &ch.sigma_t,
-            &ch.emission,
-            use_sigma,
-            use_emission,
-            medium.interpolation,
-        );
+        let occupancy = occupancy(&ch.sigma_t, &ch.emission, use_sigma, use_emission);
+        let occupied = occupied_box(&medium.grid, &occupancy, medium.interpolation);
+        let empty = EmptySpace::new(&medium.grid, &occupancy);
         Ok(RayIntegrator {
             grid: medium.grid,
             sigma_t: &ch.sigma_t,
@@ -205,6 +203,7 @@ impl<'a> RayIntegrator<'a> {
             emission_ratio_max,
             scattering_max,
             occupied,
+            empty,
             termination: options.termination,
             step: options.trilinear_step * medium.grid.cell_size,
         })
@@ -244,34 +243,51 @@ impl<'a> RayIntegrator<'a> {
     fn radiance_nearest(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
         let mut transmittance = 1.0f64;
         let mut radiance = 0.0f64;
-        for seg in self.grid.traverse(ray, t_in, t_out) {
-            let len = seg.length();
-            if len <= 0.0 {
-                continue;
+        let mut t_start = t_in;
+        'restart: loop {
+            for seg in self.grid.traverse(ray, t_start, t_out) {
+                // Deep in empty space: jump to where the ray leaves the known-empty cube and
+                // restart the traversal there (worth it only for cubes of several cells).
+                let radius = self.empty.empty_radius(seg.cell, 0);
+                if radius >= JUMP_RADIUS {
+                    let t_next = self.empty.exit(ray, seg.cell, radius);
+                    if t_next >= t_out {
+                        break 'restart;
+                    }
+                    if t_next > seg.t_exit {
+                        t_start = t_next;
+                        continue 'restart;
+                    }
+                }
+                let len = seg.length();
+                let sigma = if self.use_sigma {
+                    self.sigma_t[seg.cell] as f64
+                } else {
+                    0.0
+                };
+                let emission = if self.use_emission {
+                    self.emission.get(seg.cell) as f64
+                } else {
+                    0.0
+                };
+                // Nothing absorbs, emits or scatters here (scattering needs σs = a σt > 0).
+                if (sigma == 0.0 && emission == 0.0) || len <= 0.0 {
+                    continue;
+                }
+                let (weight, attenuation) = weight_and_attenuation(sigma, len);
+                let mut q = emission * weight;
+                if self.use_scattering {
+                    q += self
+                        .scattering
+                        .segment(seg.cell, ray, seg.t_enter, seg.t_exit, sigma);
+                }
+                radiance += transmittance * q;
+                transmittance *= attenuation;
+                if self.can_stop(transmittance, radiance, seg.t_exit, t_out) {
+                    return radiance;
+                }
             }
-            let sigma = if self.use_sigma {
-                self.sigma_t[seg.cell] as f64
-            } else {
-                0.0
-            };
-            if sigma == 0.0 && !self.use_emission && !self.use_scattering {
-                continue;
-            }
-            let (weight, attenuation) = weight_and_attenuation(sigma, len);
-            let mut q = 0.0;
-            if self.use_emission {
-                q += self.emission.get(seg.cell) as f64 * weight;
-            }
-            if self.use_scattering {
-                q += self
-                    .scattering
-                    .segment(seg.cell, ray, seg.t_enter, seg.t_exit, sigma);
-            }
-            radiance += transmittance * q;
-            transmittance *= attenuation;
-            if self.can_stop(transmittance, radiance, seg.t_exit, t_out) {
-                return radiance;
-            }
+            break;
         }
         radiance + transmittance * self.background
     }
@@ -284,10 +300,25 @@ impl<'a> RayIntegrator<'a> {
         let flow = -ray.direction;
         let mut transmittance = 1.0f64;
         let mut radiance = 0.0f64;
-        for k in 0..steps {
+        let mut k = 0;
+        while k < steps {
             let t = t_in + (k as f64 + 0.5) * dt;
             let x = ray.at(t);
             let corners = Trilinear::new(&self.grid, x);
+            // The interpolated field is zero in cells whose neighbours are all empty; jump over
+            // the whole known-empty cube, keeping to the lattice of step midpoints.
+            let radius = self.empty.empty_radius(corners.cell, 1);
+            if radius >= 0 {
+                let t_next = self.empty.exit(ray, corners.cell, radius);
+                let k_next = ((t_next - t_in) / dt - 0.5).ceil();
+                k = if k_next > k as f64 {
+                    k_next as usize
+                } else {
+                    k + 1
+                };
+                continue;
+            }
+            k += 1;
             let (sigma, mut q) = match (self.use_sigma, self.use_emission) {
                 (true, true) => corners.sample2(self.sigma_t, self.emission),
                 (true, false) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
@@ -446,14 +477,32 @@ impl Trilinear {
     }
 }
 
-/// The world-space box of the cells that can absorb (`use_sigma`, σt > 0) or emit
-/// (`use_emission`, e > 0); scattered light needs σs = a σt > 0, so it lies inside too.
-fn occupied_box(
-    grid: &Grid,
+/// Smallest empty radius (cells around the current one) worth a restart of the traversal.
+const JUMP_RADIUS: i64 = 2;
+
+/// Which cells can absorb (`use_sigma`, σt > 0) or emit (`use_emission`, e > 0).
+fn occupancy(
     sigma_t: &[f32],
     emission: &CellValues,
     use_sigma: bool,
     use_emission: bool,
+) -> Vec<bool> {
+    match (use_emission, emission) {
+        (true, CellValues::PerCell(e)) => sigma_t
+            .iter()
+            .zip(e)
+            .map(|(&s, &e)| (use_sigma && s > 0.0) || e > 0.0)
+            .collect(),
+        (true, CellValues::Uniform(e)) if *e > 0.0 => vec![true; sigma_t.len()],
+        _ => sigma_t.iter().map(|&s| use_sigma && s > 0.0).collect(),
+    }
+}
+
+/// The world-space box of the occupied cells (those that can absorb or emit; scattered light
+/// needs σs = a σt > 0, so it lies inside too).
+fn occupied_box(
+    grid: &Grid,
+    occupancy: &[bool],
     interpolation: Interpolation,
 ) -> Option<(DVec3, DVec3)> {
     let [nx, ny, nz] = grid.dims;
@@ -464,8 +513,7 @@ fn occupied_box(
         for j in 0..ny {
             let row = nx * (j + ny * k);
             for i in 0..nx {
-                let c = row + i;
-                if (use_sigma && sigma_t[c] > 0.0) || (use_emission && emission.get(c) > 0.0) {
+                if occupancy[row + i] {
                     any = true;
                     for (a, v) in [i, j, k].into_iter().enumerate() {
                         lo[a] = lo[a].min(v);

@@ -753,3 +753,51 @@ fn sparse_media_match_brute_force_integration() {
         }
     }
 }
+
+/// A uniform source that counts the cells it is asked about.
+struct Counting {
+    q: f64,
+    calls: std::sync::atomic::AtomicUsize,
+}
+
+impl InScattering for Counting {
+    fn segment(&self, _: usize, _: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
+        self.calls
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.q * gather::segment_weight(sigma_t, t1 - t0)
+    }
+    fn at(&self, _: DVec3, _: usize, _: DVec3) -> f64 {
+        self.q
+    }
+    fn max_source(&self) -> f64 {
+        self.q
+    }
+}
+
+#[test]
+fn early_termination_stops_thick_rays() {
+    // 40 cells of τ = 1 each: the ray should stop after about ln(10⁴) ≈ 9–10 cells, and visit
+    // all 40 with termination disabled.
+    let medium = homogeneous([40, 1, 1], 1.0, 1.0, 0.0);
+    let ray = Ray::new(DVec3::new(-1.0, 0.5, 0.5), DVec3::X);
+    for (termination, lo, hi) in [(1e-4, 8, 13), (0.0, 40, 40)] {
+        let source = Counting {
+            q: 0.5,
+            calls: 0.into(),
+        };
+        let opts = RenderOptions {
+            model: OpticalModel::Scattering,
+            termination,
+            ..RenderOptions::default()
+        };
+        let got = RayIntegrator::new(&medium, 0, &opts, &source)
+            .unwrap()
+            .radiance(&ray);
+        let calls = source.calls.into_inner();
+        assert!(
+            (lo..=hi).contains(&calls),
+            "termination {termination}: {calls} cells"
+        );
+        assert!(rel_err(got, 0.5 * (1.0 - (-40.0f64).exp())) <= termination.max(1e-12));
+    }
+}
