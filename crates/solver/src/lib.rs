@@ -6,6 +6,9 @@
 //! (for operators with a [`symmetrizer`](TransportOperator::symmetrizer)), and a two-level
 //! coarse-corrected iteration (additive coarse-mesh rebalance, the physics-style accelerator).
 
+// `!(x > 0.0)` is used on purpose: it is also true for NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod control;
 pub mod dense;
 pub mod error;

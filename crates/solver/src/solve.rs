@@ -80,11 +80,22 @@ pub fn solve(
         None => ctx.true_residual(&g),
     };
     // A recurrence may claim convergence the true residual does not confirm.
-    let reason = if stop.reason == StopReason::Converged && !(final_residual <= options.tolerance) {
-        StopReason::MaxIterations
-    } else {
-        stop.reason
-    };
+    let mut reason =
+        if stop.reason == StopReason::Converged && !(final_residual <= options.tolerance) {
+            StopReason::MaxIterations
+        } else {
+            stop.reason
+        };
+    // A residual is only meaningful above its rounding floor: if the iterate has grown so
+    // large that `E` vanishes in the rounding of `g − K g`, a tiny residual proves nothing.
+    let rounding_floor = 8.0 * f64::EPSILON * ctx.red.norm(&g) / ctx.scale;
+    if reason == StopReason::Converged && rounding_floor > options.tolerance {
+        tracing::warn!(
+            rounding_floor,
+            "solution grew beyond the residual's precision"
+        );
+        reason = StopReason::Diverged;
+    }
     let seconds = start.elapsed().as_secs_f64();
     let iterations = ctx.mon.iterations;
     let report = SolveReport {

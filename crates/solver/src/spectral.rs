@@ -95,5 +95,6 @@ pub fn predicted_iterations(rho: f64, tolerance: f64) -> Option<usize> {
     if rho == 0.0 {
         return Some(1);
     }
-    Some((tolerance.ln() / rho.ln()).ceil() as usize)
+    // The small allowance keeps exact powers (ρ = 0.1, tol = 1e-5 → 5) from rounding up.
+    Some((tolerance.ln() / rho.ln() - 1e-9).ceil() as usize)
 }

@@ -29,7 +29,7 @@ pub fn contiguous_aggregates(n: usize, count: usize) -> Vec<u32> {
 }
 
 fn has_entries(op: &dyn TransportOperator) -> bool {
-    op.len() > 0
+    !op.is_empty()
         && op
             .rows()
             .is_some_and(|rows| rows.for_each_in_row(0, &mut |_, _| {}))
@@ -102,14 +102,15 @@ struct Lu {
 }
 
 impl Lu {
-    fn factor(mut a: Vec<f64>, n: usize) -> Option<Self> {
-        let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    /// `scale`: the size of the matrix's terms before cancellation (pivots below
+    /// `1e-10 · scale` count as singular).
+    fn factor(mut a: Vec<f64>, n: usize, scale: f64) -> Option<Self> {
         let mut perm: Vec<usize> = (0..n).collect();
         for k in 0..n {
             let p = (k..n)
                 .max_by(|&i, &j| a[i * n + k].abs().total_cmp(&a[j * n + k].abs()))
                 .expect("non-empty");
-            if !(a[p * n + k].abs() > 1e-13 * scale) {
+            if !(a[p * n + k].abs() > 1e-10 * scale) {
                 return None;
             }
             if p != k {
@@ -132,6 +133,7 @@ impl Lu {
         Some(Self { n, a, perm })
     }
 
+    #[allow(clippy::needless_range_loop)] // triangular loops read clearer with indices
     /// Solves in place: `b` is overwritten by the solution (uses `tmp` as scratch).
     fn solve(&self, b: &mut [f64], tmp: &mut [f64]) {
         let n = self.n;
@@ -184,11 +186,13 @@ pub(crate) fn two_level(
         None
     } else {
         let mut ac = coarse_k(ctx, aggs, nc)?;
+        // Aggregate sizes and |PᵀKP| set the scale against which cancellation is judged.
+        let scale = ac.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1.0);
         ac.iter_mut().for_each(|v| *v = -*v);
         for &a in aggs {
             ac[a as usize * (nc + 1)] += 1.0;
         }
-        let lu = Lu::factor(ac, nc);
+        let lu = Lu::factor(ac, nc, scale);
         if lu.is_none() {
             tracing::warn!("coarse operator is singular (no leakage at albedo 1?): smoothing only");
         }
