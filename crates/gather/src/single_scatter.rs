@@ -243,47 +243,135 @@ impl<'a> SingleScatter<'a> {
     }
 }
 
+impl SingleScatter<'_> {
+    /// `∫_a^b e^{−σt (t−a)} Q1_l(ray(t)) dt` by Gauss–Legendre in `u = (1 − e^{−λ(t−a)})/λ`,
+    /// `λ = σt + σt_cell · slope` (the rate of `e^{−σt (t−a)} T_L` when `T_L`'s exit face is
+    /// fixed), putting back at each node the part of `e^{−λ(t−a)}` beyond `e^{−σt (t−a)}`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn piece(
+        &self,
+        l: usize,
+        cell: usize,
+        ray: &Ray,
+        a: f64,
+        b: f64,
+        sigma_t: f64,
+        sigma_s: f64,
+        slope: f64,
+    ) -> f64 {
+        let len = b - a;
+        let w = -ray.direction;
+        let lambda = sigma_t + self.sigma_t[cell] as f64 * slope;
+        let extra = lambda - sigma_t;
+        let flat = (lambda * len).abs() < 1e-9;
+        let big_w = if flat {
+            len
+        } else {
+            -(-lambda * len).exp_m1() / lambda
+        };
+        let mut sum = 0.0;
+        for &(xi, wi) in GAUSS_LEGENDRE[self.options.nodes - 1] {
+            let u = 0.5 * big_w * (xi + 1.0);
+            let s = if flat {
+                u
+            } else {
+                -(-lambda * u).ln_1p() / lambda
+            };
+            let s = s.clamp(0.0, len);
+            let q = self.source_from(l, ray.at(a + s), cell, w, sigma_s);
+            sum += wi * q * (extra * s).exp();
+        }
+        0.5 * big_w * sum
+    }
+
+    /// Points of `(t0, t1)` where the face through which the ray toward light `l` leaves
+    /// `cell` changes (exact for directional light; for point lights the direction at the
+    /// segment's midpoint stands in). At most three, sorted.
+    fn exit_face_breaks(
+        &self,
+        l: usize,
+        cell: usize,
+        ray: &Ray,
+        t0: f64,
+        t1: f64,
+    ) -> ([f64; 3], usize) {
+        let to_light = match self.pass.fields[l].light {
+            Light::Directional { direction, .. } => -direction,
+            Light::Point { position, .. } | Light::Spot { position, .. } => {
+                (position - ray.at(0.5 * (t0 + t1))).normalize_or_zero()
+            }
+        };
+        let grid = &self.pass.grid;
+        let lo = grid.cell_min(cell);
+        let h = grid.cell_size;
+        // Exit distance along each axis as α + β t.
+        let mut lines = [(0.0, 0.0, false); 3];
+        for a in 0..3 {
+            let d = to_light[a];
+            if d != 0.0 {
+                let bound = if d > 0.0 { lo[a] + h } else { lo[a] };
+                lines[a] = ((bound - ray.origin[a]) / d, -ray.direction[a] / d, true);
+            }
+        }
+        let mut breaks = [0.0; 3];
+        let mut count = 0;
+        for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+            let ((aa, ba, ua), (ab, bb, ub)) = (lines[a], lines[b]);
+            if ua && ub && ba != bb {
+                let t = (ab - aa) / (ba - bb);
+                if t > t0 && t < t1 {
+                    breaks[count] = t;
+                    count += 1;
+                }
+            }
+        }
+        breaks[..count].sort_by(f64::total_cmp);
+        (breaks, count)
+    }
+}
+
 impl InScattering for SingleScatter<'_> {
     fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        let len = t1 - t0;
-        if len <= 0.0 {
+        if t1 <= t0 {
             return 0.0;
         }
         let sigma_s = self.sigma_t[cell] as f64 * self.albedo.get(cell) as f64;
         if sigma_s == 0.0 && self.options.gradient_strength.is_none() {
             return 0.0;
         }
-        let w = -ray.direction;
-        let cell_sigma = self.sigma_t[cell] as f64;
-        let rule = GAUSS_LEGENDRE[self.options.nodes - 1];
         let mut total = 0.0;
         for l in 0..self.pass.fields.len() {
-            // The exponential rate of the whole integrand along the segment.
-            let slope = if self.options.shadows {
-                self.exit_distance_slope(l, ray.at(0.5 * (t0 + t1)), cell, ray.direction)
-            } else {
-                0.0
-            };
-            let lambda = sigma_t + cell_sigma * slope;
-            let extra = lambda - sigma_t; // put back at each node what u absorbed beyond σt
-            let big_w = if (lambda * len).abs() < 1e-9 {
-                len
-            } else {
-                -(-lambda * len).exp_m1() / lambda
-            };
-            let mut sum = 0.0;
-            for &(xi, wi) in rule {
-                let u = 0.5 * big_w * (xi + 1.0);
-                let s = if (lambda * len).abs() < 1e-9 {
-                    u
-                } else {
-                    -(-lambda * u).ln_1p() / lambda
-                };
-                let s = s.clamp(0.0, len);
-                let q = self.source_from(l, ray.at(t0 + s), cell, w, sigma_s);
-                sum += wi * q * (extra * s).exp();
+            if !self.options.shadows {
+                total += self.piece(l, cell, ray, t0, t1, sigma_t, sigma_s, 0.0);
+                continue;
             }
-            total += 0.5 * big_w * sum;
+            // Split where the exit face toward the light changes: the exponential rate of
+            // T_L changes there. A point light's direction turns along the segment, so its
+            // breaks are found per sub-segment of optical length ≤ 1/2.
+            let subs = match self.pass.fields[l].light {
+                Light::Directional { .. } => 1,
+                _ => ((self.sigma_t[cell] as f64 * (t1 - t0) * 2.0).ceil() as usize).clamp(1, 8),
+            };
+            for k in 0..subs {
+                let sa = t0 + (t1 - t0) * k as f64 / subs as f64;
+                let sb = if k + 1 == subs {
+                    t1
+                } else {
+                    t0 + (t1 - t0) * (k + 1) as f64 / subs as f64
+                };
+                let (breaks, count) = self.exit_face_breaks(l, cell, ray, sa, sb);
+                let mut a = sa;
+                for &b in breaks[..count].iter().chain(std::iter::once(&sb)) {
+                    if b > a {
+                        let mid = ray.at(0.5 * (a + b));
+                        let slope = self.exit_distance_slope(l, mid, cell, ray.direction);
+                        let weight = (-sigma_t * (a - t0)).exp();
+                        total += weight * self.piece(l, cell, ray, a, b, sigma_t, sigma_s, slope);
+                        a = b;
+                    }
+                }
+            }
         }
         total
     }
