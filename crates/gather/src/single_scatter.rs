@@ -21,7 +21,8 @@ use medium::{Light, Medium, PhaseFunction};
 use crate::scattering::InScattering;
 use crate::GatherError;
 
-/// Gauss–Legendre nodes and weights on `[−1, 1]`, for 1 to 6 nodes.
+/// Gauss–Legendre nodes and weights on `[−1, 1]`, for 1 to 6 nodes (tabulated digits).
+#[allow(clippy::excessive_precision)]
 const GAUSS_LEGENDRE: [&[(f64, f64)]; 6] = [
     &[(0.0, 2.0)],
     &[
