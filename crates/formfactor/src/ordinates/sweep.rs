@@ -197,16 +197,6 @@ fn escape_fraction(tau: f64) -> f64 {
     }
 }
 
-/// `(τ − 1 + e^{−τ}) / τ²`.
-#[inline]
-fn source_mean_factor(tau: f64) -> f64 {
-    if tau < 1e-4 {
-        0.5 - tau / 6.0 + tau * tau / 24.0
-    } else {
-        (tau + (-tau).exp_m1()) / (tau * tau)
-    }
-}
-
 impl OrdinatesOperator {
     /// The operator for channel `channel` of `medium`.
     pub fn new(
@@ -508,107 +498,104 @@ impl OrdinatesOperator {
         let s = piece.projected;
         let chord = h / s;
         let periodic = self.options.periodic_xy;
+        // A one-cell-wide periodic axis feeds a cell's own outflow back into it: that
+        // self-loop is solved exactly per cell.
         let self_loop = if periodic {
             (if nx == 1 { fx } else { 0.0 }) + (if ny == 1 { fy } else { 0.0 })
         } else {
             0.0
         };
-        // Whether wrapped inflows from other cells lag one pass.
+        // Wrapped inflows from other cells lag one pass: iterate such layers to convergence.
         let lagged = periodic && (nx > 1 || ny > 1);
-        let order = |len: usize, fwd: bool| -> Box<dyn Fn(usize) -> usize> {
+        #[inline(always)]
+        fn at(t: usize, len: usize, fwd: bool) -> usize {
             if fwd {
-                Box::new(|t| t)
+                t
             } else {
-                Box::new(move |t| len - 1 - t)
+                len - 1 - t
             }
-        };
-        let ix = order(nx, piece.forward[0]);
-        let iy = order(ny, piece.forward[1]);
-        let iz = order(nz, piece.forward[2]);
+        }
+        let [fwx, fwy, fwz] = piece.forward;
         let layer = nx * ny;
         let mut energy = SweepEnergy::default();
         // Escape slots: axis a leaves through side 2a + forward.
         let side = |a: usize| 2 * a + usize::from(piece.forward[a]);
+        // Inflow from other cells (x and y neighbours, wrapped ones if periodic) + z.
+        let inflow_of = |outs: &[f64], inz: &[f64], tx: usize, ty: usize| -> f64 {
+            let (i, j) = (at(tx, nx, fwx), at(ty, ny, fwy));
+            let in_x = if tx > 0 {
+                fx * outs[at(tx - 1, nx, fwx) + nx * j]
+            } else if periodic && nx > 1 {
+                fx * outs[at(nx - 1, nx, fwx) + nx * j]
+            } else {
+                0.0
+            };
+            let in_y = if ty > 0 {
+                fy * outs[i + nx * at(ty - 1, ny, fwy)]
+            } else if periodic && ny > 1 {
+                fy * outs[i + nx * at(ny - 1, ny, fwy)]
+            } else {
+                0.0
+            };
+            in_x + in_y + inz[i + nx * j]
+        };
         buf.inz.fill(0.0);
         buf.out.fill(0.0);
         for tz in 0..nz {
-            let k = iz(tz);
-            let base = layer * k;
-            // One pass over the layer in downwind x/y order; with periodic sides the wrapped
-            // inflows lag one pass, so repeat until the layer's outflows stop changing.
-            let mut passes = 0;
-            loop {
-                let mut change = 0.0f64;
-                let mut scale = 0.0f64;
-                for ty in 0..ny {
-                    let j = iy(ty);
-                    for tx in 0..nx {
-                        let i = ix(tx);
-                        let lc = i + nx * j;
-                        let c = base + lc;
-                        let in_x = if tx > 0 {
-                            fx * buf.out[ix(tx - 1) + nx * j]
-                        } else if periodic && nx > 1 {
-                            fx * buf.out[ix(nx - 1) + nx * j]
-                        } else {
-                            0.0
-                        };
-                        let in_y = if ty > 0 {
-                            fy * buf.out[i + nx * iy(ty - 1)]
-                        } else if periodic && ny > 1 {
-                            fy * buf.out[i + nx * iy(ny - 1)]
-                        } else {
-                            0.0
-                        };
-                        let inflow = in_x + in_y + buf.inz[lc];
-                        let tau = self.sigma_t[c] * chord;
-                        let src = density[c * m + piece.bin] * h;
-                        let t = (-tau).exp();
-                        // A one-cell-wide periodic axis feeds the cell's own outflow back
-                        // into it: solve that self-loop exactly.
-                        let new = (inflow * t + src * escape_fraction(tau)) / (1.0 - self_loop * t);
-                        change = change.max((new - buf.out[lc]).abs());
-                        scale = scale.max(new.abs());
-                        buf.out[lc] = new;
+            let base = layer * at(tz, nz, fwz);
+            if lagged {
+                let mut passes = 0;
+                loop {
+                    let (mut change, mut scale) = (0.0f64, 0.0f64);
+                    for ty in 0..ny {
+                        for tx in 0..nx {
+                            let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
+                            let c = base + lc;
+                            let inflow = inflow_of(&buf.out, &buf.inz, tx, ty);
+                            let tau = self.sigma_t[c] * chord;
+                            let src = density[c * m + piece.bin] * h;
+                            let t = (-tau).exp();
+                            let new =
+                                (inflow * t + src * escape_fraction(tau)) / (1.0 - self_loop * t);
+                            change = change.max((new - buf.out[lc]).abs());
+                            scale = scale.max(new.abs());
+                            buf.out[lc] = new;
+                        }
+                    }
+                    passes += 1;
+                    if change <= 1e-15 * scale || passes >= 100_000 {
+                        break;
                     }
                 }
-                passes += 1;
-                if !lagged || change <= 1e-15 * scale || passes >= 100_000 {
-                    break;
-                }
             }
-            // Final accounting for the layer with the converged outflows.
+            // Downwind pass (the outflows are final already when the layer was iterated).
             for ty in 0..ny {
-                let j = iy(ty);
                 for tx in 0..nx {
-                    let i = ix(tx);
-                    let lc = i + nx * j;
+                    let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
                     let c = base + lc;
-                    let in_x = if tx > 0 {
-                        fx * buf.out[ix(tx - 1) + nx * j]
-                    } else if periodic {
-                        fx * buf.out[ix(nx - 1) + nx * j]
-                    } else {
-                        0.0
-                    };
-                    let in_y = if ty > 0 {
-                        fy * buf.out[i + nx * iy(ty - 1)]
-                    } else if periodic {
-                        fy * buf.out[i + nx * iy(ny - 1)]
-                    } else {
-                        0.0
-                    };
-                    // (Self-loops included here: the converged outflow is known.)
-                    let inflow = in_x + in_y + buf.inz[lc];
+                    let other = inflow_of(&buf.out, &buf.inz, tx, ty);
                     let tau = self.sigma_t[c] * chord;
                     let sd = density[c * m + piece.bin];
                     let src = sd * h;
-                    let esc = escape_fraction(tau);
+                    // One transcendental: e^{−τ} − 1.
+                    let em1 = (-tau).exp_m1();
+                    let t = 1.0 + em1;
+                    let (esc, smf) = if tau < 1e-4 {
+                        (
+                            1.0 - 0.5 * tau + tau * tau / 6.0,
+                            0.5 - tau / 6.0 + tau * tau / 24.0,
+                        )
+                    } else {
+                        (-em1 / tau, (tau + em1) / (tau * tau))
+                    };
+                    if !lagged {
+                        buf.out[lc] = (other * t + src * esc) / (1.0 - self_loop * t);
+                    }
+                    let inflow = other + self_loop * buf.out[lc];
                     // Cell-average radiance: inflow part + source part (module doc).
-                    let i_avg = inflow / s * esc + sd * chord * source_mean_factor(tau);
-                    out[c] = piece.weight * i_avg;
+                    out[c] = piece.weight * (inflow / s * esc + sd * chord * smf);
                     energy.emitted += src;
-                    energy.extinguished += inflow * (1.0 - (-tau).exp()) + src * (1.0 - esc);
+                    energy.extinguished += -inflow * em1 + src * (1.0 - esc);
                     if !periodic && tx == nx - 1 {
                         energy.escaped[side(0)] += fx * buf.out[lc];
                     }
