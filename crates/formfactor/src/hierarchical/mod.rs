@@ -27,8 +27,8 @@ use solver::TransportOperator;
 
 use crate::zonal::kernel::{escape, geometry_factor, interception, mean_chord, NearStencil};
 use crate::zonal::{
-    active_cells, albedo_vec, check_channel, far_entry, near_columns, near_entry, symmetrizer_weights,
-    validate_near, BuildReport, FormFactorError, NearQuadrature,
+    active_cells, albedo_vec, check_channel, far_entry, near_columns, near_entry,
+    symmetrizer_weights, validate_near, BuildReport, FormFactorError, NearQuadrature,
 };
 
 /// Options of [`HierarchicalOperator::build`].
@@ -45,7 +45,7 @@ impl Default for HierarchicalOptions {
     fn default() -> Self {
         HierarchicalOptions {
             near: NearQuadrature::default(),
-            tolerance: 1e-5,
+            tolerance: 3e-4,
             max_opening: 0.8,
         }
     }
@@ -72,7 +72,11 @@ impl Level {
         self.dims[0] * self.dims[1] * self.dims[2]
     }
     fn coords(&self, c: usize) -> [usize; 3] {
-        [c % self.dims[0], (c / self.dims[0]) % self.dims[1], c / (self.dims[0] * self.dims[1])]
+        [
+            c % self.dims[0],
+            (c / self.dims[0]) % self.dims[1],
+            c / (self.dims[0] * self.dims[1]),
+        ]
     }
     fn index(&self, x: [usize; 3]) -> usize {
         x[0] + self.dims[0] * (x[1] + self.dims[1] * x[2])
@@ -105,7 +109,11 @@ enum Outcome {
 }
 
 impl HierarchicalOperator {
-    pub fn build(grid: &Grid, channel: &ChannelMedium, options: &HierarchicalOptions) -> Result<Self, FormFactorError> {
+    pub fn build(
+        grid: &Grid,
+        channel: &ChannelMedium,
+        options: &HierarchicalOptions,
+    ) -> Result<Self, FormFactorError> {
         check_channel(grid, channel)?;
         validate_near(&options.near)?;
         if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
@@ -126,7 +134,10 @@ impl HierarchicalOperator {
         let n = grid.cell_count();
         let (active, active_index) = active_cells(sigma_t);
         let alpha: Vec<f64> = sigma_t.iter().map(|&s| interception(s as f64, h)).collect();
-        let beta: Vec<f64> = sigma_t.iter().map(|&s| if s > 0.0 { escape(s as f64, h) } else { 0.0 }).collect();
+        let beta: Vec<f64> = sigma_t
+            .iter()
+            .map(|&s| if s > 0.0 { escape(s as f64, h) } else { 0.0 })
+            .collect();
 
         // Near field at leaf level: symmetrised rows over the (2R+1)³ neighbourhood.
         let stencil = NearStencil::new(&options.near);
@@ -143,7 +154,15 @@ impl HierarchicalOperator {
                         if j == u32::MAX || active_index[j as usize] == u32::MAX {
                             continue;
                         }
-                        let f = near_entry(&columns, slots, sigma_t, &active_index, i, j as usize, slot);
+                        let f = near_entry(
+                            &columns,
+                            slots,
+                            sigma_t,
+                            &active_index,
+                            i,
+                            j as usize,
+                            slot,
+                        );
                         colsum += f * sigma_t[j as usize] as f64 / sigma_t[i] as f64;
                         cols.push(j);
                         vals.push(f);
@@ -198,7 +217,8 @@ impl HierarchicalOperator {
             let stats: Vec<(f64, f64, DVec3, f32)> = (0..level.count())
                 .into_par_iter()
                 .map(|c| {
-                    let (mut a, mut b, mut m, mut s, mut cnt) = (0.0, 0.0f64, DVec3::ZERO, 0.0f64, 0usize);
+                    let (mut a, mut b, mut m, mut s, mut cnt) =
+                        (0.0, 0.0f64, DVec3::ZERO, 0.0f64, 0usize);
                     for ch in children(&level, fine, c) {
                         a += fine.alpha_sum[ch];
                         b = b.max(fine.beta_max[ch]);
@@ -225,7 +245,11 @@ impl HierarchicalOperator {
         let radius = options.near.radius;
         let g = geometry_factor(h);
         let mut unordered: Vec<Vec<(u32, u32, f32)>> = vec![Vec::new(); levels.len()];
-        let mut candidates: Vec<(u32, u32)> = if levels[top].alpha_sum[0] > 0.0 { vec![(0, 0)] } else { vec![] };
+        let mut candidates: Vec<(u32, u32)> = if levels[top].alpha_sum[0] > 0.0 {
+            vec![(0, 0)]
+        } else {
+            vec![]
+        };
         for l in (1..=top).rev() {
             let level = &levels[l];
             let fine = &levels[l - 1];
@@ -241,15 +265,21 @@ impl HierarchicalOperator {
                         if rho <= options.max_opening {
                             let t = (-cluster_depth(grid, level, a, b)).exp();
                             let k = g * t / (d * d);
-                            let m = k * (level.alpha_sum[a] * level.beta_max[b]).max(level.alpha_sum[b] * level.beta_max[a]);
+                            let m = k
+                                * (level.alpha_sum[a] * level.beta_max[b])
+                                    .max(level.alpha_sum[b] * level.beta_max[a]);
                             if m * rho * rho <= options.tolerance {
                                 out.push(Outcome::Link(l, a as u32, b as u32, k as f32));
                                 return out;
                             }
                         }
                     }
-                    let ca: Vec<usize> = children(level, fine, a).filter(|&c| fine.alpha_sum[c] > 0.0).collect();
-                    let cb: Vec<usize> = children(level, fine, b).filter(|&c| fine.alpha_sum[c] > 0.0).collect();
+                    let ca: Vec<usize> = children(level, fine, a)
+                        .filter(|&c| fine.alpha_sum[c] > 0.0)
+                        .collect();
+                    let cb: Vec<usize> = children(level, fine, b)
+                        .filter(|&c| fine.alpha_sum[c] > 0.0)
+                        .collect();
                     for &x in &ca {
                         for &y in &cb {
                             if a == b && y < x {
@@ -332,7 +362,9 @@ impl HierarchicalOperator {
                 .map(|p| level.link_k[p] as f64 * level.alpha_sum[level.link_src[p] as usize])
                 .sum()
         });
-        let column_sums: Vec<f64> = (0..n).map(|j| near_colsum[j] + op.beta[j] * far_col[j]).collect();
+        let column_sums: Vec<f64> = (0..n)
+            .map(|j| near_colsum[j] + op.beta[j] * far_col[j])
+            .collect();
         for (j, &c) in column_sums.iter().enumerate() {
             op.report.max_column_sum_raw = op.report.max_column_sum_raw.max(c);
             if c > 1.0 {
@@ -371,7 +403,9 @@ impl HierarchicalOperator {
     /// `out_i = Σ_levels value(level, cluster of i)`.
     fn pull_push(&self, value: impl Fn(usize, &Level, usize) -> f64 + Sync) -> Vec<f64> {
         let top = self.levels.len() - 1;
-        let mut acc: Vec<f64> = (0..self.levels[top].count()).map(|c| value(top, &self.levels[top], c)).collect();
+        let mut acc: Vec<f64> = (0..self.levels[top].count())
+            .map(|c| value(top, &self.levels[top], c))
+            .collect();
         for l in (0..top).rev() {
             let level = &self.levels[l];
             let parent = &acc;
@@ -409,7 +443,9 @@ impl HierarchicalOperator {
             }
             acc
         });
-        far.par_iter_mut().zip(&self.alpha).for_each(|(f, a)| *f *= a);
+        far.par_iter_mut()
+            .zip(&self.alpha)
+            .for_each(|(f, a)| *f *= a);
         far
     }
 
@@ -437,7 +473,10 @@ impl HierarchicalOperator {
         let s: Vec<f64> = sigma_t.iter().map(|&s| s as f64).collect();
         let mut y = vec![0.0; s.len()];
         self.apply_form_factors(&s, &mut y);
-        y.iter().zip(&s).map(|(y, s)| if *s > 0.0 { y / s } else { 0.0 }).collect()
+        y.iter()
+            .zip(&s)
+            .map(|(y, s)| if *s > 0.0 { y / s } else { 0.0 })
+            .collect()
     }
 }
 
@@ -445,7 +484,11 @@ impl HierarchicalOperator {
 fn children<'a>(level: &Level, fine: &'a Level, c: usize) -> impl Iterator<Item = usize> + 'a {
     let x = level.coords(c);
     (0..8usize).filter_map(move |k| {
-        let y = [2 * x[0] + (k & 1), 2 * x[1] + ((k >> 1) & 1), 2 * x[2] + (k >> 2)];
+        let y = [
+            2 * x[0] + (k & 1),
+            2 * x[1] + ((k >> 1) & 1),
+            2 * x[2] + (k >> 2),
+        ];
         (y[0] < fine.dims[0] && y[1] < fine.dims[1] && y[2] < fine.dims[2]).then(|| fine.index(y))
     })
 }
@@ -453,7 +496,9 @@ fn children<'a>(level: &Level, fine: &'a Level, c: usize) -> impl Iterator<Item 
 /// Leaf cells covered by cluster `c` of `level` (clipped at the grid).
 fn cells_in(grid: &Grid, level: &Level, c: usize) -> usize {
     let x = level.coords(c);
-    (0..3).map(|a| level.span.min(grid.dims[a] - x[a] * level.span)).product()
+    (0..3)
+        .map(|a| level.span.min(grid.dims[a] - x[a] * level.span))
+        .product()
 }
 
 /// Chebyshev gap in cells between the leaf boxes of two clusters (0 when touching at offset 1).
@@ -464,7 +509,13 @@ fn box_gap(grid: &Grid, level: &Level, a: usize, b: usize) -> usize {
     for ax in 0..3 {
         let (a0, a1) = (xa[ax] * s, ((xa[ax] + 1) * s).min(grid.dims[ax]) - 1);
         let (b0, b1) = (xb[ax] * s, ((xb[ax] + 1) * s).min(grid.dims[ax]) - 1);
-        let d = if b0 > a1 { b0 - a1 } else if a0 > b1 { a0 - b1 } else { 0 };
+        let d = if b0 > a1 {
+            b0 - a1
+        } else if a0 > b1 {
+            a0 - b1
+        } else {
+            0
+        };
         gap = gap.max(d);
     }
     gap
@@ -485,7 +536,9 @@ fn cluster_depth(grid: &Grid, level: &Level, a: usize, b: usize) -> f64 {
         .traverse(&ray, 0.0, r)
         .map(|s| level.sigma_mean[s.cell] as f64 * s.length())
         .sum();
-    let ends = 0.5 * mean_chord(grid.cell_size) * (level.sigma_mean[a] as f64 + level.sigma_mean[b] as f64);
+    let ends = 0.5
+        * mean_chord(grid.cell_size)
+        * (level.sigma_mean[a] as f64 + level.sigma_mean[b] as f64);
     (tau - ends).max(0.0)
 }
 
@@ -496,7 +549,9 @@ impl TransportOperator for HierarchicalOperator {
 
     fn apply(&self, x: &[f64], y: &mut [f64]) {
         self.apply_form_factors(x, y);
-        y.par_iter_mut().zip(&self.albedo).for_each(|(y, a)| *y *= a);
+        y.par_iter_mut()
+            .zip(&self.albedo)
+            .for_each(|(y, a)| *y *= a);
     }
 
     /// Gauss–Seidel on the near field in cell order, with the far field (links) evaluated

@@ -75,8 +75,8 @@ impl Default for NearQuadrature {
     fn default() -> Self {
         NearQuadrature {
             radius: 2,
-            points_per_axis: 4,
-            directions: 128,
+            points_per_axis: 6,
+            directions: 64,
         }
     }
 }
@@ -139,7 +139,11 @@ impl NearStencil {
         for pk in 0..n {
             for pj in 0..n {
                 for pi in 0..n {
-                    let jitter = DVec3::new(splitmix(&mut state), splitmix(&mut state), splitmix(&mut state));
+                    let jitter = DVec3::new(
+                        splitmix(&mut state),
+                        splitmix(&mut state),
+                        splitmix(&mut state),
+                    );
                     let local = (DVec3::new(pi as f64, pj as f64, pk as f64) + jitter) / n as f64;
                     let origin = local + q.radius as f64;
                     let rot = random_rotation(&mut state);
@@ -180,7 +184,11 @@ impl NearStencil {
     pub fn slot_offset(&self, slot: usize) -> [i64; 3] {
         let w = self.width;
         let r = self.radius as i64;
-        [(slot % w) as i64 - r, ((slot / w) % w) as i64 - r, (slot / (w * w)) as i64 - r]
+        [
+            (slot % w) as i64 - r,
+            ((slot / w) % w) as i64 - r,
+            (slot / (w * w)) as i64 - r,
+        ]
     }
 
     /// Global cell of each slot around `cell`, `u32::MAX` outside the grid.
@@ -198,7 +206,11 @@ impl NearStencil {
                 }
                 idx[a] = v as usize;
             }
-            *o = if inside { grid.index(idx[0], idx[1], idx[2]) as u32 } else { u32::MAX };
+            *o = if inside {
+                grid.index(idx[0], idx[1], idx[2]) as u32
+            } else {
+                u32::MAX
+            };
         }
     }
 

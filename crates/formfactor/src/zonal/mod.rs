@@ -8,8 +8,9 @@
 //!   diagonal scaling `F ← D F D`, `d_j = min(1, 1/c_j)`, which keeps `F/σt` symmetric and makes
 //!   every column sum ≤ 1 (`Σ_i d_i F_ij d_j ≤ d_j c_j ≤ 1`).
 //!
-//! Quadrature tolerance: with the default [`NearQuadrature`] (64 points × 128 directions) the
-//! self term agrees with a converged quadrature to about 1e-3 relative (tested); the far
+//! Quadrature tolerance: with the default [`NearQuadrature`] (6³ jittered points × 64
+//! directions) the self term agrees with an independent Monte Carlo estimate to 5e-3 relative
+//! for σt·h from 0.1 to 5 (tested; measured 0.04–0.4 %); the far
 //! estimate has an `O((h/r)²)` geometric error from `r = R+1` cells on.
 
 pub mod kernel;
@@ -75,10 +76,16 @@ pub(crate) fn validate_near(q: &NearQuadrature) -> Result<(), FormFactorError> {
         return bad("near.radius", format!("{} must be in 1..=8", q.radius));
     }
     if q.points_per_axis == 0 || q.points_per_axis > 32 {
-        return bad("near.points_per_axis", format!("{} must be in 1..=32", q.points_per_axis));
+        return bad(
+            "near.points_per_axis",
+            format!("{} must be in 1..=32", q.points_per_axis),
+        );
     }
     if q.directions < 2 || q.directions > 1 << 16 {
-        return bad("near.directions", format!("{} must be in 2..=65536", q.directions));
+        return bad(
+            "near.directions",
+            format!("{} must be in 2..=65536", q.directions),
+        );
     }
     Ok(())
 }
@@ -117,7 +124,12 @@ pub(crate) fn active_cells(sigma_t: &[f32]) -> (Vec<usize>, Vec<u32>) {
 }
 
 /// Raw near-field columns for every active cell, `slots` values each (active order).
-pub(crate) fn near_columns(grid: &Grid, sigma_t: &[f32], stencil: &NearStencil, active: &[usize]) -> Vec<f64> {
+pub(crate) fn near_columns(
+    grid: &Grid,
+    sigma_t: &[f32],
+    stencil: &NearStencil,
+    active: &[usize],
+) -> Vec<f64> {
     let slots = stencil.slots();
     let mut columns = vec![0.0f64; active.len() * slots];
     columns
@@ -162,7 +174,10 @@ pub(crate) fn far_entry(grid: &Grid, sigma_t: &[f32], i: usize, j: usize) -> f64
 }
 
 /// `E_i = e_i + a_i σt_i cell_irradiance_i / 4π` (physics.md), one value per cell.
-pub fn zonal_source(channel: &ChannelMedium, cell_irradiance: &[f64]) -> Result<Vec<f64>, FormFactorError> {
+pub fn zonal_source(
+    channel: &ChannelMedium,
+    cell_irradiance: &[f64],
+) -> Result<Vec<f64>, FormFactorError> {
     let n = channel.sigma_t.len();
     if cell_irradiance.len() != n {
         return Err(FormFactorError::Length {
@@ -198,7 +213,9 @@ pub(crate) fn symmetrizer_weights(sigma_t: &[f32], albedo: &[f64]) -> Option<Vec
 }
 
 pub(crate) fn albedo_vec(channel: &ChannelMedium) -> Vec<f64> {
-    (0..channel.sigma_t.len()).map(|i| channel.albedo.get(i) as f64).collect()
+    (0..channel.sigma_t.len())
+        .map(|i| channel.albedo.get(i) as f64)
+        .collect()
 }
 
 pub(crate) fn check_channel(grid: &Grid, channel: &ChannelMedium) -> Result<(), FormFactorError> {
@@ -259,7 +276,8 @@ impl FormFactorMatrix {
                     let d = [cj[0] - ci[0], cj[1] - ci[1], cj[2] - ci[2]];
                     let cheb = d[0].abs().max(d[1].abs()).max(d[2].abs());
                     let f = if cheb <= radius {
-                        let slot = ((d[0] + radius) + w * ((d[1] + radius) + w * (d[2] + radius))) as usize;
+                        let slot = ((d[0] + radius) + w * ((d[1] + radius) + w * (d[2] + radius)))
+                            as usize;
                         near_entry(&columns, slots, sigma_t, &active_index, i, j, slot)
                     } else {
                         far_entry(grid, sigma_t, i, j)
@@ -362,7 +380,11 @@ impl FormFactorMatrix {
                 for p in indptr[i]..indptr[i + 1] {
                     acc += data[p] * x[indices[p]];
                 }
-                *yi = if with_albedo { self.albedo[i] * acc } else { acc };
+                *yi = if with_albedo {
+                    self.albedo[i] * acc
+                } else {
+                    acc
+                };
             }
         });
     }

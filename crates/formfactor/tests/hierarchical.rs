@@ -1,0 +1,236 @@
+//! The hierarchical operator against the exact one, its energy bound, link growth and the
+//! large homogeneous limit `g → E/(1−a)`.
+
+use formfactor::{
+    ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions, NearQuadrature,
+};
+use medium::{CellValues, ChannelMedium, Grid};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use solver::TransportOperator;
+
+fn channel(sigma_t: Vec<f32>, albedo: f32) -> ChannelMedium {
+    ChannelMedium {
+        sigma_t,
+        albedo: CellValues::Uniform(albedo),
+        emission: CellValues::Uniform(0.0),
+    }
+}
+
+/// A smooth blob (peak σt·h = `peak_tau`) with multiplicative noise and empty corners.
+fn cloud(dims: [usize; 3], h: f64, peak_tau: f64, seed: u64) -> Vec<f32> {
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let c = [
+        dims[0] as f64 / 2.0,
+        dims[1] as f64 / 2.0,
+        dims[2] as f64 / 2.0,
+    ];
+    let mut out = Vec::new();
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let d2: f64 = [i, j, k]
+                    .iter()
+                    .zip(&c)
+                    .map(|(&x, &c)| ((x as f64 + 0.5 - c) / c).powi(2))
+                    .sum();
+                let body = (1.0 - d2).max(0.0);
+                let noise = 0.5 + rng.random::<f64>();
+                out.push((peak_tau / h * body * noise) as f32);
+            }
+        }
+    }
+    out
+}
+
+fn cheap_near() -> NearQuadrature {
+    NearQuadrature {
+        radius: 2,
+        points_per_axis: 2,
+        directions: 32,
+    }
+}
+
+fn rel_l2(a: &[f64], b: &[f64]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+    let den: f64 = b.iter().map(|y| y * y).sum();
+    (num / den).sqrt()
+}
+
+#[test]
+fn hierarchical_apply_matches_exact_on_a_random_cloud() {
+    let h = 1.0;
+    let dims = [14, 12, 14];
+    let grid = Grid::new(dims, h).unwrap();
+    let ch = channel(cloud(dims, h, 1.5, 3), 0.9);
+    let near = NearQuadrature {
+        radius: 2,
+        points_per_axis: 3,
+        directions: 32,
+    };
+    let exact = FormFactorMatrix::build(
+        &grid,
+        &ch,
+        &ExactOptions {
+            near,
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap();
+    let hier = HierarchicalOperator::build(
+        &grid,
+        &ch,
+        &HierarchicalOptions {
+            near,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut rng = Pcg64::seed_from_u64(9);
+    let x: Vec<f64> = (0..grid.cell_count())
+        .map(|_| rng.random::<f64>())
+        .collect();
+    let (mut ye, mut yh) = (vec![0.0; x.len()], vec![0.0; x.len()]);
+    exact.apply(&x, &mut ye);
+    hier.apply(&x, &mut yh);
+    let err = rel_l2(&yh, &ye);
+    eprintln!(
+        "exact nnz {} hierarchical links {:?} near {} rel L2 {err}",
+        exact.report.entries,
+        hier.links_per_level,
+        hier.near_entries()
+    );
+    assert!(err < 0.01, "relative L2 {err}");
+    assert!(hier.link_count() + hier.near_entries() < exact.report.entries);
+}
+
+#[test]
+fn hierarchical_column_sums_never_exceed_one() {
+    let h = 1.0;
+    for (peak, seed) in [(5.0, 1u64), (0.01, 2)] {
+        let dims = [10, 9, 11];
+        let grid = Grid::new(dims, h).unwrap();
+        let ch = channel(cloud(dims, h, peak, seed), 1.0);
+        let options = HierarchicalOptions {
+            near: cheap_near(),
+            tolerance: 1e-3,
+            ..Default::default()
+        };
+        let op = HierarchicalOperator::build(&grid, &ch, &options).unwrap();
+        let sums = op.column_sums(&ch.sigma_t);
+        let max = sums.iter().copied().fold(0.0, f64::max);
+        assert!(max <= 1.0 + 1e-9, "peak σt·h {peak}: column sum {max}");
+        assert!(max > 0.0);
+    }
+}
+
+#[test]
+fn hierarchical_is_reciprocal() {
+    // x = e_j: (F e_j)_i = F_ij; F_ij/σt_i must equal F_ji/σt_j.
+    let dims = [12, 12, 12];
+    let grid = Grid::new(dims, 1.0).unwrap();
+    let ch = channel(cloud(dims, 1.0, 1.0, 4), 1.0);
+    let op = HierarchicalOperator::build(
+        &grid,
+        &ch,
+        &HierarchicalOptions {
+            near: cheap_near(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let (a, b) = (grid.index(2, 6, 6), grid.index(10, 5, 7));
+    let column = |j: usize| {
+        let mut x = vec![0.0; grid.cell_count()];
+        x[j] = 1.0;
+        let mut y = vec![0.0; x.len()];
+        op.apply_form_factors(&x, &mut y);
+        y
+    };
+    let (ca, cb) = (column(a), column(b));
+    let (s_ba, s_ab) = (cb[a] / ch.sigma_t[a] as f64, ca[b] / ch.sigma_t[b] as f64);
+    assert!(s_ab > 0.0);
+    assert!((s_ab - s_ba).abs() <= 1e-6 * s_ab, "{s_ab} vs {s_ba}");
+}
+
+#[test]
+fn link_count_grows_subquadratically() {
+    let mut counts = Vec::new();
+    for n in [8usize, 16, 24] {
+        let grid = Grid::new([n; 3], 1.0).unwrap();
+        let ch = channel(vec![0.5; grid.cell_count()], 0.9);
+        let near = NearQuadrature {
+            radius: 2,
+            points_per_axis: 1,
+            directions: 8,
+        };
+        let op = HierarchicalOperator::build(
+            &grid,
+            &ch,
+            &HierarchicalOptions {
+                near,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        counts.push((grid.cell_count(), op.link_count()));
+    }
+    eprintln!("cells, links: {counts:?}");
+    let growth = |a: (usize, usize), b: (usize, usize)| {
+        (b.1 as f64 / a.1 as f64).ln() / (b.0 as f64 / a.0 as f64).ln()
+    };
+    let (g1, g2) = (growth(counts[0], counts[1]), growth(counts[1], counts[2]));
+    eprintln!("growth exponents {g1:.2} {g2:.2}");
+    assert!(g2 < 1.5, "links grow like N^{g2}");
+    assert!(counts[2].1 < counts[2].0 * counts[2].0 / 20);
+}
+
+#[test]
+fn large_homogeneous_cube_approaches_e_over_one_minus_a() {
+    // 40 cells thick, σt·h = 2, albedo 0.9: the diffusion length is ~1 cell, so the centre is
+    // effectively infinite: g → E/(1−a) = 10 E.
+    let n = 40;
+    let grid = Grid::new([n; 3], 1.0).unwrap();
+    let albedo = 0.9;
+    let ch = channel(vec![2.0; grid.cell_count()], albedo as f32);
+    let near = NearQuadrature {
+        radius: 2,
+        points_per_axis: 2,
+        directions: 32,
+    };
+    let op = HierarchicalOperator::build(
+        &grid,
+        &ch,
+        &HierarchicalOptions {
+            near,
+            tolerance: 1e-4,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let source = vec![1.0; grid.cell_count()];
+    let mut g = source.clone();
+    let mut kg = vec![0.0; g.len()];
+    for _ in 0..400 {
+        op.apply(&g, &mut kg);
+        let mut change: f64 = 0.0;
+        for i in 0..g.len() {
+            let next = source[i] + kg[i];
+            change = change.max((next - g[i]).abs());
+            g[i] = next;
+        }
+        if change < 1e-6 {
+            break;
+        }
+    }
+    let centre = g[grid.index(n / 2, n / 2, n / 2)];
+    let limit = 1.0 / (1.0 - albedo);
+    eprintln!("centre {centre} limit {limit} corner {}", g[0]);
+    assert!(
+        (centre - limit).abs() < 0.02 * limit,
+        "centre {centre} vs {limit}"
+    );
+    // Light escapes at the faces: the corner is well below the limit.
+    assert!(g[0] < 0.8 * limit);
+}
