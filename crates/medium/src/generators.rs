@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 /// A generator as named in a scene's `[volume] generator = { kind = ... }`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case")]
+#[serde(rename_all = "kebab-case")]
 pub enum Generator {
     Cloud { seed: u64 },
     Dipole,

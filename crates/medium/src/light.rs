@@ -8,7 +8,7 @@ use crate::MediumError;
 /// A light outside or inside the volume. Radiometric quantities are per colour channel only
 /// through the medium; lights are white (a scene colours light through albedo and σt).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case")]
+#[serde(rename_all = "kebab-case")]
 pub enum Light {
     /// Parallel light travelling along unit `direction`, with irradiance `irradiance` on a
     /// plane perpendicular to it.

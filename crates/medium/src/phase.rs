@@ -15,7 +15,7 @@ const INV_4PI: f64 = 1.0 / (4.0 * PI);
 
 /// The phase functions volrad supports, dispatched by `match` (no trait objects in hot loops).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case")]
+#[serde(rename_all = "kebab-case")]
 pub enum PhaseFunction {
     Isotropic,
     /// Henyey–Greenstein with asymmetry `g ∈ (-1, 1)`.

@@ -159,7 +159,7 @@ pub struct RenderSettings {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case")]
+#[serde(rename_all = "kebab-case")]
 pub enum Projection {
     Perspective {
         fov_y_degrees: f64,

@@ -113,7 +113,7 @@ impl PiecewiseLinear {
 
 /// One channel's mapping from data value to a non-σt property (albedo or emission).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case")]
+#[serde(rename_all = "kebab-case")]
 pub enum Transfer {
     Constant {
         value: f64,
