@@ -4,13 +4,16 @@
 //!   the unbiased volumetric path tracer (exact per-cell free paths, next-event estimation,
 //!   Russian roulette), the reference for every deterministic method.
 //! - [`flight`]: exact free-flight sampling and transmittance along [`medium::Grid::traverse`].
+//! - [`compare`](mod@compare): render against a noisy reference, both noises taken out.
 //! - [`rng`]: deterministic per-task random streams.
 
+pub mod compare;
 pub mod error;
 pub mod flight;
 pub mod path_trace;
 pub mod rng;
 
+pub use compare::{compare, Comparison, NoisyImage};
 pub use error::MonteCarloError;
 pub use path_trace::{
     path_trace, path_trace_image, path_trace_with_error, PathTraceOptions, PathTraced, PathTracer,
