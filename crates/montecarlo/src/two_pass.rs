@@ -1,0 +1,589 @@
+//! Blasi & Wuethrich's two-pass Monte Carlo method (1994, §3.2).
+//!
+//! **Energetization pass** ([`energetize`]): photons leave each light stochastically
+//! (directional: uniformly over a square perpendicular to the light that covers the grid's
+//! shadow; point: uniformly over the sphere; spot: uniformly over its cone), each carrying an
+//! equal share of the light's power. They fly through the medium with exact per-cell
+//! interception ([`crate::flight`]: free paths sampled from σt cell by cell, the limit of their
+//! equal-probability steps). At an interaction in cell `c` the photon's power `w` is
+//! extinguished there: `w (1 − a_c)` is absorbed and `w a_c` scattered; the scattered power is
+//! stored with the photon's direction of flight in the **optical voxel** holding `c` (a
+//! storage grid coarser than the density grid by an integer `storage_factor`, §3.2.4), in
+//! the bin of a sphere sampled by meridians and parallels ([`DirectionBins`]). The photon
+//! goes on with weight `w a_c` along a direction drawn from the phase function (exact
+//! importance sampling of HG and of their two-lobe mix), with Russian roulette once its
+//! weight falls.
+//!
+//! **Conversion** (end of the pass, §3.2.2): the stored incident power per bin becomes
+//! scattered radiance per bin with the phase function averaged over bin pairs,
+//! `Q_o,l = Σ_b Φ_o,b P_lb / V`, `P` renormalised so that `Σ_l P_lb Ω_l = 1` (no energy is
+//! created or lost by the binning). Inside an optical voxel each density cell takes its share
+//! in proportion to its interception (`σs_c`, the B&W rule): the source of cell `c` is
+//! `Q_s(c, ω) = σs_c / (Σ_{c'∈o} σs_c' V_c') · Φ-weighted P`, radiance per unit length.
+//!
+//! **Rendering pass**: [`TwoPassSolution`] implements [`gather::InScattering`] (piecewise
+//! constant in each cell, nearest outgoing bin); render with `OpticalModel::Scattering`.
+//! The renderer's σt is the medium it is given, so a different render-time absorption
+//! (their §4.3) is a medium with rescaled σt ([`with_extinction_scale`]); the stored
+//! sources do not change.
+//!
+//! Bias, stated: the source is constant over each cell (over each optical voxel up to the
+//! σs weights) and over each direction bin; the first bounce, if stored
+//! (`include_first_bounce`), carries those approximations too. Leaving it out and adding
+//! an exact first-bounce source at render time (physics.md, "final gather") removes most of
+//! the bias for forward-peaked phase functions.
+//!
+//! Light emitted by the medium itself (`e`) is not photon-traced: the renderer adds it
+//! directly, its scattering is not included.
+
+use std::f64::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use gather::{segment_weight, InScattering};
+use glam::DVec3;
+use medium::phase::rotate_about;
+use medium::traversal::Ray;
+use medium::{Grid, Light, Medium};
+use rand::Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::directions::DirectionBins;
+use crate::flight::{fly, Flight};
+use crate::{rng, MonteCarloError};
+
+/// Photons traced per task (one RNG stream each).
+const BATCH: u64 = 4096;
+/// Fixed number of accumulators the batches are spread over: parallelism without making
+/// the floating-point sums depend on the thread count.
+const GROUPS: usize = 4;
+
+/// How to run the energetization pass.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnergetizeOptions {
+    /// Photons sent from each light.
+    pub photons_per_light: u64,
+    pub seed: u64,
+    /// Optical voxels are `storage_factor³` density cells (1: one per cell).
+    pub storage_factor: usize,
+    /// Directions stored per optical voxel.
+    pub bins: DirectionBins,
+    /// Store the first interaction too (the stored source is then the whole `Q_s`); when
+    /// false, the stored source is the second and higher orders only.
+    pub include_first_bounce: bool,
+    /// Russian roulette starts after this many interactions.
+    pub rr_start_depth: u32,
+    /// Sub-samples per axis of each bin for the bin-averaged phase matrix.
+    pub phase_quadrature: usize,
+}
+
+impl Default for EnergetizeOptions {
+    fn default() -> Self {
+        EnergetizeOptions {
+            photons_per_light: 1 << 20,
+            seed: 0,
+            storage_factor: 1,
+            bins: DirectionBins::ISOTROPIC,
+            include_first_bounce: true,
+            rr_start_depth: 3,
+            phase_quadrature: 4,
+        }
+    }
+}
+
+/// Power bookkeeping of the energetization pass (all over every light).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PhotonEnergy {
+    /// Power launched (the lights' power toward the sampled region).
+    pub emitted: f64,
+    /// Power of the photons whose path crosses the grid.
+    pub entering: f64,
+    /// Power absorbed in the medium, `Σ w (1 − a)` over interactions.
+    pub absorbed: f64,
+    /// Power leaving the grid after entering it.
+    pub escaped: f64,
+    /// Power scattered, `Σ w a` over interactions (stored or not).
+    pub scattered: f64,
+    /// Power stored in the optical voxels.
+    pub stored: f64,
+    /// Photons traced.
+    pub photons: u64,
+    /// Interactions simulated.
+    pub interactions: u64,
+}
+
+impl PhotonEnergy {
+    /// `|entering − absorbed − escaped| / entering` (Russian roulette makes it zero only on
+    /// average).
+    pub fn relative_imbalance(&self) -> f64 {
+        if self.entering == 0.0 {
+            0.0
+        } else {
+            (self.entering - self.absorbed - self.escaped).abs() / self.entering
+        }
+    }
+
+    fn add(&mut self, o: &PhotonEnergy) {
+        self.emitted += o.emitted;
+        self.entering += o.entering;
+        self.absorbed += o.absorbed;
+        self.escaped += o.escaped;
+        self.scattered += o.scattered;
+        self.stored += o.stored;
+        self.photons += o.photons;
+        self.interactions += o.interactions;
+    }
+}
+
+/// The stored result of the energetization pass for one channel: scattered radiance per
+/// optical voxel and outgoing direction bin, and each density cell's share.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TwoPassSolution {
+    /// The density grid the solution was computed on.
+    pub grid: Grid,
+    pub storage_factor: usize,
+    /// Optical voxels per axis: `ceil(dims / storage_factor)`.
+    pub optical_dims: [usize; 3],
+    pub bins: DirectionBins,
+    /// `Σ_b Φ_o,b P_lb` per optical voxel `o` and outgoing flow bin `l` (`o · bins + l`):
+    /// scattered power per steradian.
+    pub voxel_source: Vec<f32>,
+    /// Per density cell: `σs_c / Σ_{c'∈o} σs_c' V_c'` (1/volume), the cell's share.
+    pub cell_share: Vec<f32>,
+    pub energy: PhotonEnergy,
+    /// Whether the first interaction is in the stored source.
+    pub include_first_bounce: bool,
+    /// Upper bound on `Q_s` over cells and directions.
+    pub max_source: f64,
+}
+
+/// Per-group accumulators.
+struct Tally {
+    power: Vec<f64>,
+    energy: PhotonEnergy,
+}
+
+/// A light's photon emitter: start ray and power per photon.
+#[derive(Clone, Copy)]
+enum Emitter {
+    Square {
+        corner: DVec3,
+        e1: DVec3,
+        e2: DVec3,
+        side: f64,
+        direction: DVec3,
+    },
+    Cone {
+        position: DVec3,
+        axis: DVec3,
+        cos_max: f64,
+    },
+}
+
+impl Emitter {
+    /// The emitter and its total power toward the sampled region.
+    fn new(light: &Light, grid: &Grid) -> (Emitter, f64) {
+        match *light {
+            Light::Directional {
+                direction,
+                irradiance,
+            } => {
+                let radius = 0.5 * grid.extent().length();
+                let (e1, e2) = direction.any_orthonormal_pair();
+                let side = 2.0 * radius * (1.0 + 1e-9);
+                let corner = grid.center()
+                    - direction * (radius + grid.cell_size)
+                    - (e1 + e2) * (0.5 * side);
+                (
+                    Emitter::Square {
+                        corner,
+                        e1,
+                        e2,
+                        side,
+                        direction,
+                    },
+                    irradiance * side * side,
+                )
+            }
+            Light::Point {
+                position,
+                intensity,
+            } => (
+                Emitter::Cone {
+                    position,
+                    axis: DVec3::Z,
+                    cos_max: -1.0,
+                },
+                4.0 * PI * intensity,
+            ),
+            Light::Spot {
+                position,
+                axis,
+                half_angle,
+                intensity,
+            } => {
+                let cos_max = half_angle.cos();
+                (
+                    Emitter::Cone {
+                        position,
+                        axis,
+                        cos_max,
+                    },
+                    2.0 * PI * (1.0 - cos_max) * intensity,
+                )
+            }
+        }
+    }
+
+    #[inline]
+    fn ray<R: Rng + ?Sized>(&self, rng: &mut R) -> Ray {
+        match *self {
+            Emitter::Square {
+                corner,
+                e1,
+                e2,
+                side,
+                direction,
+            } => Ray {
+                origin: corner
+                    + e1 * (side * rng.random::<f64>())
+                    + e2 * (side * rng.random::<f64>()),
+                direction,
+            },
+            Emitter::Cone {
+                position,
+                axis,
+                cos_max,
+            } => {
+                let cos_theta = 1.0 - (1.0 - cos_max) * rng.random::<f64>();
+                let phi = 2.0 * PI * rng.random::<f64>();
+                Ray {
+                    origin: position,
+                    direction: rotate_about(axis, cos_theta, phi),
+                }
+            }
+        }
+    }
+}
+
+fn optical_index(grid: &Grid, factor: usize, odims: [usize; 3], cell: usize) -> usize {
+    let [i, j, k] = grid.coords(cell);
+    (i / factor) + odims[0] * ((j / factor) + odims[1] * (k / factor))
+}
+
+/// The bin-averaged phase matrix `P_lb` (row-major `l · M + b`), renormalised so that
+/// `Σ_l P_lb Ω = 1` for every `b`.
+fn phase_matrix(phase: &medium::PhaseFunction, bins: DirectionBins, q: usize) -> Vec<f64> {
+    let m = bins.count();
+    if m == 1 {
+        return vec![1.0 / (4.0 * PI)];
+    }
+    let points = |b: usize| -> Vec<DVec3> {
+        let mut v = Vec::with_capacity(q * q);
+        for iu in 0..q {
+            for iv in 0..q {
+                v.push(bins.direction_in(
+                    b,
+                    (iu as f64 + 0.5) / q as f64,
+                    (iv as f64 + 0.5) / q as f64,
+                ));
+            }
+        }
+        v
+    };
+    let all: Vec<Vec<DVec3>> = (0..m).map(points).collect();
+    let mut p = vec![0.0; m * m];
+    p.par_chunks_mut(m).enumerate().for_each(|(l, row)| {
+        for (b, entry) in row.iter_mut().enumerate() {
+            let mut s = 0.0;
+            for wl in &all[l] {
+                for wb in &all[b] {
+                    s += phase.eval(wl.dot(*wb));
+                }
+            }
+            *entry = s / (q * q * q * q) as f64;
+        }
+    });
+    let omega = bins.solid_angle();
+    for b in 0..m {
+        let col: f64 = (0..m).map(|l| p[l * m + b]).sum::<f64>() * omega;
+        if col > 0.0 {
+            for l in 0..m {
+                p[l * m + b] /= col;
+            }
+        }
+    }
+    p
+}
+
+/// The energetization pass for channel `channel` of `medium` lit by `lights`, then the
+/// conversion to scattered radiance. `progress(done, total)` is called after each batch of
+/// photons (from worker threads). Deterministic for a seed, whatever the thread count.
+pub fn energetize(
+    medium: &Medium,
+    channel: usize,
+    lights: &[Light],
+    options: &EnergetizeOptions,
+    progress: Option<&(dyn Fn(u64, u64) + Sync)>,
+) -> Result<TwoPassSolution, MonteCarloError> {
+    let ch = medium
+        .channels
+        .get(channel)
+        .ok_or(MonteCarloError::Channel {
+            channel,
+            channels: medium.channels.len(),
+        })?;
+    if options.photons_per_light == 0 {
+        return Err(MonteCarloError::Options(
+            "photons_per_light must be at least 1".into(),
+        ));
+    }
+    if options.storage_factor == 0 {
+        return Err(MonteCarloError::Options(
+            "storage_factor must be at least 1".into(),
+        ));
+    }
+    if options.bins.count() == 0 {
+        return Err(MonteCarloError::Options(
+            "direction bins must be at least 1 × 1".into(),
+        ));
+    }
+    if options.phase_quadrature == 0 {
+        return Err(MonteCarloError::Options(
+            "phase_quadrature must be at least 1".into(),
+        ));
+    }
+    for (index, light) in lights.iter().enumerate() {
+        light.validated().map_err(|e| MonteCarloError::Light {
+            index,
+            message: e.to_string(),
+        })?;
+    }
+    let grid = medium.grid;
+    let factor = options.storage_factor;
+    let odims = grid.dims.map(|d| d.div_ceil(factor));
+    let optical_count = odims[0] * odims[1] * odims[2];
+    let m = options.bins.count();
+    let voxel_of: Vec<u32> = (0..grid.cell_count())
+        .map(|c| optical_index(&grid, factor, odims, c) as u32)
+        .collect();
+
+    let batches_per_light = options.photons_per_light.div_ceil(BATCH);
+    let total_batches = batches_per_light * lights.len() as u64;
+    let total_photons = options.photons_per_light * lights.len() as u64;
+    let emitters: Vec<(Emitter, f64)> = lights.iter().map(|l| Emitter::new(l, &grid)).collect();
+    let done = AtomicU64::new(0);
+    let groups = GROUPS.min(total_batches.max(1) as usize);
+
+    let trace_batch = |tally: &mut Tally, batch: u64| {
+        let light_index = (batch / batches_per_light) as usize;
+        let local = batch % batches_per_light;
+        let first = local * BATCH;
+        let count = BATCH.min(options.photons_per_light - first);
+        let (emitter, power) = emitters[light_index];
+        let w0 = power / options.photons_per_light as f64;
+        let mut rng = rng::stream(options.seed, 1 + light_index as u64, local);
+        for _ in 0..count {
+            let mut ray = emitter.ray(&mut rng);
+            tally.energy.emitted += w0;
+            tally.energy.photons += 1;
+            if grid.clip(&ray, 0.0, f64::INFINITY).is_none() {
+                continue;
+            }
+            tally.energy.entering += w0;
+            let mut w = w0;
+            let mut depth = 0u32;
+            loop {
+                let target = -(1.0 - rng.random::<f64>()).ln();
+                let (flight, _) = fly(&grid, &ch.sigma_t, None, &ray, f64::INFINITY, target);
+                let Flight::Collision { t, cell } = flight else {
+                    tally.energy.escaped += w;
+                    break;
+                };
+                depth += 1;
+                tally.energy.interactions += 1;
+                let a = ch.albedo.get(cell) as f64;
+                tally.energy.absorbed += w * (1.0 - a);
+                let scattered = w * a;
+                tally.energy.scattered += scattered;
+                if depth > 1 || options.include_first_bounce {
+                    let o = voxel_of[cell] as usize;
+                    tally.power[o * m + options.bins.bin(ray.direction)] += scattered;
+                    tally.energy.stored += scattered;
+                }
+                if scattered <= 0.0 {
+                    break;
+                }
+                w = scattered;
+                if depth >= options.rr_start_depth && w < w0 {
+                    let q = (1.0 - w / w0).max(0.05);
+                    if rng.random::<f64>() < q {
+                        break;
+                    }
+                    w /= 1.0 - q;
+                }
+                let x = ray.at(t);
+                ray = Ray {
+                    origin: x,
+                    direction: medium.phase.sample(ray.direction, &mut rng),
+                };
+            }
+        }
+        let n = done.fetch_add(count, Ordering::Relaxed) + count;
+        if let Some(report) = progress {
+            report(n, total_photons);
+        }
+    };
+
+    let tallies: Vec<Tally> = (0..groups)
+        .into_par_iter()
+        .map(|g| {
+            let mut tally = Tally {
+                power: vec![0.0; optical_count * m],
+                energy: PhotonEnergy::default(),
+            };
+            let mut batch = g as u64;
+            while batch < total_batches {
+                trace_batch(&mut tally, batch);
+                batch += groups as u64;
+            }
+            tally
+        })
+        .collect();
+    let mut power = vec![0.0f64; optical_count * m];
+    let mut energy = PhotonEnergy::default();
+    for t in &tallies {
+        for (p, v) in power.iter_mut().zip(&t.power) {
+            *p += v;
+        }
+        energy.add(&t.energy);
+    }
+    drop(tallies);
+
+    // Each cell's share of its optical voxel's power, by interception (σs V).
+    let volume = grid.cell_volume();
+    let mut voxel_sigma_s = vec![0.0f64; optical_count];
+    for c in 0..grid.cell_count() {
+        voxel_sigma_s[voxel_of[c] as usize] += ch.sigma_s(c) as f64 * volume;
+    }
+    let cell_share: Vec<f32> = (0..grid.cell_count())
+        .map(|c| {
+            let total = voxel_sigma_s[voxel_of[c] as usize];
+            if total > 0.0 {
+                (ch.sigma_s(c) as f64 / total) as f32
+            } else {
+                0.0
+            }
+        })
+        .collect();
+
+    let p = phase_matrix(&medium.phase, options.bins, options.phase_quadrature);
+    let mut voxel_source = vec![0.0f32; optical_count * m];
+    voxel_source
+        .par_chunks_mut(m)
+        .zip(power.par_chunks(m))
+        .for_each(|(out, incident)| {
+            for (l, q) in out.iter_mut().enumerate() {
+                let row = &p[l * m..(l + 1) * m];
+                *q = row.iter().zip(incident).map(|(a, b)| a * b).sum::<f64>() as f32;
+            }
+        });
+    let mut voxel_max = vec![0.0f32; optical_count];
+    for (o, q) in voxel_source.chunks(m).enumerate() {
+        voxel_max[o] = q.iter().copied().fold(0.0, f32::max);
+    }
+    let max_source = (0..grid.cell_count())
+        .map(|c| cell_share[c] as f64 * voxel_max[voxel_of[c] as usize] as f64)
+        .fold(0.0, f64::max);
+    Ok(TwoPassSolution {
+        grid,
+        storage_factor: factor,
+        optical_dims: odims,
+        bins: options.bins,
+        voxel_source,
+        cell_share,
+        energy,
+        include_first_bounce: options.include_first_bounce,
+        max_source,
+    })
+}
+
+impl TwoPassSolution {
+    /// Checks that the solution was made on `grid`.
+    pub fn check_grid(&self, grid: &Grid) -> Result<(), MonteCarloError> {
+        if self.grid != *grid {
+            return Err(MonteCarloError::Mismatch(format!(
+                "solved on a {:?} grid (cell {}), used with {:?} (cell {})",
+                self.grid.dims, self.grid.cell_size, grid.dims, grid.cell_size
+            )));
+        }
+        Ok(())
+    }
+
+    /// `Q_s` in density cell `cell` for light flowing along `flow` (radiance per length).
+    #[inline]
+    pub fn source(&self, cell: usize, flow: DVec3) -> f64 {
+        let share = self.cell_share[cell];
+        if share == 0.0 {
+            return 0.0;
+        }
+        let o = optical_index(&self.grid, self.storage_factor, self.optical_dims, cell);
+        let m = self.bins.count();
+        let l = if m == 1 { 0 } else { self.bins.bin(flow) };
+        share as f64 * self.voxel_source[o * m + l] as f64
+    }
+
+    /// Total scattered power the stored source represents, `Σ_c V ∫ Q_s(c, ω) dω`: equals
+    /// `energy.stored` when the conversion conserves energy.
+    pub fn source_power(&self) -> f64 {
+        let m = self.bins.count();
+        let (omega, volume) = (self.bins.solid_angle(), self.grid.cell_volume());
+        (0..self.grid.cell_count())
+            .map(|c| {
+                let o = optical_index(&self.grid, self.storage_factor, self.optical_dims, c);
+                let sum: f64 = self.voxel_source[o * m..(o + 1) * m]
+                    .iter()
+                    .map(|&v| v as f64)
+                    .sum();
+                self.cell_share[c] as f64 * sum * omega * volume
+            })
+            .sum()
+    }
+}
+
+impl InScattering for TwoPassSolution {
+    #[inline]
+    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
+        self.source(cell, -ray.direction) * segment_weight(sigma_t, t1 - t0)
+    }
+
+    #[inline]
+    fn at(&self, _x: DVec3, cell: usize, view_flow_dir: DVec3) -> f64 {
+        self.source(cell, view_flow_dir)
+    }
+
+    fn max_source(&self) -> f64 {
+        self.max_source
+    }
+
+    fn is_zero(&self) -> bool {
+        self.max_source == 0.0
+    }
+}
+
+/// A copy of `medium` with every channel's σt multiplied by `scale`: the separate
+/// render-time absorption of Blasi & Wuethrich §4.3 (the stored sources stay as solved).
+pub fn with_extinction_scale(medium: &Medium, scale: f32) -> Result<Medium, MonteCarloError> {
+    if !(scale.is_finite() && scale >= 0.0) {
+        return Err(MonteCarloError::Options(format!(
+            "extinction scale {scale} must be finite and ≥ 0"
+        )));
+    }
+    let mut out = medium.clone();
+    for ch in &mut out.channels {
+        for s in &mut ch.sigma_t {
+            *s *= scale;
+        }
+    }
+    Ok(out)
+}
