@@ -234,6 +234,11 @@ impl NearStencil {
                     let e = (-sigma * self.seg_length[s] * h).exp();
                     column[slot] += t * (1.0 - e);
                     t *= e;
+                    // What is left of the ray is below any quadrature error: it counts as
+                    // escaped (never deposited), so column sums stay ≤ 1.
+                    if t < 1e-9 {
+                        break;
+                    }
                 }
             }
             escaped += t;
