@@ -1029,6 +1029,9 @@ kind = "directional"
 direction = [0.5, -1.0, 0.35]
 irradiance = 1.0
 
+[render]
+exposure = 6.0
+
 [[camera]]
 name = "front"
 eye = [24.0, 32.0, -56.0]
