@@ -3,7 +3,8 @@
 //!
 //! `cargo bench --bench solve` prints a table per albedo (one timed solve per method, the
 //! spectral radius and Jacobi's predicted count), then criterion timings at albedo 0.99.
-//! `cargo bench --bench solve -- --table-only` skips criterion.
+//! `cargo bench --bench solve -- --table-only` skips criterion; `--methods=cg,coarse-gs` and
+//! `--block=N` (aggregate edge in cells, default 6) select what runs.
 
 use std::time::Instant;
 
@@ -134,7 +135,22 @@ impl RowAccess for StencilZonal {
     }
 }
 
+/// `--methods=a,b,…` restricts the methods; `--block=N` sets the aggregate edge (default 6).
+fn arg(name: &str) -> Option<String> {
+    std::env::args().find_map(|a| a.strip_prefix(&format!("--{name}=")).map(str::to_string))
+}
+
+fn block() -> usize {
+    arg("block").and_then(|b| b.parse().ok()).unwrap_or(6)
+}
+
 fn methods() -> Vec<Method> {
+    if let Some(list) = arg("methods") {
+        return list
+            .split(',')
+            .map(|m| m.parse().expect("valid method"))
+            .collect();
+    }
     [
         "jacobi",
         "gauss-seidel",
@@ -142,6 +158,7 @@ fn methods() -> Vec<Method> {
         "gmres:30",
         "bicgstab",
         "cg",
+        "coarse-cg",
         "coarse-jacobi",
         "coarse-gs",
     ]
@@ -160,7 +177,7 @@ fn options(method: Method) -> SolveOptions {
 }
 
 fn table(albedo: f64) {
-    let op = StencilZonal::new(albedo, 8);
+    let op = StencilZonal::new(albedo, block());
     let source: Vec<f64> = op.s.iter().map(|s| 0.1 * s).collect();
     let t = Instant::now();
     let est = spectral_radius(&op, 5000, 1e-7);
@@ -191,7 +208,9 @@ fn table(albedo: f64) {
         );
         rows.push(r);
     }
-    let jacobi = &rows[0];
+    let Some(jacobi) = rows.iter().find(|r| r.method == "jacobi") else {
+        return;
+    };
     if let Some(best) = rows
         .iter()
         .filter(|r| r.converged)
@@ -222,7 +241,7 @@ fn main() {
         .configure_from_args()
         .sample_size(10)
         .warm_up_time(std::time::Duration::from_secs(1));
-    let op = StencilZonal::new(0.99, 8);
+    let op = StencilZonal::new(0.99, block());
     let source: Vec<f64> = op.s.iter().map(|s| 0.1 * s).collect();
     for m in methods() {
         let name = format!("solve/albedo0.99/{m}");

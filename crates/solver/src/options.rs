@@ -31,6 +31,10 @@ pub enum Method {
     /// `diag(w) K` is symmetric ([`TransportOperator::symmetrizer`](crate::TransportOperator::symmetrizer)).
     /// Needs `I − K` positive definite in that product, i.e. spectral radius below 1.
     ConjugateGradient,
+    /// Conjugate gradients (as [`ConjugateGradient`](Self::ConjugateGradient)) preconditioned
+    /// by the coarse-grid correction: `M⁻¹ = I + P (Pᵀ W (I − K) P)⁻¹ Pᵀ W`, self-adjoint in
+    /// the same inner product. Aggregates as for [`CoarseCorrected`](Self::CoarseCorrected).
+    CoarseCg,
     /// Two-level iteration: a Galerkin coarse-grid correction on aggregates followed by one
     /// sweep of `inner`. With piecewise-constant prolongation and summation restriction the
     /// coarse equations are the energy balance of each aggregate: this is additive
@@ -90,6 +94,7 @@ impl fmt::Display for Method {
             Method::Gmres { restart } => write!(f, "gmres:{restart}"),
             Method::BiCgStab => write!(f, "bicgstab"),
             Method::ConjugateGradient => write!(f, "cg"),
+            Method::CoarseCg => write!(f, "coarse-cg"),
             Method::CoarseCorrected { inner } => write!(f, "coarse-{inner}"),
         }
     }
@@ -97,7 +102,7 @@ impl fmt::Display for Method {
 
 /// A method string that could not be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown solve method {input:?}: {reason} (expected one of jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-jacobi, coarse-gs, coarse-sor:OMEGA)")]
+#[error("unknown solve method {input:?}: {reason} (expected one of jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-cg, coarse-jacobi, coarse-gs, coarse-sor:OMEGA)")]
 pub struct ParseMethodError {
     pub input: String,
     pub reason: String,
@@ -156,6 +161,7 @@ impl FromStr for Method {
             }
             "bicgstab" => no_arg(Method::BiCgStab),
             "cg" | "conjugate-gradient" => no_arg(Method::ConjugateGradient),
+            "coarse-cg" => no_arg(Method::CoarseCg),
             "coarse-jacobi" => no_arg(Method::CoarseCorrected {
                 inner: Smoother::Jacobi,
             }),

@@ -35,7 +35,7 @@ pub fn solve(
     }
     check_options(options)?;
     let method = options.method;
-    if matches!(method, Method::ConjugateGradient) {
+    if matches!(method, Method::ConjugateGradient | Method::CoarseCg) {
         let Some(w) = op.symmetrizer() else {
             return Err(SolveError::Unsupported {
                 method: method.name(),
@@ -68,7 +68,12 @@ pub fn solve(
         Method::BiCgStab => methods::krylov::bicgstab(&mut ctx, &mut g),
         Method::ConjugateGradient => {
             let w = op.symmetrizer().expect("checked above");
-            methods::krylov::cg(&mut ctx, &mut g, w)
+            methods::krylov::cg(&mut ctx, &mut g, w, None)
+        }
+        Method::CoarseCg => {
+            let w = op.symmetrizer().expect("checked above");
+            let coarse = methods::coarse::CoarseSpace::new(&mut ctx, Some(w))?;
+            methods::krylov::cg(&mut ctx, &mut g, w, Some(coarse))
         }
         Method::CoarseCorrected { inner } => {
             methods::coarse::two_level(&mut ctx, &mut g, inner, method.name())?

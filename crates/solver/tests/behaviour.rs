@@ -11,7 +11,7 @@ use solver::{
     SolveError, SolveOptions, SolveReport, StopReason,
 };
 
-const ALL: [&str; 11] = [
+const ALL: [&str; 12] = [
     "jacobi",
     "gauss-seidel",
     "sor:1.5",
@@ -20,6 +20,7 @@ const ALL: [&str; 11] = [
     "gmres:5",
     "bicgstab",
     "cg",
+    "coarse-cg",
     "coarse-gs",
     "coarse-jacobi",
     "coarse-sor:1.2",
@@ -338,7 +339,7 @@ fn methods_parse_and_print() {
         "gmres:0",
         "jacobi:3",
         "multigrid",
-        "coarse-cg",
+        "coarse-bicgstab",
     ] {
         let err = bad.parse::<Method>().unwrap_err();
         assert!(err.to_string().contains("expected one of"), "{bad}: {err}");

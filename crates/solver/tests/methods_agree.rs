@@ -3,7 +3,10 @@
 mod common;
 
 use common::*;
-use solver::{solve, Method, Smoother, SolveControl, SolveOptions, StopReason, TransportOperator};
+use solver::{
+    solve, DenseOperator, Method, Smoother, SolveControl, SolveOptions, StopReason,
+    TransportOperator,
+};
 
 fn options(method: Method, tolerance: f64) -> SolveOptions {
     SolveOptions {
@@ -176,6 +179,7 @@ fn acceleration_pays_on_a_thick_chain_at_albedo_0999() {
     for m in [
         Method::ConjugateGradient,
         Method::Gmres { restart: 50 },
+        Method::CoarseCg,
         Method::CoarseCorrected {
             inner: Smoother::GaussSeidel,
         },
@@ -207,5 +211,42 @@ fn parallel_kernels_are_deterministic() {
             a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
             "{m}"
         );
+    }
+}
+
+/// An operator with its own sweep and no rows (like a discrete-ordinates transport sweep).
+struct SweepOnly<'a>(&'a DenseOperator);
+
+impl TransportOperator for SweepOnly<'_> {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn apply(&self, x: &[f64], y: &mut [f64]) {
+        self.0.apply(x, y)
+    }
+    fn sweep_in_place(&self, g: &mut [f64], source: &[f64], omega: f64) -> bool {
+        // Backward order, to differ from the row default.
+        for i in (0..g.len()).rev() {
+            let kg: f64 = (0..g.len()).map(|j| self.0.entry(i, j) * g[j]).sum();
+            g[i] = (1.0 - omega) * g[i] + omega * (source[i] + kg);
+        }
+        true
+    }
+}
+
+#[test]
+fn sweep_only_operators_support_gauss_seidel_and_sor() {
+    let k = reciprocal(50, 21, 0.98, 1.0);
+    let e = random_source(50, 21);
+    let exact = direct_solve(&k, &e);
+    let op = SweepOnly(&k);
+    for m in [
+        Method::GaussSeidel,
+        Method::Sor { omega: 1.4 },
+        Method::CoarseCorrected {
+            inner: Smoother::GaussSeidel,
+        },
+    ] {
+        check_method(&op, &e, &exact, m);
     }
 }

@@ -52,11 +52,21 @@ fn check_aggregates(aggs: &[u32], n: usize) -> Result<usize, SolveError> {
     Ok(nc)
 }
 
-/// `Pᵀ K P`, dense row-major.
-fn coarse_k(ctx: &mut Ctx<'_>, aggs: &[u32], nc: usize) -> Result<Vec<f64>, SolveError> {
+/// `Pᵀ W K P`, dense row-major (`W = I` when `weights` is `None`).
+fn coarse_k(
+    ctx: &mut Ctx<'_>,
+    aggs: &[u32],
+    nc: usize,
+    weights: Option<&[f64]>,
+) -> Result<Vec<f64>, SolveError> {
     let op = ctx.op;
     let n = aggs.len();
-    if let Some(kc) = op.coarse_operator(aggs, nc) {
+    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
+    if let Some(kc) = weights
+        .is_none()
+        .then(|| op.coarse_operator(aggs, nc))
+        .flatten()
+    {
         if kc.len() != nc * nc || kc.iter().any(|v| !v.is_finite()) {
             return Err(SolveError::InvalidOperatorData {
                 what: "coarse operator",
@@ -70,7 +80,8 @@ fn coarse_k(ctx: &mut Ctx<'_>, aggs: &[u32], nc: usize) -> Result<Vec<f64>, Solv
         let rows = op.rows().expect("checked");
         for i in 0..n {
             let row = &mut kc[aggs[i] as usize * nc..][..nc];
-            rows.for_each_in_row(i, &mut |j, v| row[aggs[j] as usize] += v);
+            let wi = w(i);
+            rows.for_each_in_row(i, &mut |j, v| row[aggs[j] as usize] += wi * v);
         }
         return Ok(kc);
     }
@@ -87,8 +98,8 @@ fn coarse_k(ctx: &mut Ctx<'_>, aggs: &[u32], nc: usize) -> Result<Vec<f64>, Solv
             *xi = if a as usize == c { 1.0 } else { 0.0 };
         }
         ctx.apply(&x, &mut y);
-        for (yi, &a) in y.iter().zip(aggs) {
-            kc[a as usize * nc + c] += yi;
+        for (i, (yi, &a)) in y.iter().zip(aggs).enumerate() {
+            kc[a as usize * nc + c] += w(i) * yi;
         }
     }
     Ok(kc)
@@ -158,6 +169,78 @@ impl Lu {
     }
 }
 
+/// The coarse space: aggregates and the factorised Galerkin matrix `Pᵀ W (I − K) P`.
+pub(crate) struct CoarseSpace<'a> {
+    aggs: std::borrow::Cow<'a, [u32]>,
+    lu: Option<Lu>,
+    rc: Vec<f64>,
+    tmp: Vec<f64>,
+}
+
+impl<'a> CoarseSpace<'a> {
+    /// Aggregates from the operator or contiguous blocks; `weights` gives the W-weighted
+    /// (symmetric) Galerkin matrix used inside conjugate gradients.
+    pub(crate) fn new(ctx: &mut Ctx<'a>, weights: Option<&[f64]>) -> Result<Self, SolveError> {
+        let op = ctx.op;
+        let n = op.len();
+        let aggs: std::borrow::Cow<'a, [u32]> = match op.coarse_aggregates() {
+            Some(a) => std::borrow::Cow::Borrowed(a),
+            None => {
+                let count = if has_entries(op) {
+                    (n / DEFAULT_AGGREGATE_SIZE).clamp(1, MAX_DEFAULT_AGGREGATES)
+                } else {
+                    PROBED_DEFAULT_AGGREGATES
+                };
+                std::borrow::Cow::Owned(contiguous_aggregates(n, count))
+            }
+        };
+        let nc = check_aggregates(&aggs, n)?;
+        let lu = if nc == 0 {
+            None
+        } else {
+            let mut ac = coarse_k(ctx, &aggs, nc, weights)?;
+            ac.iter_mut().for_each(|v| *v = -*v);
+            let mut diag = vec![0.0; nc];
+            for (i, &a) in aggs.iter().enumerate() {
+                diag[a as usize] += weights.map_or(1.0, |w| w[i]);
+            }
+            // Aggregate weights set the scale against which cancellation is judged.
+            let scale = diag.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (c, d) in diag.iter().enumerate() {
+                ac[c * (nc + 1)] += d;
+            }
+            let lu = Lu::factor(ac, nc, scale);
+            if lu.is_none() {
+                tracing::warn!(
+                    "coarse operator is singular (no leakage at albedo 1?): no coarse correction"
+                );
+            }
+            lu
+        };
+        Ok(Self {
+            aggs,
+            lu,
+            rc: vec![0.0; nc],
+            tmp: vec![0.0; nc],
+        })
+    }
+
+    /// `g += P A_c⁻¹ Pᵀ W r`.
+    pub(crate) fn correct(&mut self, r: &[f64], weights: Option<&[f64]>, g: &mut [f64]) {
+        let Some(lu) = &self.lu else {
+            return;
+        };
+        self.rc.iter_mut().for_each(|v| *v = 0.0);
+        for (i, (&a, &ri)) in self.aggs.iter().zip(r).enumerate() {
+            self.rc[a as usize] += weights.map_or(ri, |w| w[i] * ri);
+        }
+        lu.solve(&mut self.rc, &mut self.tmp);
+        for (gi, &a) in g.iter_mut().zip(self.aggs.iter()) {
+            *gi += self.rc[a as usize];
+        }
+    }
+}
+
 /// One cycle per iteration: residual (one application) → coarse correction → one smoother
 /// step (a Jacobi step costs another application; Gauss–Seidel/SOR one sweep).
 pub(crate) fn two_level(
@@ -168,36 +251,7 @@ pub(crate) fn two_level(
 ) -> Result<Stop, SolveError> {
     let op = ctx.op;
     let n = g.len();
-    let default_aggs;
-    let aggs: &[u32] = match op.coarse_aggregates() {
-        Some(a) => a,
-        None => {
-            let count = if has_entries(op) {
-                (n / DEFAULT_AGGREGATE_SIZE).clamp(1, MAX_DEFAULT_AGGREGATES)
-            } else {
-                PROBED_DEFAULT_AGGREGATES
-            };
-            default_aggs = contiguous_aggregates(n, count);
-            &default_aggs
-        }
-    };
-    let nc = check_aggregates(aggs, n)?;
-    let lu = if nc == 0 {
-        None
-    } else {
-        let mut ac = coarse_k(ctx, aggs, nc)?;
-        // Aggregate sizes and |PᵀKP| set the scale against which cancellation is judged.
-        let scale = ac.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1.0);
-        ac.iter_mut().for_each(|v| *v = -*v);
-        for &a in aggs {
-            ac[a as usize * (nc + 1)] += 1.0;
-        }
-        let lu = Lu::factor(ac, nc, scale);
-        if lu.is_none() {
-            tracing::warn!("coarse operator is singular (no leakage at albedo 1?): smoothing only");
-        }
-        lu
-    };
+    let mut coarse = CoarseSpace::new(ctx, None)?;
     let omega = match inner {
         Smoother::Jacobi => None,
         Smoother::GaussSeidel => Some(1.0),
@@ -205,8 +259,6 @@ pub(crate) fn two_level(
     };
     let mut kg = vec![0.0; n];
     let mut r = vec![0.0; n];
-    let mut rc = vec![0.0; nc];
-    let mut tmp = vec![0.0; nc];
     let mut k = 0;
     loop {
         let rel = ctx.residual(g, &mut kg, &mut r);
@@ -216,16 +268,7 @@ pub(crate) fn two_level(
                 true_residual: Some(rel),
             });
         }
-        if let Some(lu) = &lu {
-            rc.iter_mut().for_each(|v| *v = 0.0);
-            for (&a, &ri) in aggs.iter().zip(&r) {
-                rc[a as usize] += ri;
-            }
-            lu.solve(&mut rc, &mut tmp);
-            for (gi, &a) in g.iter_mut().zip(aggs) {
-                *gi += rc[a as usize];
-            }
-        }
+        coarse.correct(&r, None, g);
         match omega {
             None => {
                 ctx.apply(g, &mut kg);

@@ -1,6 +1,7 @@
 //! Krylov methods on `A = I − K`: restarted GMRES, BiCGSTAB, and conjugate gradients in the
 //! operator's symmetrizing inner product.
 
+use crate::methods::coarse::CoarseSpace;
 use crate::report::StopReason;
 use crate::solve::{Ctx, Stop};
 use crate::vecops::for_each_mut;
@@ -241,9 +242,21 @@ pub(crate) fn bicgstab(ctx: &mut Ctx<'_>, x: &mut [f64]) -> Stop {
 /// Conjugate gradients for `A = I − K`, self-adjoint in `⟨x, y⟩_w = Σ w_i x_i y_i` because
 /// `diag(w) K` is symmetric. One application per iteration. Non-positive curvature (the
 /// operator is not contractive, so `A` is not positive definite) ends the solve as Stagnated.
-pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64]) -> Stop {
+///
+/// With `coarse`, the preconditioner `z = r + P A_c⁻¹ Pᵀ W r` (W-self-adjoint and positive).
+pub(crate) fn cg(
+    ctx: &mut Ctx<'_>,
+    x: &mut [f64],
+    w: &[f64],
+    mut coarse: Option<CoarseSpace<'_>>,
+) -> Stop {
     let n = x.len();
     let mut r = vec![0.0; n];
+    let mut z = if coarse.is_some() {
+        vec![0.0; n]
+    } else {
+        Vec::new()
+    };
     let mut p = vec![0.0; n];
     let mut q = vec![0.0; n];
     let mut k = 0;
@@ -269,8 +282,15 @@ pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64]) -> Stop {
                 true_residual: Some(rel),
             };
         }
-        p.copy_from_slice(&r);
-        let mut rz = ctx.red.weighted_dot(w, &r, &r);
+        let precondition = |r: &[f64], z: &mut Vec<f64>, coarse: &mut Option<CoarseSpace<'_>>| {
+            if let Some(c) = coarse {
+                z.copy_from_slice(r);
+                c.correct(r, Some(w), z);
+            }
+        };
+        precondition(&r, &mut z, &mut coarse);
+        p.copy_from_slice(if coarse.is_some() { &z } else { &r });
+        let mut rz = ctx.red.weighted_dot(w, &r, &p);
         loop {
             apply_a(ctx, &p, &mut q);
             let curvature = ctx.red.weighted_dot(w, &p, &q);
@@ -300,10 +320,12 @@ pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64]) -> Stop {
                     }
                 }
             }
-            let rz_new = ctx.red.weighted_dot(w, &r, &r);
+            precondition(&r, &mut z, &mut coarse);
+            let zr: &[f64] = if coarse.is_some() { &z } else { &r };
+            let rz_new = ctx.red.weighted_dot(w, &r, zr);
             let beta = rz_new / rz;
             rz = rz_new;
-            for_each_mut(&mut p, |i, pi| r[i] + beta * pi);
+            for_each_mut(&mut p, |i, pi| zr[i] + beta * pi);
         }
     }
 }
