@@ -6,6 +6,7 @@ use clap::Parser;
 fn main() -> std::process::ExitCode {
     let cli = volrad::cli::Cli::parse();
     let default_level = match cli.verbose {
+        0 if cli.quiet => "warn",
         0 => "volrad=info,warn",
         1 => "debug",
         _ => "trace",

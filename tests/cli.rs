@@ -1,0 +1,201 @@
+//! End-to-end behaviour of the `volrad` binary: solve once, render many views from the
+//! stored solution, and refuse bad input with clear errors (never a half-written file).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn volrad(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_volrad"))
+        .args(args)
+        .output()
+        .expect("the volrad binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A small cloud scene (generator, 12×12×10) with two tiny cameras.
+fn small_scene(dir: &Path, method: &str, phase: &str) -> PathBuf {
+    let text = format!(
+        r#"
+[volume]
+generator = {{ kind = "cloud", seed = 3 }}
+dims = [12, 12, 10]
+sigma_t_scale = 0.8
+
+[medium]
+albedo = 0.9
+phase = {phase}
+
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, 0.2]
+irradiance = 1.0
+
+[solve]
+method = "{method}"
+bins = 24
+tolerance = 1e-6
+
+[[camera]]
+name = "front"
+eye = [6.0, 8.0, -20.0]
+target = [6.0, 6.0, 5.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 40.0
+width = 40
+height = 30
+
+[[camera]]
+name = "side"
+eye = [-20.0, 8.0, 5.0]
+target = [6.0, 6.0, 5.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 40.0
+width = 40
+height = 30
+"#
+    );
+    let path = dir.join(format!("scene-{method}.toml"));
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn solution_round_trip_renders_bit_for_bit_and_many_views() {
+    for (method, phase) in [
+        ("zonal", r#"{ kind = "isotropic" }"#),
+        ("zonal-hierarchical", r#"{ kind = "isotropic" }"#),
+        ("discrete-ordinates", r#"{ kind = "henyey-greenstein", g = 0.6 }"#),
+        ("single-scatter", r#"{ kind = "henyey-greenstein", g = 0.6 }"#),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = small_scene(dir.path(), method, phase);
+        let sol = dir.path().join("s.volrad");
+        let out = volrad(&["-q", "solve", s(&scene), "-o", s(&sol), "--json"]);
+        assert!(out.status.success(), "{method}: {}", stderr(&out));
+        let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(report["method"], method);
+        if method != "single-scatter" {
+            assert_eq!(report["channels"][0]["converged"], true, "{report}");
+        }
+
+        // Rendering directly from the scene and from the stored solution gives the same
+        // numbers; rendering the solution twice gives the same bytes.
+        let direct = dir.path().join("direct.pfm");
+        let a = dir.path().join("a.pfm");
+        let b = dir.path().join("b.pfm");
+        assert!(volrad(&["-q", "render", s(&scene), "-o", s(&direct)]).status.success());
+        for p in [&a, &b] {
+            let o = volrad(&["-q", "render", "--solution", s(&sol), "-o", s(p)]);
+            assert!(o.status.success(), "{}", stderr(&o));
+        }
+        let (da, db, dd) = (
+            std::fs::read(&a).unwrap(),
+            std::fs::read(&b).unwrap(),
+            std::fs::read(&direct).unwrap(),
+        );
+        assert_eq!(da, db, "{method}: renders of one solution differ");
+        assert_eq!(da, dd, "{method}: render from file differs from render from scene");
+        let img = gather::read_pfm(&a).unwrap();
+        assert!(img.pixels.iter().any(|&v| v > 0.0), "{method}: black image");
+
+        // Orbit: N views from one read of the solution.
+        let orbit = dir.path().join("orbit.png");
+        let o = volrad(&["-q", "render", "--solution", s(&sol), "--orbit", "3", "-o", s(&orbit)]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        for i in 0..3 {
+            assert!(dir.path().join(format!("orbit_front_{i:03}.png")).exists());
+        }
+    }
+}
+
+#[test]
+fn every_corrupt_solution_is_refused_with_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path(), "zonal", r#"{ kind = "isotropic" }"#);
+    let sol = dir.path().join("s.volrad");
+    assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]).status.success());
+    let bytes = std::fs::read(&sol).unwrap();
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("truncated", bytes[..bytes.len() - 100].to_vec(), "truncated"),
+        ("flipped", {
+            let mut b = bytes.clone();
+            let i = b.len() / 2;
+            b[i] ^= 0x10;
+            b
+        }, "checksum"),
+        ("newer", {
+            let mut b = bytes.clone();
+            b[8] = 99;
+            b
+        }, "newer"),
+        ("foreign", b"P5\n1 1\n255\n\0".to_vec(), "not a volrad solution"),
+        ("empty", Vec::new(), "not a volrad solution"),
+    ];
+    for (name, data, expect) in cases {
+        let bad = dir.path().join(format!("{name}.volrad"));
+        std::fs::write(&bad, data).unwrap();
+        let out_png = dir.path().join(format!("{name}.png"));
+        let o = volrad(&["-q", "render", "--solution", s(&bad), "-o", s(&out_png)]);
+        assert!(!o.status.success(), "{name} was accepted");
+        let err = stderr(&o);
+        assert!(err.contains(expect) && err.contains(&format!("{name}.volrad")), "{name}: {err}");
+        assert!(!out_png.exists(), "{name}: an image was written anyway");
+    }
+}
+
+#[test]
+fn bad_scenes_and_arguments_are_refused_without_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path(), "zonal", r#"{ kind = "henyey-greenstein", g = 1.2 }"#);
+    let sol = dir.path().join("never.volrad");
+    let o = volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("medium.phase") && err.contains("scene-zonal.toml"), "{err}");
+    assert!(!sol.exists());
+
+    let good = small_scene(dir.path(), "single-scatter", r#"{ kind = "isotropic" }"#);
+    let o = volrad(&["-q", "render", s(&good), "--camera", "nope", "-o", "x.png"]);
+    assert!(!o.status.success() && stderr(&o).contains("no camera named `nope`"));
+    let o = volrad(&["-q", "render", s(&good), "-o", s(&dir.path().join("x.bmp"))]);
+    assert!(!o.status.success() && stderr(&o).contains("unknown image extension"));
+    let o = volrad(&["-q", "solve", s(&good), "--iteration", "newton", "-o", s(&sol)]);
+    assert!(!o.status.success() && stderr(&o).contains("--iteration `newton`"));
+}
+
+#[test]
+fn info_and_export_describe_the_solution() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path(), "zonal", r#"{ kind = "isotropic" }"#);
+    let o = volrad(&["info", s(&scene), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(info["cells"], 12 * 12 * 10);
+    assert!(info["max_axis_optical_depth"].as_f64().unwrap() > 0.0);
+
+    let sol = dir.path().join("s.volrad");
+    assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]).status.success());
+    let nrrd = dir.path().join("fluence.nrrd");
+    let o = volrad(&["export", s(&sol), "--field", "fluence", "-o", s(&nrrd)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let vol = medium::volume_io::load_volume(&nrrd, None).unwrap();
+    assert_eq!(vol.dims, [12, 12, 10]);
+    // Fluence is positive wherever light arrives, and at least the unscattered part.
+    assert!(vol.values.iter().all(|v| v.is_finite() && *v >= 0.0));
+    assert!(vol.values.iter().any(|&v| v > 0.0));
+
+    let raw = dir.path().join("sigma.raw");
+    let o = volrad(&["export", s(&sol), "--field", "sigma-t", "-o", s(&raw)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::metadata(&raw).unwrap().len(), 12 * 12 * 10 * 4);
+    let sidecar: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(raw.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(sidecar["dims"], serde_json::json!([12, 12, 10]));
+}
