@@ -1,12 +1,12 @@
 //! Light-pass speed: one directional light (oblique, the built-in scene's direction) through
 //! the generated 64×64×48 cloud (Max's cloud, seed 7, σt = 0.4 × density), default options
-//! (4×4 rays per cell face, exact corner transmittance). Also an axis-aligned light (one ray
-//! per cell). Run with `cargo bench --bench light_pass`.
+//! (4×4 rays per cell face, exact corner transmittance), the same with 2×2 rays per cell,
+//! and an axis-aligned light (one ray per cell, exact). Run with `cargo bench --bench light_pass`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use medium::generators::cloud;
-use medium::light_pass::LightPass;
+use medium::light_pass::{LightPass, LightPassOptions};
 use medium::{CellValues, ChannelMedium, Grid, Light};
 
 const SIGMA_T_SCALE: f32 = 0.4;
@@ -31,6 +31,13 @@ fn bench_light_pass(c: &mut Criterion) {
     group.sample_size(20);
     group.bench_function("cloud64x64x48_directional_oblique", |b| {
         b.iter(|| LightPass::compute(&grid, &channel, &oblique).unwrap())
+    });
+    let coarse = LightPassOptions {
+        rays_per_cell: 2,
+        ..Default::default()
+    };
+    group.bench_function("cloud64x64x48_directional_oblique_2x2rays", |b| {
+        b.iter(|| LightPass::compute_with(&grid, &channel, &oblique, &coarse).unwrap())
     });
     group.bench_function("cloud64x64x48_directional_axis", |b| {
         b.iter(|| LightPass::compute(&grid, &channel, &axis).unwrap())

@@ -298,7 +298,11 @@ fn directional_corner_transmittance(grid: &Grid, sigma_t: &[f32], direction: DVe
     let a = (0..3)
         .max_by(|&x, &y| back[x].abs().total_cmp(&back[y].abs()))
         .unwrap_or(2);
-    let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+    let (b, c) = match a {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
     let dims = grid.dims;
     let (na, nb, nc) = (dims[a], dims[b], dims[c]);
     let cell_stride = [1, dims[0], dims[0] * dims[1]];
@@ -339,45 +343,45 @@ fn directional_corner_transmittance(grid: &Grid, sigma_t: &[f32], direction: DVe
                 .collect()
         })
         .collect();
+    // Rows of corners along b (the lateral axis with the smaller memory stride) for each c:
+    // for one layer and one stencil entry, a row reads a contiguous run of σt.
+    let (nb_i, nc_i) = (nb as i64, nc as i64);
     let planes: Vec<Vec<f32>> = (0..=na)
         .into_par_iter()
         .map(|k| {
             let layers = if upward { na - k } else { k };
-            let mut plane = Vec::with_capacity((nb + 1) * (nc + 1));
-            for ic in 0..=nc {
-                for ib in 0..=nb {
-                    let mut tau = 0.0f64;
-                    for (q, stencil) in stencils.iter().enumerate().take(layers) {
-                        let layer = if upward { k + q } else { k - 1 - q };
-                        let mut inside = false;
-                        for e in stencil {
-                            let (mut cb, mut cc) =
-                                (ib as i64 + e.offset[0], ic as i64 + e.offset[1]);
-                            // A ray running along a boundary face (no lateral motion on that
-                            // axis) counts the cells inside, as the DDA does.
-                            if shift[0] == 0.0 {
-                                cb = cb.min(nb as i64 - 1);
-                            }
-                            if shift[1] == 0.0 {
-                                cc = cc.min(nc as i64 - 1);
-                            }
-                            if cb >= 0 && cb < nb as i64 && cc >= 0 && cc < nc as i64 {
-                                inside = true;
-                                let cell = layer * cell_stride[a]
-                                    + cb as usize * cell_stride[b]
-                                    + cc as usize * cell_stride[c];
-                                tau += e.length * sigma_t[cell] as f64;
-                            }
-                        }
-                        // Lateral motion is monotonic: once out of the grid, out for good.
-                        if !inside {
-                            break;
+            let mut tau = vec![0.0f64; (nb + 1) * (nc + 1)];
+            for (q, stencil) in stencils.iter().enumerate().take(layers) {
+                let layer = if upward { k + q } else { k - 1 - q };
+                let layer_base = layer * cell_stride[a];
+                for e in stencil {
+                    let [ob, oc] = e.offset;
+                    // Corners whose cell lies inside; a ray running along a boundary face
+                    // (no lateral motion on that axis) counts the cells inside, as the DDA
+                    // does. Cells outside contribute nothing: a ray that left never returns.
+                    let (b_lo, b_hi) = if shift[0] == 0.0 {
+                        (0, nb_i)
+                    } else {
+                        ((-ob).max(0), (nb_i - 1 - ob).min(nb_i))
+                    };
+                    let (c_lo, c_hi) = if shift[1] == 0.0 {
+                        (0, nc_i)
+                    } else {
+                        ((-oc).max(0), (nc_i - 1 - oc).min(nc_i))
+                    };
+                    for ic in c_lo..=c_hi {
+                        let cc = (ic + oc).min(nc_i - 1) as usize;
+                        let row_base = layer_base + cc * cell_stride[c];
+                        let row = &mut tau[(nb + 1) * ic as usize..(nb + 1) * (ic as usize + 1)];
+                        for ib in b_lo..=b_hi {
+                            let cb = (ib + ob).min(nb_i - 1) as usize;
+                            row[ib as usize] +=
+                                e.length * sigma_t[row_base + cb * cell_stride[b]] as f64;
                         }
                     }
-                    plane.push((-tau).exp() as f32);
                 }
             }
-            plane
+            tau.iter().map(|&t| (-t).exp() as f32).collect()
         })
         .collect();
     let mut out = vec![0.0f32; grid.corner_count()];
