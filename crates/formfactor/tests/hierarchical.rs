@@ -234,3 +234,42 @@ fn large_homogeneous_cube_approaches_e_over_one_minus_a() {
     // Light escapes at the faces: the corner is well below the limit.
     assert!(g[0] < 0.8 * limit);
 }
+
+#[test]
+fn block_gauss_seidel_sweep_converges_to_the_jacobi_solution() {
+    let dims = [10, 9, 10];
+    let grid = Grid::new(dims, 1.0).unwrap();
+    let ch = channel(cloud(dims, 1.0, 2.0, 6), 0.95);
+    let op = HierarchicalOperator::build(
+        &grid,
+        &ch,
+        &HierarchicalOptions {
+            near: cheap_near(),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(op.rows().is_none());
+    let source: Vec<f64> = ch.sigma_t.iter().map(|&s| s as f64).collect();
+    let mut jac = source.clone();
+    let mut kg = vec![0.0; jac.len()];
+    for _ in 0..600 {
+        op.apply(&jac, &mut kg);
+        for i in 0..jac.len() {
+            jac[i] = source[i] + kg[i];
+        }
+    }
+    let mut gs = source.clone();
+    let mut sweeps = 0;
+    for _ in 0..600 {
+        let before = gs.clone();
+        assert!(op.sweep_in_place(&mut gs, &source, 1.0));
+        sweeps += 1;
+        if rel_l2(&gs, &before) < 1e-12 {
+            break;
+        }
+    }
+    let err = rel_l2(&gs, &jac);
+    assert!(err < 1e-8, "GS vs Jacobi {err} after {sweeps} sweeps");
+    assert!(sweeps < 600);
+}

@@ -507,7 +507,8 @@ fn cells_in(grid: &Grid, level: &Level, c: usize) -> usize {
         .product()
 }
 
-/// Chebyshev gap in cells between the leaf boxes of two clusters (0 when touching at offset 1).
+/// Smallest Chebyshev index offset between a cell of one cluster and a cell of the other
+/// (for two leaves, their Chebyshev offset); pairs with more than R are far.
 fn box_gap(grid: &Grid, level: &Level, a: usize, b: usize) -> usize {
     let (xa, xb) = (level.coords(a), level.coords(b));
     let s = level.span;
@@ -515,13 +516,7 @@ fn box_gap(grid: &Grid, level: &Level, a: usize, b: usize) -> usize {
     for ax in 0..3 {
         let (a0, a1) = (xa[ax] * s, ((xa[ax] + 1) * s).min(grid.dims[ax]) - 1);
         let (b0, b1) = (xb[ax] * s, ((xb[ax] + 1) * s).min(grid.dims[ax]) - 1);
-        let d = if b0 > a1 {
-            b0 - a1
-        } else if a0 > b1 {
-            a0 - b1
-        } else {
-            0
-        };
+        let d = b0.saturating_sub(a1).max(a0.saturating_sub(b1));
         gap = gap.max(d);
     }
     gap
