@@ -3,8 +3,12 @@
 //! sparse form-factor matrix, a hierarchical link set or a discrete-ordinates sweep.
 //!
 //! Methods ([`Method`]): Jacobi, Gauss–Seidel, SOR, GMRES(m), BiCGSTAB, conjugate gradients
-//! (for operators with a [`symmetrizer`](TransportOperator::symmetrizer)), and a two-level
-//! coarse-corrected iteration (additive coarse-mesh rebalance, the physics-style accelerator).
+//! (for operators with a [`symmetrizer`](TransportOperator::symmetrizer)), a two-level
+//! coarse-corrected iteration (additive coarse-mesh rebalance on aggregates, the physics-style
+//! accelerator) and conjugate gradients preconditioned by that coarse correction.
+//!
+//! Entry points: [`solve`], [`spectral_radius`], [`predicted_iterations`]. Non-convergence is
+//! reported in [`SolveReport`] (`converged`, [`StopReason`]), never hidden and never an error.
 
 // `!(x > 0.0)` is used on purpose: it is also true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
