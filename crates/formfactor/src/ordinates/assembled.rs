@@ -51,7 +51,6 @@ impl AssembledOrdinates {
             let l = piece.bin;
             let [fx, fy, fz] = piece.fractions;
             let s = piece.projected;
-            let chord = h / s;
             for src in 0..n {
                 if sigma_s[src] == 0.0 {
                     continue;
@@ -93,20 +92,10 @@ impl AssembledOrdinates {
                             if let Some(u) = up(k, piece.forward[2], sk) {
                                 inflow += fz * out[grid.index(i, j, u)];
                             }
-                            let tau = sigma_t[c] * chord;
-                            let esc = if tau < 1e-6 {
-                                1.0 - 0.5 * tau + tau * tau / 6.0
-                            } else {
-                                -(-tau).exp_m1() / tau
-                            };
-                            let smf = if tau < 1e-4 {
-                                0.5 - tau / 6.0 + tau * tau / 24.0
-                            } else {
-                                (tau + (-tau).exp_m1()) / (tau * tau)
-                            };
+                            let (t, esc, src_esc, track) = piece.cell_terms(sigma_t[c] * h);
                             let unit = if c == src { 1.0 } else { 0.0 };
-                            out[c] = inflow * (-tau).exp() + unit * h * esc;
-                            response[c] = inflow / s * esc + unit * chord * smf;
+                            out[c] = inflow * t + unit * h * src_esc;
+                            response[c] = inflow / s * esc + unit * h * track;
                         }
                     }
                 }

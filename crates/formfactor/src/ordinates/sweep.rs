@@ -10,8 +10,11 @@
 //!   `f_a = m_a / s` (the bin's direction distribution spreads the flux: Max's remedy for ray
 //!   effects);
 //! - the mean chord of the cube over the piece's projected area is `ℓ = h / s`, and each cell
-//!   transmits its inflow with the exact attenuation `e^{−σt ℓ}` and lets out the fraction
-//!   `(1 − e^{−τ})/τ` (`τ = σt ℓ`) of what it emits, the rest being extinguished in it.
+//!   transmits its inflow with the exact attenuation `e^{−σt ℓ}`;
+//! - a source uniform in the cell leaves it with the exact cube escape probability for the
+//!   piece's directions, `⟨e^{−σt d}⟩` over points and directions (`d` the distance to the
+//!   surface; tabulated per piece), the rest being extinguished in the cell. (With the mean
+//!   chord instead, the self-collision of thin cells is underestimated by 10–25 %.)
 //!
 //! So per cell and piece: inflow + emitted = extinguished + outflow, to rounding.
 //! In the limit of thin cells the scheme tends to exact transport along each direction.
@@ -68,12 +71,100 @@ pub struct Piece {
     pub fractions: [f64; 3],
     /// `s = Σ_a m_a`: the chord is `h / s`.
     pub projected: f64,
+    /// Escape of a uniform source inside a cell, exactly for the cube: `1 − E` tabulated
+    /// where `E = ⟨e^{−τ0 d}⟩` over points of the unit cube and the piece's directions,
+    /// `d` the distance to the cube's surface (`τ0 = σt h`). Tabulated, see [`Piece::source_terms`].
+    source_table: [f64; SOURCE_TABLE_LEN],
+    /// `⟨d⟩` and `⟨d²⟩` (units of h) for the thin-cell limit.
+    exit_moments: [f64; 2],
+}
+
+/// Source-escape table: `τ0` from 10^-2 to 10^2, 10 points per decade (log-linear).
+const SOURCE_TABLE_LEN: usize = 41;
+const SOURCE_TABLE_MIN_LOG10: f64 = -2.0;
+const SOURCE_TABLE_PER_DECADE: f64 = 10.0;
+
+impl Piece {
+    /// Per-cell coefficients for cell optical side `tau0 = σt h`:
+    /// `(t, inflow_escape, source_escape, source_track)`: the inflow's transmission
+    /// `e^{−τ}` and mean-radiance factor `(1 − e^{−τ})/τ` along the chord (`τ = tau0 / s`),
+    /// the fraction of a uniform in-cell source that leaves, and its mean track length per
+    /// unit source (units of h), with `1 − source_escape = tau0 · source_track`.
+    #[inline]
+    pub fn cell_terms(&self, tau0: f64) -> (f64, f64, f64, f64) {
+        let tau = tau0 / self.projected;
+        let em1 = (-tau).exp_m1();
+        let esc = if tau < 1e-6 {
+            1.0 - 0.5 * tau + tau * tau / 6.0
+        } else {
+            -em1 / tau
+        };
+        let q = self.source_terms(tau0);
+        (1.0 + em1, esc, 1.0 - tau0 * q, q)
+    }
+
+    /// `q(τ0) = (1 − ⟨e^{−τ0 d}⟩)/τ0`: the source's mean track length in units of h.
+    #[inline]
+    pub fn source_terms(&self, tau0: f64) -> f64 {
+        let x = (tau0.max(1e-300).log10() - SOURCE_TABLE_MIN_LOG10) * SOURCE_TABLE_PER_DECADE;
+        if x <= 0.0 {
+            // Thin cell: 1 − ⟨e^{−τ0 d}⟩ ≈ τ0⟨d⟩ − τ0²⟨d²⟩/2.
+            let [d1, d2] = self.exit_moments;
+            return d1 - 0.5 * tau0 * d2;
+        }
+        let last = (SOURCE_TABLE_LEN - 1) as f64;
+        if x >= last {
+            // Thick cell: only a surface layer escapes, ⟨e^{−τ0 d}⟩ → s/τ0.
+            return (1.0 - self.projected / tau0) / tau0;
+        }
+        let i = x.floor() as usize;
+        let f = x - i as f64;
+        // The table holds τ0·q = 1 − ⟨e^{−τ0 d}⟩ (smooth and bounded).
+        let a = self.source_table[i];
+        let b = self.source_table[i + 1];
+        ((1.0 - f) * a + f * b) / tau0
+    }
+}
+
+/// Distances to the unit cube's surface from `POINTS³` midpoints, for directions `dirs`.
+fn source_table_of(dirs: &[(DVec3, f64)]) -> ([f64; SOURCE_TABLE_LEN], [f64; 2]) {
+    const POINTS: usize = 8;
+    let total_w: f64 = dirs.iter().map(|d| d.1).sum();
+    let mut samples = Vec::with_capacity(POINTS * POINTS * POINTS * dirs.len());
+    for a in 0..POINTS {
+        for b in 0..POINTS {
+            for c in 0..POINTS {
+                let x = [a, b, c].map(|v| (v as f64 + 0.5) / POINTS as f64);
+                for &(w, wt) in dirs {
+                    let w = w.to_array();
+                    let mut d = f64::INFINITY;
+                    for ax in 0..3 {
+                        if w[ax] > 0.0 {
+                            d = d.min((1.0 - x[ax]) / w[ax]);
+                        } else if w[ax] < 0.0 {
+                            d = d.min(x[ax] / -w[ax]);
+                        }
+                    }
+                    samples.push((d, wt / (total_w * (POINTS * POINTS * POINTS) as f64)));
+                }
+            }
+        }
+    }
+    let d1: f64 = samples.iter().map(|(d, w)| d * w).sum();
+    let d2: f64 = samples.iter().map(|(d, w)| d * d * w).sum();
+    let mut table = [0.0; SOURCE_TABLE_LEN];
+    for (i, q) in table.iter_mut().enumerate() {
+        let tau0 = 10f64.powf(SOURCE_TABLE_MIN_LOG10 + i as f64 / SOURCE_TABLE_PER_DECADE);
+        let escape: f64 = samples.iter().map(|(d, w)| w * (-tau0 * d).exp()).sum();
+        *q = 1.0 - escape;
+    }
+    (table, [d1, d2])
 }
 
 /// Sub-squares per side for the pieces' mean direction components.
 const PIECE_QUADRATURE: usize = 24;
 
-fn pieces_of(bins: &DirectionBins) -> Vec<Piece> {
+pub(crate) fn pieces_of(bins: &DirectionBins) -> Vec<Piece> {
     let mut pieces = Vec::new();
     let mut q = Vec::new();
     for bin in 0..bins.len() {
@@ -95,6 +186,9 @@ fn pieces_of(bins: &DirectionBins) -> Vec<Piece> {
                     q.iter().fold(DVec3::ZERO, |a, &(d, w)| a + d.abs() * w) / solid_angle;
                 let mid = piece.point(0.5 * (u[0] + u[1]), 0.5 * (v[0] + v[1]));
                 let s = mean_abs.x + mean_abs.y + mean_abs.z;
+                let mut dirs = Vec::new();
+                piece.quadrature(3, &mut dirs);
+                let (source_table, exit_moments) = source_table_of(&dirs);
                 pieces.push(Piece {
                     bin,
                     forward: [mid.x >= 0.0, mid.y >= 0.0, mid.z >= 0.0],
@@ -102,6 +196,8 @@ fn pieces_of(bins: &DirectionBins) -> Vec<Piece> {
                     weight: solid_angle / bins.solid_angles()[bin],
                     fractions: (mean_abs / s).to_array(),
                     projected: s,
+                    source_table,
+                    exit_moments,
                 });
             }
         }
@@ -186,15 +282,6 @@ pub struct OrdinatesOperator {
     bin_pieces: Vec<Vec<usize>>,
     options: OrdinatesOptions,
     scratch: Mutex<Scratch>,
-}
-
-#[inline]
-fn escape_fraction(tau: f64) -> f64 {
-    if tau < 1e-6 {
-        1.0 - 0.5 * tau + tau * tau / 6.0
-    } else {
-        -(-tau).exp_m1() / tau
-    }
 }
 
 impl OrdinatesOperator {
@@ -496,7 +583,6 @@ impl OrdinatesOperator {
         let h = self.grid.cell_size;
         let [fx, fy, fz] = piece.fractions;
         let s = piece.projected;
-        let chord = h / s;
         let periodic = self.options.periodic_xy;
         // A one-cell-wide periodic axis feeds a cell's own outflow back into it: that
         // self-loop is solved exactly per cell.
@@ -552,11 +638,9 @@ impl OrdinatesOperator {
                             let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
                             let c = base + lc;
                             let inflow = inflow_of(&buf.out, &buf.inz, tx, ty);
-                            let tau = self.sigma_t[c] * chord;
                             let src = density[c * m + piece.bin] * h;
-                            let t = (-tau).exp();
-                            let new =
-                                (inflow * t + src * escape_fraction(tau)) / (1.0 - self_loop * t);
+                            let (t, _, src_esc, _) = piece.cell_terms(self.sigma_t[c] * h);
+                            let new = (inflow * t + src * src_esc) / (1.0 - self_loop * t);
                             change = change.max((new - buf.out[lc]).abs());
                             scale = scale.max(new.abs());
                             buf.out[lc] = new;
@@ -574,28 +658,17 @@ impl OrdinatesOperator {
                     let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
                     let c = base + lc;
                     let other = inflow_of(&buf.out, &buf.inz, tx, ty);
-                    let tau = self.sigma_t[c] * chord;
                     let sd = density[c * m + piece.bin];
                     let src = sd * h;
-                    // One transcendental: e^{−τ} − 1.
-                    let em1 = (-tau).exp_m1();
-                    let t = 1.0 + em1;
-                    let (esc, smf) = if tau < 1e-4 {
-                        (
-                            1.0 - 0.5 * tau + tau * tau / 6.0,
-                            0.5 - tau / 6.0 + tau * tau / 24.0,
-                        )
-                    } else {
-                        (-em1 / tau, (tau + em1) / (tau * tau))
-                    };
+                    let (t, esc, src_esc, track) = piece.cell_terms(self.sigma_t[c] * h);
                     if !lagged {
-                        buf.out[lc] = (other * t + src * esc) / (1.0 - self_loop * t);
+                        buf.out[lc] = (other * t + src * src_esc) / (1.0 - self_loop * t);
                     }
                     let inflow = other + self_loop * buf.out[lc];
                     // Cell-average radiance: inflow part + source part (module doc).
-                    out[c] = piece.weight * (inflow / s * esc + sd * chord * smf);
+                    out[c] = piece.weight * (inflow / s * esc + sd * h * track);
                     energy.emitted += src;
-                    energy.extinguished += -inflow * em1 + src * (1.0 - esc);
+                    energy.extinguished += inflow * (1.0 - t) + src * (1.0 - src_esc);
                     if !periodic && tx == nx - 1 {
                         energy.escaped[side(0)] += fx * buf.out[lc];
                     }
