@@ -434,3 +434,46 @@ fn refuses_mismatched_inputs() {
     )
     .is_err());
 }
+
+#[test]
+fn asymmetry_tilt_keeps_energy_and_matches_g() {
+    let bins = DirectionBins::max96();
+    for g in [0.6, 0.85, -0.3] {
+        let phase = PhaseFunction::HenyeyGreenstein { g };
+        let mut pm = PhaseMatrix::new(&bins, &phase, 4);
+        pm.match_asymmetry(&bins, g);
+        for j in 0..bins.len() {
+            assert!((pm.column_energy(&bins, j) - 1.0).abs() < 1e-12);
+            assert!(
+                (pm.mean_cosine(&bins, j) - g).abs() < 1e-9,
+                "g {g} column {j}"
+            );
+        }
+        assert!(pm.values().iter().all(|&v| v > 0.0));
+    }
+}
+
+/// Prints the phase-matrix error report (run with `--ignored --nocapture`).
+#[test]
+#[ignore]
+fn phase_matrix_error_report() {
+    for n in [2, 4, 6] {
+        let bins = DirectionBins::cube(n).unwrap();
+        for g in [0.0, 0.6, 0.85] {
+            let phase = PhaseFunction::HenyeyGreenstein { g };
+            let mut pm = PhaseMatrix::with_default_quadrature(&bins, &phase);
+            let raw = phase_matrix_error(&bins, &pm, &phase);
+            pm.match_asymmetry(&bins, g);
+            let tilted = phase_matrix_error(&bins, &pm, &phase);
+            println!(
+                "M {:3} g {g:.2}: mean cosine raw {:.4} tilted {:.4}; single-scatter max rel raw {:.3} tilted {:.3}; energy {:.1e}",
+                bins.len(),
+                raw.mean_cosine,
+                tilted.mean_cosine,
+                raw.single_scatter_max_rel,
+                tilted.single_scatter_max_rel,
+                tilted.energy
+            );
+        }
+    }
+}
