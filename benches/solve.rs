@@ -237,8 +237,13 @@ fn main() {
     if table_only {
         return;
     }
-    let mut criterion = Criterion::default()
-        .configure_from_args()
+    // Criterion refuses arguments it does not know: parse its own only without ours.
+    let ours = std::env::args().any(|a| a.starts_with("--methods=") || a.starts_with("--block="));
+    let mut criterion = Criterion::default();
+    if !ours {
+        criterion = criterion.configure_from_args();
+    }
+    let mut criterion = criterion
         .sample_size(10)
         .warm_up_time(std::time::Duration::from_secs(1));
     let op = StencilZonal::new(0.99, block());

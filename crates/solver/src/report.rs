@@ -37,6 +37,7 @@ pub struct SolveReport {
     /// `‖Δg‖ / (ω ‖E‖)` except where the true residual was computed to confirm convergence.
     pub residual_history: Vec<f64>,
     pub seconds: f64,
+    /// `seconds / iterations` (setup such as a coarse factorisation included).
     pub seconds_per_iteration: f64,
     /// Applications of `K` (including residual checks and coarse-operator probing).
     pub operator_applications: usize,
