@@ -92,6 +92,12 @@ impl Piece {
     /// unit source (units of h), with `1 − source_escape = tau0 · source_track`.
     #[inline]
     pub fn cell_terms(&self, tau0: f64) -> (f64, f64, f64, f64) {
+        self.cell_terms_at(tau0, table_coordinate(tau0))
+    }
+
+    /// [`cell_terms`](Self::cell_terms) with `x = table_coordinate(tau0)` precomputed.
+    #[inline]
+    pub fn cell_terms_at(&self, tau0: f64, x: f64) -> (f64, f64, f64, f64) {
         let tau = tau0 / self.projected;
         let em1 = (-tau).exp_m1();
         let esc = if tau < 1e-6 {
@@ -99,14 +105,19 @@ impl Piece {
         } else {
             -em1 / tau
         };
-        let q = self.source_terms(tau0);
+        let q = self.source_terms_at(tau0, x);
         (1.0 + em1, esc, 1.0 - tau0 * q, q)
     }
 
     /// `q(τ0) = (1 − ⟨e^{−τ0 d}⟩)/τ0`: the source's mean track length in units of h.
     #[inline]
     pub fn source_terms(&self, tau0: f64) -> f64 {
-        let x = (tau0.max(1e-300).log10() - SOURCE_TABLE_MIN_LOG10) * SOURCE_TABLE_PER_DECADE;
+        self.source_terms_at(tau0, table_coordinate(tau0))
+    }
+
+    /// [`source_terms`](Self::source_terms) with `x = table_coordinate(tau0)` precomputed.
+    #[inline]
+    pub fn source_terms_at(&self, tau0: f64, x: f64) -> f64 {
         if x <= 0.0 {
             // Thin cell: 1 − ⟨e^{−τ0 d}⟩ ≈ τ0⟨d⟩ − τ0²⟨d²⟩/2.
             let [d1, d2] = self.exit_moments;
@@ -124,6 +135,12 @@ impl Piece {
         let b = self.source_table[i + 1];
         ((1.0 - f) * a + f * b) / tau0
     }
+}
+
+/// Position of `tau0` in the source-escape table (one `log10`, shared by all pieces).
+#[inline]
+pub fn table_coordinate(tau0: f64) -> f64 {
+    (tau0.max(1e-300).log10() - SOURCE_TABLE_MIN_LOG10) * SOURCE_TABLE_PER_DECADE
 }
 
 /// Distances to the unit cube's surface from `POINTS³` midpoints, for directions `dirs`.
@@ -165,44 +182,49 @@ fn source_table_of(dirs: &[(DVec3, f64)]) -> ([f64; SOURCE_TABLE_LEN], [f64; 2])
 const PIECE_QUADRATURE: usize = 24;
 
 pub(crate) fn pieces_of(bins: &DirectionBins) -> Vec<Piece> {
-    let mut pieces = Vec::new();
-    let mut q = Vec::new();
+    let split = |lo: f64, hi: f64| -> Vec<[f64; 2]> {
+        if lo < 0.0 && hi > 0.0 {
+            vec![[lo, 0.0], [0.0, hi]]
+        } else {
+            vec![[lo, hi]]
+        }
+    };
+    let mut rects = Vec::new();
     for bin in 0..bins.len() {
         let r = bins.rect(bin);
-        let split = |lo: f64, hi: f64| -> Vec<[f64; 2]> {
-            if lo < 0.0 && hi > 0.0 {
-                vec![[lo, 0.0], [0.0, hi]]
-            } else {
-                vec![[lo, hi]]
-            }
-        };
         for u in split(r.u[0], r.u[1]) {
             for v in split(r.v[0], r.v[1]) {
-                let piece = FaceRect { face: r.face, u, v };
-                let solid_angle = piece.solid_angle();
-                q.clear();
-                piece.quadrature(PIECE_QUADRATURE, &mut q);
-                let mean_abs =
-                    q.iter().fold(DVec3::ZERO, |a, &(d, w)| a + d.abs() * w) / solid_angle;
-                let mid = piece.point(0.5 * (u[0] + u[1]), 0.5 * (v[0] + v[1]));
-                let s = mean_abs.x + mean_abs.y + mean_abs.z;
-                let mut dirs = Vec::new();
-                piece.quadrature(3, &mut dirs);
-                let (source_table, exit_moments) = source_table_of(&dirs);
-                pieces.push(Piece {
-                    bin,
-                    forward: [mid.x >= 0.0, mid.y >= 0.0, mid.z >= 0.0],
-                    solid_angle,
-                    weight: solid_angle / bins.solid_angles()[bin],
-                    fractions: (mean_abs / s).to_array(),
-                    projected: s,
-                    source_table,
-                    exit_moments,
-                });
+                rects.push((bin, FaceRect { face: r.face, u, v }));
             }
         }
     }
-    pieces
+    rects
+        .into_par_iter()
+        .map(|(bin, piece)| {
+            let solid_angle = piece.solid_angle();
+            let mut q = Vec::new();
+            piece.quadrature(PIECE_QUADRATURE, &mut q);
+            let mean_abs = q.iter().fold(DVec3::ZERO, |a, &(d, w)| a + d.abs() * w) / solid_angle;
+            let mid = piece.point(
+                0.5 * (piece.u[0] + piece.u[1]),
+                0.5 * (piece.v[0] + piece.v[1]),
+            );
+            let s = mean_abs.x + mean_abs.y + mean_abs.z;
+            q.clear();
+            piece.quadrature(2, &mut q);
+            let (source_table, exit_moments) = source_table_of(&q);
+            Piece {
+                bin,
+                forward: [mid.x >= 0.0, mid.y >= 0.0, mid.z >= 0.0],
+                solid_angle,
+                weight: solid_angle / bins.solid_angles()[bin],
+                fractions: (mean_abs / s).to_array(),
+                projected: s,
+                source_table,
+                exit_moments,
+            }
+        })
+        .collect()
 }
 
 /// Power bookkeeping of one transport (units: power, i.e. radiance × area × solid angle).
@@ -272,6 +294,8 @@ pub struct OrdinatesOperator {
     grid: Grid,
     sigma_t: Vec<f64>,
     sigma_s: Vec<f64>,
+    /// `table_coordinate(σt h)` per cell.
+    table_x: Vec<f64>,
     bins: DirectionBins,
     phase: PhaseFunction,
     matrix: PhaseMatrix,
@@ -356,10 +380,15 @@ impl OrdinatesOperator {
                 })
                 .collect(),
         };
+        let table_x = sigma_t
+            .iter()
+            .map(|s| table_coordinate(s * grid.cell_size))
+            .collect();
         Ok(OrdinatesOperator {
             grid,
             sigma_t,
             sigma_s,
+            table_x,
             bins,
             phase,
             matrix,
@@ -639,7 +668,8 @@ impl OrdinatesOperator {
                             let c = base + lc;
                             let inflow = inflow_of(&buf.out, &buf.inz, tx, ty);
                             let src = density[c * m + piece.bin] * h;
-                            let (t, _, src_esc, _) = piece.cell_terms(self.sigma_t[c] * h);
+                            let (t, _, src_esc, _) =
+                                piece.cell_terms_at(self.sigma_t[c] * h, self.table_x[c]);
                             let new = (inflow * t + src * src_esc) / (1.0 - self_loop * t);
                             change = change.max((new - buf.out[lc]).abs());
                             scale = scale.max(new.abs());
@@ -660,7 +690,8 @@ impl OrdinatesOperator {
                     let other = inflow_of(&buf.out, &buf.inz, tx, ty);
                     let sd = density[c * m + piece.bin];
                     let src = sd * h;
-                    let (t, esc, src_esc, track) = piece.cell_terms(self.sigma_t[c] * h);
+                    let (t, esc, src_esc, track) =
+                        piece.cell_terms_at(self.sigma_t[c] * h, self.table_x[c]);
                     if !lagged {
                         buf.out[lc] = (other * t + src * src_esc) / (1.0 - self_loop * t);
                     }
