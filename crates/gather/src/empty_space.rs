@@ -97,16 +97,14 @@ impl EmptySpace {
     /// Where `ray`, now inside `cell`, leaves the cube of cells within `radius` of it.
     #[inline]
     pub(crate) fn exit(&self, ray: &Ray, cell: usize, radius: i64) -> f64 {
-        let [i, j, k] = self.grid.coords(cell);
         let h = self.grid.cell_size;
-        let centre = [i, j, k];
         let mut t = f64::INFINITY;
-        for a in 0..3 {
+        for (a, index) in self.grid.coords(cell).into_iter().enumerate() {
             let d = ray.direction[a];
             let bound = if d > 0.0 {
-                (centre[a] as i64 + radius + 1) as f64 * h
+                (index as i64 + radius + 1) as f64 * h
             } else if d < 0.0 {
-                (centre[a] as i64 - radius) as f64 * h
+                (index as i64 - radius) as f64 * h
             } else {
                 continue;
             };
