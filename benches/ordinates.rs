@@ -3,7 +3,8 @@
 //! directional light. Criterion times one application of `K` (scatter + 96-bin sweep) on the
 //! 64×64×48 and on Max's 24×24×18 size; then a full Gauss–Seidel solve to a relative change
 //! of 1e-5 runs once on each size and prints iterations, time and state memory.
-//! Run with `cargo bench --bench ordinates` (`ORDINATES_SOLVE=0` skips the full solves).
+//! Run with `cargo bench --bench ordinates` (`ORDINATES_SOLVE=0` skips the full solves;
+//! `ORDINATES_SIGMA_SCALE=4` makes the cloud ten times denser).
 
 use std::time::Instant;
 
@@ -18,6 +19,12 @@ use solver::operator::TransportOperator;
 const SIGMA_T_SCALE: f32 = 0.4;
 const TOLERANCE: f64 = 1e-5;
 
+/// `ORDINATES_SIGMA_SCALE` overrides the σt scale (a denser cloud needs more iterations).
+fn sigma_t_scale() -> f32 {
+    std::env::var("ORDINATES_SIGMA_SCALE")
+        .map_or(SIGMA_T_SCALE, |v| v.parse().unwrap_or(SIGMA_T_SCALE))
+}
+
 struct Case {
     grid: Grid,
     channel: ChannelMedium,
@@ -28,7 +35,7 @@ struct Case {
 fn case(dims: [usize; 3]) -> Case {
     let grid = Grid::new(dims, 1.0).unwrap();
     let channel = ChannelMedium {
-        sigma_t: cloud(dims, 7).iter().map(|d| d * SIGMA_T_SCALE).collect(),
+        sigma_t: cloud(dims, 7).iter().map(|d| d * sigma_t_scale()).collect(),
         albedo: CellValues::Uniform(0.99),
         emission: CellValues::Uniform(0.0),
     };
@@ -95,13 +102,16 @@ fn solve(c: &Case) {
     eprintln!(
         "{:?} Gauss–Seidel to {TOLERANCE:e}: {iterations} iterations, {secs:.1} s \
          ({:.2} s/iteration), final change {change:.2e}, energy imbalance {:.2e}, \
-         state {:.0} MB ({:.1} bytes per cell per bin), mean σt {:.3}",
+         state {:.0} MB ({:.1} bytes per cell per bin), mean σt {:.3}, max σt {:.3}, \
+         cells with σt > 0: {:.1} %",
         c.grid.dims,
         secs / iterations as f64,
         balance.relative_imbalance(),
         state as f64 / 1e6,
         state as f64 / (n * m) as f64,
         c.channel.sigma_t.iter().map(|&s| s as f64).sum::<f64>() / n as f64,
+        c.channel.max_sigma_t(),
+        100.0 * c.channel.sigma_t.iter().filter(|&&s| s > 0.0).count() as f64 / n as f64,
     );
 }
 
