@@ -11,6 +11,10 @@ use glam::DVec3;
 use medium::traversal::Ray;
 
 /// Scattered radiance per unit length, `Q_s(x, ω)`, for one colour channel.
+///
+/// `Q_s = σs · (in-scattered radiance)` vanishes where `σt = 0`, so the renderer never asks
+/// about cells (or trilinear samples) with neither extinction nor emission, and skips empty
+/// space wholesale.
 pub trait InScattering: Sync {
     /// `∫_{t0}^{t1} e^{−σt (t−t0)} Q_s(ray(t), −ray.direction) dt` for the part of the ray
     /// inside `cell` (σt constant there). The renderer multiplies by the transmittance from
