@@ -307,3 +307,49 @@ fn bad_inputs_are_refused() {
         Err(MonteCarloError::Light { index: 0, .. })
     ));
 }
+
+#[test]
+fn colour_channels_are_traced_separately() {
+    // Three channels: opaque, empty and half-transparent; absorption only against a
+    // background of 1, so the image is (≈0, 1, e^{−τ}) per pixel.
+    let grid = Grid::new([4, 4, 2], 1.0).unwrap();
+    let n = grid.cell_count();
+    let channel = |s: f32| ChannelMedium {
+        sigma_t: vec![s; n],
+        albedo: CellValues::Uniform(0.0),
+        emission: CellValues::Uniform(0.0),
+    };
+    let medium = Medium::new(
+        grid,
+        vec![channel(20.0), channel(0.0), channel(0.35)],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let camera = Camera::orthographic(
+        DVec3::new(2.0, 2.0, 9.0),
+        DVec3::new(2.0, 2.0, 0.0),
+        DVec3::Y,
+        4.0,
+        4,
+        4,
+    )
+    .unwrap();
+    let options = PathTraceOptions {
+        spp: 1000,
+        seed: 2,
+        ..Default::default()
+    };
+    let img = montecarlo::path_trace_image(&medium, &[], 1.0, &camera, &options).unwrap();
+    assert_eq!((img.width, img.height, img.channels), (4, 4, 3));
+    let t = (-0.7f64).exp();
+    let sigma = (t * (1.0 - t) / 1000.0).sqrt();
+    for y in 0..4 {
+        for x in 0..4 {
+            assert!(img.get(x, y, 0) < 1e-3);
+            assert_eq!(img.get(x, y, 1), 1.0);
+            assert!((img.get(x, y, 2) as f64 - t).abs() < 4.5 * sigma);
+        }
+    }
+}
