@@ -1,0 +1,75 @@
+//! volrad against an external reference: Mitsuba 3 path tracing of the 24×24×18 cloud
+//! (tests/data/cloud24-isotropic, albedo 0.99, isotropic). The figures these tests print are
+//! the ones docs/validation.md quotes.
+
+use std::path::Path;
+
+use medium::scene::SolveMethod;
+use medium::Scene;
+use volrad::compare::compare;
+use volrad::pipeline::{render_view, solve_scene, SolveHooks};
+use volrad::solution::ScatteredField;
+
+fn reference(name: &str) -> gather::Image {
+    gather::read_pfm(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic").join(name)).unwrap()
+}
+
+fn scene() -> Scene {
+    Scene::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic/scene.toml")).unwrap()
+}
+
+/// The zonal solution rendered with 16 spp, against the reference, noise taken out.
+/// Issue #4 asks for 3 %; what the exact zonal operator on this 24³ grid reaches is
+/// ~6.5 %, dominated by the piecewise-constant source in optically thick cells (halving the
+/// cells brings it to ~5 %). This bound guards against regressions; see docs/validation.md.
+#[test]
+fn zonal_render_matches_mitsuba_reference() {
+    let scene = scene();
+    let mut settings = scene.solve.clone();
+    settings.method = SolveMethod::Zonal;
+    settings.tolerance = 1e-6;
+    let solution = solve_scene(&scene, &settings, &SolveHooks::default()).unwrap();
+    assert!(solution.channels[0].report.as_ref().unwrap().converged);
+    let image = render_view(&solution, &scene.cameras[0], Some(16)).unwrap();
+    let c = compare(&image, &reference("front.pfm"), Some(&reference("front_stderr.pfm")), 0.01, 1)
+        .unwrap();
+    println!("zonal vs Mitsuba: {c:?}");
+    assert!(c.relative_rms < 0.08, "relative RMS {:.4}", c.relative_rms);
+    assert!(c.mean_ratio_error.abs() < 0.08, "mean off by {:.4}", c.mean_ratio_error);
+
+    // Single scattering alone is far darker at albedo 0.99: the solve is doing real work.
+    let mut single = settings.clone();
+    single.method = SolveMethod::SingleScatter;
+    let s1 = solve_scene(&scene, &single, &SolveHooks::default()).unwrap();
+    let img1 = render_view(&s1, &scene.cameras[0], Some(4)).unwrap();
+    let c1 = compare(&img1, &reference("front.pfm"), None, 0.01, 1).unwrap();
+    println!("single scattering vs Mitsuba: {c1:?}");
+    assert!(c1.mean_ratio_error < -0.4);
+}
+
+/// Hierarchical against exact form factors on the same cloud: the solved source terms agree
+/// to 1 % (relative L2).
+#[test]
+fn hierarchical_matches_exact_source_terms() {
+    let scene = scene();
+    let solve = |method| {
+        let mut settings = scene.solve.clone();
+        settings.method = method;
+        settings.tolerance = 1e-7;
+        let sol = solve_scene(&scene, &settings, &SolveHooks::default()).unwrap();
+        match &sol.channels[0].scattered {
+            ScatteredField::Isotropic { source, .. } => source.clone(),
+            other => panic!("unexpected field {other:?}"),
+        }
+    };
+    let exact = solve(SolveMethod::Zonal);
+    let hier = solve(SolveMethod::ZonalHierarchical);
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (a, b) in exact.iter().zip(&hier) {
+        num += (*a as f64 - *b as f64).powi(2);
+        den += (*a as f64).powi(2);
+    }
+    let rel = (num / den).sqrt();
+    println!("hierarchical vs exact source terms: relative L2 {rel:.5}");
+    assert!(rel < 0.01, "relative L2 {rel}");
+}
