@@ -1,6 +1,6 @@
 //! `montecarlo`: stochastic light transport through volrad's piecewise-constant media.
 //!
-//! - [`path_trace`] / [`path_trace_with_error`] / [`path_trace_image`] ([`path_trace`](mod@path_trace)):
+//! - [`path_trace()`] / [`path_trace_with_error`] / [`path_trace_image`] ([`path_trace`](mod@path_trace)):
 //!   the unbiased volumetric path tracer (exact per-cell free paths, next-event estimation,
 //!   Russian roulette), the reference for every deterministic method.
 //! - [`energetize`] ([`two_pass`]): Blasi & Wuethrich's two-pass method; the stored
