@@ -18,10 +18,9 @@ fn scene() -> Scene {
     Scene::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic/scene.toml")).unwrap()
 }
 
-/// The zonal solution rendered with 16 spp, against the reference, noise taken out.
-/// Issue #4 asks for 3 %; what the exact zonal operator on this 24³ grid reaches is
-/// ~6.5 %, dominated by the piecewise-constant source in optically thick cells (halving the
-/// cells brings it to ~5 %). This bound guards against regressions; see docs/validation.md.
+/// The zonal solution rendered with 16 spp (box filter, like the reference), against the
+/// reference, its noise taken out: issue #4's floor is 3 % relative RMS over the pixels above
+/// 1 % of the maximum (measured 1.8 %, mean +0.8 %; see docs/validation.md).
 #[test]
 fn zonal_render_matches_mitsuba_reference() {
     let scene = scene();
@@ -34,8 +33,8 @@ fn zonal_render_matches_mitsuba_reference() {
     let c = compare(&image, &reference("front.pfm"), Some(&reference("front_stderr.pfm")), 0.01, 1)
         .unwrap();
     println!("zonal vs Mitsuba: {c:?}");
-    assert!(c.relative_rms < 0.08, "relative RMS {:.4}", c.relative_rms);
-    assert!(c.mean_ratio_error.abs() < 0.08, "mean off by {:.4}", c.mean_ratio_error);
+    assert!(c.relative_rms < 0.03, "relative RMS {:.4}", c.relative_rms);
+    assert!(c.mean_ratio_error.abs() < 0.02, "mean off by {:.4}", c.mean_ratio_error);
 
     // Single scattering alone is far darker at albedo 0.99: the solve is doing real work.
     let mut single = settings.clone();

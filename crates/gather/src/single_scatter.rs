@@ -213,41 +213,24 @@ impl<'a> SingleScatter<'a> {
         q * e
     }
 
-    /// `∂d/∂t`: how fast the distance from the view ray's point to the exit face toward
-    /// light `l` changes along the ray (at `x`, inside `cell`).
-    fn exit_distance_slope(&self, l: usize, x: DVec3, cell: usize, dir: DVec3) -> f64 {
-        let to_light = match self.pass.fields[l].light {
-            Light::Directional { direction, .. } => -direction,
-            Light::Point { position, .. } | Light::Spot { position, .. } => {
-                (position - x).normalize_or_zero()
-            }
+    /// The mean rate at which `−ln T_L` grows along the view ray over `[a, b]` (a piece with one
+    /// exit face): the secant of the exact `ln T_L`, which is close to linear there (in-cell
+    /// attenuation plus the log-bilinear face value of the light pass).
+    fn log_transmittance_rate(&self, l: usize, cell: usize, ray: &Ray, a: f64, b: f64) -> f64 {
+        let ln_t = |t: f64| {
+            self.pass
+                .transmittance_at(l, ray.at(t), cell)
+                .max(f64::MIN_POSITIVE)
+                .ln()
         };
-        let grid = &self.pass.grid;
-        let lo = grid.cell_min(cell);
-        let h = grid.cell_size;
-        let (mut t_exit, mut axis) = (f64::INFINITY, None);
-        for a in 0..3 {
-            let d = to_light[a];
-            let t = if d > 0.0 {
-                (lo[a] + h - x[a]) / d
-            } else if d < 0.0 {
-                (lo[a] - x[a]) / d
-            } else {
-                continue;
-            };
-            if t < t_exit {
-                t_exit = t;
-                axis = Some(a);
-            }
-        }
-        axis.map_or(0.0, |a| -dir[a] / to_light[a])
+        (ln_t(a) - ln_t(b)) / (b - a)
     }
 }
 
 impl SingleScatter<'_> {
     /// `∫_a^b e^{−σt (t−a)} Q1_l(ray(t)) dt` by Gauss–Legendre in `u = (1 − e^{−λ(t−a)})/λ`,
-    /// `λ = σt + σt_cell · slope` (the rate of `e^{−σt (t−a)} T_L` when `T_L`'s exit face is
-    /// fixed), putting back at each node the part of `e^{−λ(t−a)}` beyond `e^{−σt (t−a)}`.
+    /// `λ = σt + extra` (`extra`: the rate of `−ln T_L` along the piece), putting back at each
+    /// node the part of `e^{−λ(t−a)}` beyond `e^{−σt (t−a)}`.
     #[allow(clippy::too_many_arguments)]
     #[inline]
     fn piece(
@@ -259,12 +242,11 @@ impl SingleScatter<'_> {
         b: f64,
         sigma_t: f64,
         sigma_s: f64,
-        slope: f64,
+        extra: f64,
     ) -> f64 {
         let len = b - a;
         let w = -ray.direction;
-        let lambda = sigma_t + self.sigma_t[cell] as f64 * slope;
-        let extra = lambda - sigma_t;
+        let lambda = sigma_t + extra;
         let flat = (lambda * len).abs() < 1e-9;
         let big_w = if flat {
             len
@@ -365,10 +347,9 @@ impl InScattering for SingleScatter<'_> {
                 let mut a = sa;
                 for &b in breaks[..count].iter().chain(std::iter::once(&sb)) {
                     if b > a {
-                        let mid = ray.at(0.5 * (a + b));
-                        let slope = self.exit_distance_slope(l, mid, cell, ray.direction);
+                        let rate = self.log_transmittance_rate(l, cell, ray, a, b);
                         let weight = (-sigma_t * (a - t0)).exp();
-                        total += weight * self.piece(l, cell, ray, a, b, sigma_t, sigma_s, slope);
+                        total += weight * self.piece(l, cell, ray, a, b, sigma_t, sigma_s, rate);
                         a = b;
                     }
                 }

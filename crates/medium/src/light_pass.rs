@@ -66,6 +66,10 @@ impl LightEnergy {
     }
 }
 
+/// Corner transmittances below this count as this in [`LightPass::transmittance_at`]'s
+/// log-space interpolation (1e-30: far below anything visible, far above f64 underflow).
+const MIN_INTERPOLATED_TRANSMITTANCE: f64 = 1e-30;
+
 /// One light's result.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LightField {
@@ -626,17 +630,23 @@ impl LightPass {
         let (ua, va) = ((face_axis + 1) % 3, (face_axis + 2) % 3);
         let fu = ((p[ua] - lo[ua]) / h).clamp(0.0, 1.0);
         let fv = ((p[va] - lo[va]) / h).clamp(0.0, 1.0);
-        let corner = |du: usize, dv: usize| {
+        // Bilinear in log T: transmittance varies exponentially across a face (optical depth
+        // varies about linearly), and linear interpolation of an exponential overestimates it
+        // (by ~2 % in the image mean of the cloud24 reference, measured against the path
+        // tracer's first bounce). The floor keeps fully shadowed corners finite.
+        let log_corner = |du: usize, dv: usize| {
             let mut c = base;
             c[ua] += du;
             c[va] += dv;
-            field.corner_transmittance[grid.corner_index(c[0], c[1], c[2])] as f64
+            (field.corner_transmittance[grid.corner_index(c[0], c[1], c[2])] as f64)
+                .max(MIN_INTERPOLATED_TRANSMITTANCE)
+                .ln()
         };
-        let t_face = (1.0 - fu) * (1.0 - fv) * corner(0, 0)
-            + fu * (1.0 - fv) * corner(1, 0)
-            + (1.0 - fu) * fv * corner(0, 1)
-            + fu * fv * corner(1, 1);
-        t_face * (-sigma * t_exit).exp()
+        let log_face = (1.0 - fu) * (1.0 - fv) * log_corner(0, 0)
+            + fu * (1.0 - fv) * log_corner(1, 0)
+            + (1.0 - fu) * fv * log_corner(0, 1)
+            + fu * fv * log_corner(1, 1);
+        (log_face - sigma * t_exit).exp()
     }
 
     /// The light's flow direction at `x` and its irradiance there without shadows (the

@@ -47,7 +47,7 @@ impl Default for HierarchicalOptions {
             // Cheaper than the exact operator's default (3³ points × 48 directions): the near
             // field is the build's main cost at real sizes, and stays energy-conserving.
             near: NearQuadrature {
-                radius: 2,
+                radius: crate::zonal::kernel::DEFAULT_NEAR_RADIUS,
                 points_per_axis: 3,
                 directions: 48,
             },

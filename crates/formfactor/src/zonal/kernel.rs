@@ -71,10 +71,17 @@ pub struct NearQuadrature {
     pub directions: usize,
 }
 
+/// Near-field radius (cells) of the defaults. The far-field estimate uses the mean chord,
+/// which overestimates interception by optically thick cells (1 − e^{−σℓ} is concave in ℓ);
+/// at 2–3 cells that bias compounds over scattering orders. Measured on the cloud24 reference
+/// (albedo 0.99, Mitsuba): radius 2 → 6.0 % RMS image error (+5.5 % mean), 3 → 2.5 %,
+/// 4 → 1.8 % (+0.8 % mean).
+pub const DEFAULT_NEAR_RADIUS: usize = 4;
+
 impl Default for NearQuadrature {
     fn default() -> Self {
         NearQuadrature {
-            radius: 2,
+            radius: DEFAULT_NEAR_RADIUS,
             points_per_axis: 6,
             directions: 64,
         }
