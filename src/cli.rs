@@ -45,6 +45,39 @@ pub enum Command {
     Info(InfoArgs),
     /// Write a solved per-cell field (fluence, source, sigma-t) as raw f32 or NRRD.
     Export(ExportArgs),
+    /// Benchmarks of the solver.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Iterations against albedo (and density) for several solve methods: CSV and PNG plots.
+    Albedo(BenchAlbedoArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct BenchAlbedoArgs {
+    /// Scene file (TOML); its `[solve] method` picks the operator family.
+    pub scene: PathBuf,
+    /// Uniform single-scattering albedos, comma-separated, each in (0, 1].
+    #[arg(long, value_delimiter = ',', default_value = "0.5,0.8,0.9,0.95,0.99,0.999,1.0")]
+    pub albedo: Vec<f64>,
+    /// Solve methods, comma-separated (jacobi, gauss-seidel, sor:1.5, gmres:30, bicgstab, cg, coarse-cg, coarse-gs).
+    #[arg(long, value_delimiter = ',', default_value = "jacobi,gauss-seidel")]
+    pub method: Vec<String>,
+    /// Multipliers of the scene's σt, comma-separated (the operator is rebuilt for each).
+    #[arg(long, value_delimiter = ',', default_value = "1")]
+    pub sigma_scale: Vec<f64>,
+    /// Relative residual to stop at.
+    #[arg(long, default_value_t = 1e-5)]
+    pub tolerance: f64,
+    /// Iteration cap per solve.
+    #[arg(long, default_value_t = 2000)]
+    pub max_iterations: usize,
+    /// Directory for albedo.csv, albedo.png and residuals_a*.png.
+    #[arg(long, default_value = "bench-albedo")]
+    pub out: PathBuf,
 }
 
 #[derive(Debug, Args)]

@@ -4,6 +4,7 @@
 
 pub mod solution;
 pub mod app;
+pub mod bench_albedo;
 pub mod cli;
 pub mod commands;
 pub mod compare;
