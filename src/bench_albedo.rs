@@ -548,7 +548,7 @@ pub fn plot_residuals(path: &Path, runs: &[&AlbedoRun], title: &str) -> Result<(
     let positive = |v: &f64| *v > 0.0 && v.is_finite();
     let max_len = runs
         .iter()
-        .map(|r| r.residual_history.len())
+        .map(|r| r.residual_history.len().saturating_sub(1))
         .max()
         .unwrap_or(1)
         .max(1);
@@ -572,11 +572,12 @@ pub fn plot_residuals(path: &Path, runs: &[&AlbedoRun], title: &str) -> Result<(
         .margin(16)
         .x_label_area_size(56)
         .y_label_area_size(80)
-        .build_cartesian_2d(0.0..max_len as f64 + 1.0, (lo * 0.5..hi * 2.0).log_scale())
+        .build_cartesian_2d(0.0..max_len as f64, (lo * 0.5..hi * 2.0).log_scale())
         .map_err(plot_error)?;
     chart
         .configure_mesh()
-        .x_desc("iteration")
+        .x_desc("iteration (0: the starting guess g = 0)")
+        .x_label_formatter(&|x| format!("{x:.0}"))
         .y_desc("relative residual ‖E + K g − g‖ / ‖E‖ (log scale)")
         .label_style((FONT, 15))
         .axis_desc_style((FONT, 17))
@@ -592,7 +593,7 @@ pub fn plot_residuals(path: &Path, runs: &[&AlbedoRun], title: &str) -> Result<(
                     .iter()
                     .enumerate()
                     .filter(|(_, v)| positive(v))
-                    .map(|(i, v)| ((i + 1) as f64, *v)),
+                    .map(|(i, v)| (i as f64, *v)),
                 colour.stroke_width(2),
             ))
             .map_err(plot_error)?
