@@ -1,0 +1,117 @@
+//! The cache directory: `ID.vrs` solution files, `ID.toml` scene texts (so a corrupt or
+//! evicted solution can be solved again), and `volumes/HEX.f32` uploaded raw volumes.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+
+/// Paths inside one cache directory.
+#[derive(Clone, Debug)]
+pub struct CacheDir {
+    pub root: PathBuf,
+}
+
+impl CacheDir {
+    /// Creates the directory (and `volumes/`) when missing.
+    pub fn open(root: &Path) -> Result<CacheDir> {
+        fs::create_dir_all(root.join("volumes"))
+            .with_context(|| format!("creating the cache directory {}", root.display()))?;
+        Ok(CacheDir {
+            root: root.to_path_buf(),
+        })
+    }
+
+    pub fn solution_path(&self, id: &str) -> PathBuf {
+        self.root.join(format!("{id}.vrs"))
+    }
+
+    pub fn scene_path(&self, id: &str) -> PathBuf {
+        self.root.join(format!("{id}.toml"))
+    }
+
+    pub fn volumes_dir(&self) -> PathBuf {
+        self.root.join("volumes")
+    }
+
+    pub fn volume_path(&self, name: &str) -> PathBuf {
+        self.volumes_dir().join(name)
+    }
+
+    /// Ids that have a scene text or a solution file, sorted and deduplicated.
+    pub fn known_ids(&self) -> Vec<String> {
+        let mut ids = Vec::new();
+        if let Ok(entries) = fs::read_dir(&self.root) {
+            for e in entries.flatten() {
+                let path = e.path();
+                let ext = path.extension().and_then(|x| x.to_str());
+                if !matches!(ext, Some("vrs") | Some("toml")) {
+                    continue;
+                }
+                if let Some(stem) = path.file_stem().and_then(|s| s.to_str()) {
+                    if is_id(stem) {
+                        ids.push(stem.to_string());
+                    }
+                }
+            }
+        }
+        ids.sort();
+        ids.dedup();
+        ids
+    }
+
+    /// Uploaded volumes with their sizes and modification times, oldest first.
+    pub fn volumes_by_age(&self) -> Vec<(PathBuf, u64)> {
+        let mut v: Vec<(PathBuf, u64, std::time::SystemTime)> = Vec::new();
+        if let Ok(entries) = fs::read_dir(self.volumes_dir()) {
+            for e in entries.flatten() {
+                if let Ok(m) = e.metadata() {
+                    if m.is_file() {
+                        let t = m.modified().unwrap_or(std::time::UNIX_EPOCH);
+                        v.push((e.path(), m.len(), t));
+                    }
+                }
+            }
+        }
+        v.sort_by_key(|x| x.2);
+        v.into_iter().map(|(p, n, _)| (p, n)).collect()
+    }
+}
+
+/// Ids are lower-case hex (what [`scene_id`](super::jobs::scene_id) makes); anything else is
+/// never turned into a path.
+pub fn is_id(s: &str) -> bool {
+    (16..=64).contains(&s.len())
+        && s.bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
+/// Writes `bytes` to a temporary file beside `path`, then renames it into place.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension(format!(
+        "tmp{}",
+        std::process::id() as u64 * 1_000_003 + rand_suffix()
+    ));
+    let result = (|| -> std::io::Result<()> {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result.with_context(|| format!("writing {}", path.display()))
+}
+
+fn rand_suffix() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    COUNTER.fetch_add(1, Ordering::Relaxed)
+}
+
+/// Size of a file, 0 when it cannot be read.
+pub fn file_len(path: &Path) -> u64 {
+    fs::metadata(path).map(|m| m.len()).unwrap_or(0)
+}

@@ -1,0 +1,529 @@
+//! The scene registry and the solve worker: one solve at a time on a dedicated thread, with
+//! progress and cancellation through [`SolveHooks`]; solutions are written to the cache and
+//! kept in memory behind an `Arc` for the renderers.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex, MutexGuard};
+
+use anyhow::{Context, Result};
+use medium::Scene;
+use serde_json::{json, Value};
+
+use super::cache::{self, CacheDir};
+use super::{Limits, ServiceConfig};
+use crate::pipeline::{scene_hash, solve_scene, SolveHooks};
+use crate::solution::Solution;
+
+/// Where a scene is in its life.
+#[derive(Clone, Debug, PartialEq)]
+pub enum JobState {
+    Queued,
+    Solving { iteration: usize, residual: f64 },
+    Done,
+    Failed { reason: String },
+}
+
+impl JobState {
+    pub fn name(&self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Solving { .. } => "solving",
+            JobState::Done => "done",
+            JobState::Failed { .. } => "failed",
+        }
+    }
+}
+
+/// One scene the server knows.
+pub(crate) struct Job {
+    /// The validated scene, when its text is known (it may not be, after a restart that found
+    /// only a solution file).
+    pub scene: Option<Arc<Scene>>,
+    pub state: JobState,
+    pub solution: Option<Arc<Solution>>,
+    /// Control of the current (or next) solve; replaced for each new solve.
+    pub control: Arc<solver::SolveControl>,
+    /// Bytes of the cached solution file (0 when none).
+    pub file_bytes: u64,
+    /// Recency stamp for LRU eviction (larger is more recent).
+    pub last_used: u64,
+    /// A note for people, e.g. that a corrupt cache file was found and is being re-solved.
+    pub note: Option<String>,
+}
+
+enum WorkerMsg {
+    Solve(String),
+    Stop,
+}
+
+pub(crate) struct Inner {
+    pub cache: CacheDir,
+    pub limits: Limits,
+    pub jobs: Mutex<HashMap<String, Job>>,
+    pub render_slots: Arc<tokio::sync::Semaphore>,
+    clock: AtomicU64,
+    queue: Mutex<Option<mpsc::Sender<WorkerMsg>>>,
+    worker: Mutex<Option<std::thread::JoinHandle<()>>>,
+    /// Serialises writes into `volumes/` with their eviction.
+    pub volume_lock: Mutex<()>,
+}
+
+/// The service: a cheap handle (an `Arc`) shared by the handlers and the worker.
+#[derive(Clone)]
+pub struct Service {
+    pub(crate) inner: Arc<Inner>,
+}
+
+/// The content id of a scene: everything that determines its solution and its default views.
+pub fn scene_id(scene: &Scene) -> String {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    h.update(scene_hash(scene).as_bytes());
+    h.update(serde_json::to_vec(&scene.render).unwrap_or_default());
+    h.update(serde_json::to_vec(&scene.cameras).unwrap_or_default());
+    h.finalize()
+        .iter()
+        .take(16)
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Parses scene text the way the service stores it: volume files resolve inside `volumes/`.
+pub(crate) fn parse_scene(cache: &CacheDir, text: &str) -> Result<Scene, medium::MediumError> {
+    Scene::from_toml_str(text, &cache.volumes_dir(), Path::new("scene"))
+}
+
+impl Service {
+    /// Opens (or creates) the cache directory, loads what it holds and starts the worker.
+    /// Valid solutions are served; a corrupt one is deleted and, when its scene text is
+    /// known, queued to be solved again, otherwise reported as failed.
+    pub fn open(config: ServiceConfig) -> Result<Service> {
+        let cache = CacheDir::open(&config.cache_dir)?;
+        let (tx, rx) = mpsc::channel();
+        let inner = Arc::new(Inner {
+            cache: cache.clone(),
+            limits: config.limits.clone(),
+            jobs: Mutex::new(HashMap::new()),
+            render_slots: Arc::new(tokio::sync::Semaphore::new(config.render_slots.max(1))),
+            clock: AtomicU64::new(1),
+            queue: Mutex::new(Some(tx)),
+            worker: Mutex::new(None),
+            volume_lock: Mutex::new(()),
+        });
+        let service = Service { inner };
+        let mut requeue = Vec::new();
+        for id in cache.known_ids() {
+            let scene = match std::fs::read_to_string(cache.scene_path(&id)) {
+                Ok(text) => match parse_scene(&cache, &text) {
+                    Ok(s) => Some(Arc::new(s)),
+                    Err(e) => {
+                        tracing::warn!("cache: scene {id} no longer parses: {e}");
+                        None
+                    }
+                },
+                Err(_) => None,
+            };
+            let sol_path = cache.solution_path(&id);
+            let (state, solution, note, bytes) = if sol_path.exists() {
+                match Solution::read(&sol_path) {
+                    Ok(sol) => (
+                        JobState::Done,
+                        Some(Arc::new(sol)),
+                        None,
+                        cache::file_len(&sol_path),
+                    ),
+                    Err(e) => {
+                        let _ = std::fs::remove_file(&sol_path);
+                        let note = format!("the cached solution was corrupt and was deleted: {e}");
+                        tracing::warn!("cache: {id}: {note}");
+                        if scene.is_some() {
+                            requeue.push(id.clone());
+                            (
+                                JobState::Queued,
+                                None,
+                                Some(format!("{note}; solving again")),
+                                0,
+                            )
+                        } else {
+                            (
+                                JobState::Failed {
+                                    reason: format!("corrupt: {note}"),
+                                },
+                                None,
+                                Some(note),
+                                0,
+                            )
+                        }
+                    }
+                }
+            } else if scene.is_some() {
+                requeue.push(id.clone());
+                (JobState::Queued, None, None, 0)
+            } else {
+                continue;
+            };
+            let stamp = service.tick();
+            service.lock().insert(
+                id,
+                Job {
+                    scene,
+                    state,
+                    solution,
+                    control: Arc::new(solver::SolveControl::new()),
+                    file_bytes: bytes,
+                    last_used: stamp,
+                    note,
+                },
+            );
+        }
+        let worker_service = service.clone();
+        let handle = std::thread::Builder::new()
+            .name("volrad-solve".into())
+            .spawn(move || worker_service.worker(rx))
+            .context("spawning the solve worker")?;
+        *service
+            .inner
+            .worker
+            .lock()
+            .unwrap_or_else(|e| e.into_inner()) = Some(handle);
+        for id in requeue {
+            service.enqueue(&id);
+        }
+        Ok(service)
+    }
+
+    pub(crate) fn lock(&self) -> MutexGuard<'_, HashMap<String, Job>> {
+        // A panic while holding the lock cannot leave a job half-updated in a way that matters
+        // more than refusing every later request would.
+        self.inner.jobs.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub(crate) fn tick(&self) -> u64 {
+        self.inner.clock.fetch_add(1, Ordering::Relaxed)
+    }
+
+    pub fn scene_count(&self) -> usize {
+        self.lock().len()
+    }
+
+    /// State of scene `id`, if known.
+    pub fn state(&self, id: &str) -> Option<JobState> {
+        self.lock().get(id).map(|j| j.state.clone())
+    }
+
+    fn enqueue(&self, id: &str) {
+        if let Some(tx) = self
+            .inner
+            .queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_ref()
+        {
+            let _ = tx.send(WorkerMsg::Solve(id.to_string()));
+        }
+    }
+
+    /// Registers a validated scene (text already checked against the limits) and queues its
+    /// solve. Returns the id and whether a new solve was queued.
+    pub(crate) fn submit(&self, scene: Scene, text: &str) -> Result<(String, bool), SubmitError> {
+        let id = scene_id(&scene);
+        let mut jobs = self.lock();
+        if let Some(job) = jobs.get_mut(&id) {
+            // The same scene again is the same job; a failed or evicted one is tried again.
+            let retry = matches!(job.state, JobState::Failed { .. }) && job.solution.is_none();
+            if job.scene.is_none() {
+                job.scene = Some(Arc::new(scene));
+                cache::write_atomic(&self.inner.cache.scene_path(&id), text.as_bytes())
+                    .map_err(|e| SubmitError::Storage(format!("{e:#}")))?;
+            }
+            if retry {
+                job.state = JobState::Queued;
+                job.control = Arc::new(solver::SolveControl::new());
+                job.note = None;
+                drop(jobs);
+                self.enqueue(&id);
+            }
+            return Ok((id, retry));
+        }
+        if jobs.len() >= self.inner.limits.max_scenes {
+            return Err(SubmitError::TooMany(self.inner.limits.max_scenes));
+        }
+        cache::write_atomic(&self.inner.cache.scene_path(&id), text.as_bytes())
+            .map_err(|e| SubmitError::Storage(format!("{e:#}")))?;
+        let stamp = self.tick();
+        jobs.insert(
+            id.clone(),
+            Job {
+                scene: Some(Arc::new(scene)),
+                state: JobState::Queued,
+                solution: None,
+                control: Arc::new(solver::SolveControl::new()),
+                file_bytes: 0,
+                last_used: stamp,
+                note: None,
+            },
+        );
+        drop(jobs);
+        self.enqueue(&id);
+        Ok((id, true))
+    }
+
+    /// Cancels a queued or running solve. `None` for an unknown id, else whether there was
+    /// anything to cancel.
+    pub fn cancel(&self, id: &str) -> Option<bool> {
+        let mut jobs = self.lock();
+        let job = jobs.get_mut(id)?;
+        match job.state {
+            JobState::Queued | JobState::Solving { .. } => {
+                job.control.cancel();
+                job.state = JobState::Failed {
+                    reason: "cancelled".into(),
+                };
+                Some(true)
+            }
+            _ => Some(false),
+        }
+    }
+
+    /// Forgets scene `id`: cancels its solve and deletes its files. False when unknown.
+    pub fn delete(&self, id: &str) -> bool {
+        let removed = self.lock().remove(id);
+        match removed {
+            Some(job) => {
+                job.control.cancel();
+                let _ = std::fs::remove_file(self.inner.cache.solution_path(id));
+                let _ = std::fs::remove_file(self.inner.cache.scene_path(id));
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The solution of a finished scene, marked as just used.
+    pub fn solution(&self, id: &str) -> Option<Arc<Solution>> {
+        let stamp = self.tick();
+        let mut jobs = self.lock();
+        let job = jobs.get_mut(id)?;
+        job.last_used = stamp;
+        job.solution.clone()
+    }
+
+    /// Stops the worker (cancelling a running solve) and waits for it.
+    pub fn shutdown(&self) {
+        for job in self.lock().values() {
+            if matches!(job.state, JobState::Solving { .. }) {
+                job.control.cancel();
+            }
+        }
+        if let Some(tx) = self
+            .inner
+            .queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take()
+        {
+            let _ = tx.send(WorkerMsg::Stop);
+        }
+        let handle = self
+            .inner
+            .worker
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
+        if let Some(h) = handle {
+            let _ = h.join();
+        }
+    }
+
+    fn worker(self, rx: mpsc::Receiver<WorkerMsg>) {
+        while let Ok(WorkerMsg::Solve(id)) = rx.recv() {
+            self.solve_one(&id);
+        }
+    }
+
+    fn solve_one(&self, id: &str) {
+        let (scene, control) = {
+            let mut jobs = self.lock();
+            let Some(job) = jobs.get_mut(id) else { return };
+            if job.state != JobState::Queued || job.control.is_cancelled() {
+                return;
+            }
+            let Some(scene) = job.scene.clone() else {
+                job.state = JobState::Failed {
+                    reason: "the scene text is not known".into(),
+                };
+                return;
+            };
+            job.state = JobState::Solving {
+                iteration: 0,
+                residual: f64::NAN,
+            };
+            (scene, Arc::clone(&job.control))
+        };
+        let progress_service = self.clone();
+        let progress_id = id.to_string();
+        let flag = control.flag();
+        let hooks = SolveHooks {
+            control: Arc::new(solver::SolveControl::with_flag(flag).with_progress(
+                move |iteration, residual| {
+                    let mut jobs = progress_service.lock();
+                    if let Some(job) = jobs.get_mut(&progress_id) {
+                        if let JobState::Solving { .. } = job.state {
+                            job.state = JobState::Solving {
+                                iteration,
+                                residual,
+                            };
+                        }
+                    }
+                },
+            )),
+        };
+        let started = std::time::Instant::now();
+        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            solve_scene(&scene, &scene.solve, &hooks)
+        }));
+        let outcome: Result<Solution, String> = match outcome {
+            Ok(Ok(sol)) => Ok(sol),
+            Ok(Err(e)) => Err(format!("{e:#}")),
+            Err(_) => Err("the solver panicked (a bug; please report the scene)".into()),
+        };
+        if control.is_cancelled() {
+            return; // cancel() or delete() already set the state (or removed the job)
+        }
+        let path = self.inner.cache.solution_path(id);
+        let outcome = outcome.and_then(|sol| {
+            sol.write(&path)
+                .map_err(|e| format!("writing the solution: {e}"))?;
+            Ok(sol)
+        });
+        let stamp = self.tick();
+        let mut jobs = self.lock();
+        let Some(job) = jobs.get_mut(id) else {
+            let _ = std::fs::remove_file(&path);
+            return;
+        };
+        match outcome {
+            Ok(sol) => {
+                tracing::info!("solved {id} in {:.2} s", started.elapsed().as_secs_f64());
+                job.state = JobState::Done;
+                job.solution = Some(Arc::new(sol));
+                job.file_bytes = cache::file_len(&path);
+                job.last_used = stamp;
+            }
+            Err(reason) => {
+                job.state = JobState::Failed { reason };
+            }
+        }
+        evict(
+            &mut jobs,
+            &self.inner.cache,
+            self.inner.limits.max_cache_bytes,
+            id,
+        );
+    }
+}
+
+/// Deletes least recently used solution files (never `keep`) until the total fits `max`.
+/// Evicted scenes stay known (their text is kept) and are solved again when posted again.
+fn evict(jobs: &mut HashMap<String, Job>, cache: &CacheDir, max: u64, keep: &str) {
+    let mut total: u64 = jobs.values().map(|j| j.file_bytes).sum();
+    while total > max {
+        let victim = jobs
+            .iter()
+            .filter(|(id, j)| j.file_bytes > 0 && id.as_str() != keep)
+            .min_by_key(|(_, j)| j.last_used)
+            .map(|(id, _)| id.clone());
+        let Some(victim) = victim else { break };
+        let job = jobs.get_mut(&victim).expect("victim exists");
+        let _ = std::fs::remove_file(cache.solution_path(&victim));
+        total -= job.file_bytes;
+        job.file_bytes = 0;
+        job.solution = None;
+        job.state = JobState::Failed {
+            reason: "evicted from the cache (least recently used); POST the scene again to solve it again"
+                .into(),
+        };
+        tracing::info!("cache: evicted {victim}");
+    }
+}
+
+/// Why a scene could not be registered.
+#[derive(Debug)]
+pub(crate) enum SubmitError {
+    TooMany(usize),
+    Storage(String),
+}
+
+/// JSON summary of one scene (the body of `GET /v1/scenes/{id}`).
+pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
+    let mut v = json!({ "id": id, "state": job.state.name() });
+    match &job.state {
+        JobState::Solving {
+            iteration,
+            residual,
+        } => {
+            v["iteration"] = json!(iteration);
+            v["residual"] = if residual.is_finite() {
+                json!(residual)
+            } else {
+                Value::Null
+            };
+        }
+        JobState::Failed { reason } => v["reason"] = json!(reason),
+        _ => {}
+    }
+    if let Some(note) = &job.note {
+        v["note"] = json!(note);
+    }
+    let dims = job
+        .solution
+        .as_ref()
+        .map(|s| s.medium.grid.dims)
+        .or_else(|| job.scene.as_ref().map(|s| s.medium.grid.dims));
+    if let Some(d) = dims {
+        v["dims"] = json!(d);
+    }
+    if let Some(scene) = &job.scene {
+        v["method"] = json!(scene.solve.method.name());
+    }
+    if let Some(sol) = &job.solution {
+        let channels: Vec<Value> = sol
+            .channels
+            .iter()
+            .map(|ch| match &ch.report {
+                Some(r) => {
+                    let mut rv = json!({
+                        "iteration": r.method,
+                        "iterations": r.iterations,
+                        "converged": r.converged,
+                        "final_residual": r.final_residual,
+                        "seconds": r.seconds,
+                        "stop_reason": format!("{:?}", r.stop_reason),
+                    });
+                    if with_history {
+                        rv["residual_history"] = json!(r
+                            .residual_history
+                            .iter()
+                            .map(|x| if x.is_finite() { json!(x) } else { Value::Null })
+                            .collect::<Vec<_>>());
+                    }
+                    rv
+                }
+                None => Value::Null,
+            })
+            .collect();
+        let g = &sol.medium.grid;
+        let extent: Vec<f64> = g.dims.iter().map(|&n| n as f64 * g.cell_size).collect();
+        v["method"] = json!(sol.method.name());
+        v["report"] = json!({
+            "method": sol.method.name(),
+            "channels": channels,
+        });
+        v["extent"] = json!(extent);
+        v["cameras"] = serde_json::to_value(&sol.cameras).unwrap_or(Value::Null);
+        v["exposure"] = json!(sol.render.exposure);
+    }
+    v
+}

@@ -1,0 +1,193 @@
+//! `volrad serve`: an HTTP service that solves scenes once on a background worker, keeps the
+//! solutions in a cache directory, and renders many views of them concurrently.
+//!
+//! Layout: [`routes`] (HTTP handlers and the JSON error type), [`jobs`] (the scene registry and
+//! the solve worker), [`cache`] (files on disk: solutions, scene texts, uploaded volumes),
+//! [`client`] (a minimal loopback HTTP/1.1 client for tests and the load test). The OpenAPI
+//! description and the viewer page are embedded files beside this one.
+
+pub mod cache;
+pub mod client;
+pub mod jobs;
+pub mod routes;
+
+use anyhow::{Context, Result};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+pub use jobs::{JobState, Service};
+
+/// Caps on what one request may ask for; each is refused with a 4xx JSON error when exceeded.
+#[derive(Clone, Debug)]
+pub struct Limits {
+    /// Largest request body (scene text or volume upload), bytes.
+    pub max_body_bytes: usize,
+    /// Largest grid, nx·ny·nz.
+    pub max_cells: usize,
+    /// Largest image side, pixels.
+    pub max_image_side: u32,
+    /// Largest image, width·height.
+    pub max_image_pixels: u64,
+    /// Largest samples per pixel of a render.
+    pub max_spp: u32,
+    /// Largest `[solve] bins`.
+    pub max_bins: usize,
+    /// Largest `[solve] max_iterations`.
+    pub max_iterations: usize,
+    /// Largest number of scenes the server keeps track of.
+    pub max_scenes: usize,
+    /// Total size of cached solution files; least recently used ones are evicted beyond it.
+    pub max_cache_bytes: u64,
+    /// Total size of uploaded volumes; oldest ones are evicted beyond it.
+    pub max_volume_bytes: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_body_bytes: 64 << 20,
+            max_cells: 4_000_000,
+            max_image_side: 4096,
+            max_image_pixels: 4096 * 4096,
+            max_spp: 64,
+            max_bins: 384,
+            max_iterations: 10_000,
+            max_scenes: 1000,
+            max_cache_bytes: 2 << 30,
+            max_volume_bytes: 1 << 30,
+        }
+    }
+}
+
+/// Everything the service needs to start.
+#[derive(Clone, Debug)]
+pub struct ServiceConfig {
+    pub cache_dir: PathBuf,
+    pub limits: Limits,
+    /// Renders running at once (each also uses the rayon pool); default: the core count.
+    pub render_slots: usize,
+}
+
+impl ServiceConfig {
+    pub fn new(cache_dir: impl Into<PathBuf>) -> Self {
+        ServiceConfig {
+            cache_dir: cache_dir.into(),
+            limits: Limits::default(),
+            render_slots: std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(2),
+        }
+    }
+}
+
+/// A server running on its own tokio runtime in a background thread (tests, embedding).
+pub struct ServerHandle {
+    pub addr: SocketAddr,
+    pub service: Service,
+    shutdown: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl ServerHandle {
+    /// Opens the cache, binds `addr` (port 0 picks a free one) and serves in the background.
+    pub fn start(config: ServiceConfig, addr: &str) -> Result<ServerHandle> {
+        let service = Service::open(config)?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .context("starting the tokio runtime")?;
+        let listener = runtime
+            .block_on(tokio::net::TcpListener::bind(addr))
+            .with_context(|| format!("binding {addr}"))?;
+        let local = listener.local_addr()?;
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let app = routes::router(service.clone());
+        let thread = std::thread::Builder::new()
+            .name("volrad-http".into())
+            .spawn(move || {
+                runtime.block_on(async move {
+                    let _ = axum::serve(listener, app)
+                        .with_graceful_shutdown(async move {
+                            let _ = rx.await;
+                        })
+                        .await;
+                });
+                runtime.shutdown_timeout(std::time::Duration::from_secs(2));
+            })
+            .context("spawning the server thread")?;
+        Ok(ServerHandle {
+            addr: local,
+            service,
+            shutdown: Some(tx),
+            thread: Some(thread),
+        })
+    }
+
+    /// Stops accepting requests, cancels a running solve and waits for both to end.
+    pub fn stop(mut self) {
+        self.stop_inner();
+    }
+
+    fn stop_inner(&mut self) {
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        self.service.shutdown();
+    }
+}
+
+impl Drop for ServerHandle {
+    fn drop(&mut self) {
+        self.stop_inner();
+    }
+}
+
+/// `volrad serve`: serves until Ctrl-C.
+pub fn run(config: ServiceConfig, addr: &str, quiet: bool) -> Result<()> {
+    let service = Service::open(config.clone())?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the tokio runtime")?;
+    runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind(addr)
+            .await
+            .with_context(|| format!("binding {addr}"))?;
+        let local = listener.local_addr()?;
+        if !quiet {
+            eprintln!(
+                "volrad serve: http://{local}/ (cache {}, {} scenes known)",
+                config.cache_dir.display(),
+                service.scene_count()
+            );
+        }
+        let app = routes::router(service.clone());
+        axum::serve(listener, app)
+            .with_graceful_shutdown(async {
+                let _ = tokio::signal::ctrl_c().await;
+            })
+            .await
+            .context("serving HTTP")
+    })?;
+    service.shutdown();
+    Ok(())
+}
+
+/// `volrad serve` from its command-line arguments.
+pub fn run_cli(args: &crate::cli::ServeArgs, quiet: bool) -> Result<()> {
+    let mut config = ServiceConfig::new(&args.cache);
+    config.limits.max_body_bytes = args.max_body_bytes;
+    config.limits.max_cells = args.max_cells;
+    config.limits.max_image_side = args.max_image_side;
+    config.limits.max_spp = args.max_spp;
+    config.limits.max_iterations = args.max_iterations;
+    config.limits.max_cache_bytes = args.max_cache_mib.saturating_mul(1 << 20);
+    if let Some(n) = args.render_slots {
+        config.render_slots = n.max(1);
+    }
+    run(config, &args.addr, quiet)
+}

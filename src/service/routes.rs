@@ -1,0 +1,647 @@
+//! HTTP routes of `volrad serve` and their JSON errors (`{"error": "..."}` with a 4xx/5xx
+//! status). Every input is checked against [`Limits`](super::Limits) before work starts.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::rejection::{BytesRejection, QueryRejection};
+use axum::extract::{DefaultBodyLimit, Path, Query, State};
+use axum::http::{header, HeaderMap, StatusCode};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use glam::DVec3;
+use medium::scene::{CameraSpec, Projection};
+use serde_json::{json, Value};
+
+use super::cache::{self, is_id};
+use super::jobs::{describe, parse_scene, JobState, Service, SubmitError};
+use crate::solution::Solution;
+
+/// The OpenAPI description served at `/v1/openapi.json`.
+pub const OPENAPI: &str = include_str!("openapi.json");
+/// The viewer page served at `/`.
+pub const VIEWER: &str = include_str!("viewer.html");
+
+/// An error answer: status and a message for people.
+#[derive(Debug)]
+pub struct ApiError {
+    pub status: StatusCode,
+    pub message: String,
+}
+
+impl ApiError {
+    pub fn new(status: StatusCode, message: impl Into<String>) -> Self {
+        ApiError {
+            status,
+            message: message.into(),
+        }
+    }
+    fn bad(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::BAD_REQUEST, message)
+    }
+    fn not_found(id: &str) -> Self {
+        Self::new(StatusCode::NOT_FOUND, format!("no scene with id `{id}`"))
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.status, Json(json!({ "error": self.message }))).into_response()
+    }
+}
+
+type ApiResult<T> = Result<T, ApiError>;
+
+pub fn router(service: Service) -> Router {
+    let body_limit = service.inner.limits.max_body_bytes;
+    Router::new()
+        .route("/", get(viewer))
+        .route("/v1/openapi.json", get(openapi))
+        .route("/v1/scenes", post(post_scene).get(list_scenes))
+        .route("/v1/scenes/{id}", get(get_scene).delete(delete_scene))
+        .route("/v1/scenes/{id}/cancel", post(cancel_scene))
+        .route("/v1/scenes/{id}/render", get(render))
+        .route("/v1/volumes", post(post_volume))
+        .fallback(|| async { ApiError::new(StatusCode::NOT_FOUND, "no such route") })
+        .layer(DefaultBodyLimit::max(body_limit))
+        .with_state(service)
+}
+
+async fn viewer() -> Html<&'static str> {
+    Html(VIEWER)
+}
+
+async fn openapi() -> Response {
+    ([(header::CONTENT_TYPE, "application/json")], OPENAPI).into_response()
+}
+
+fn body_bytes(body: Result<Bytes, BytesRejection>) -> ApiResult<Bytes> {
+    body.map_err(|e| {
+        let status = e.status();
+        if status == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::new(status, "request body is larger than the server's limit")
+        } else {
+            ApiError::new(status, format!("cannot read the request body: {e}"))
+        }
+    })
+}
+
+fn query_map(
+    q: Result<Query<HashMap<String, String>>, QueryRejection>,
+) -> ApiResult<HashMap<String, String>> {
+    q.map(|Query(m)| m)
+        .map_err(|e| ApiError::bad(format!("malformed query string: {e}")))
+}
+
+/// `POST /v1/scenes`: TOML (default) or JSON (`Content-Type: application/json`) scene text.
+async fn post_scene(
+    State(service): State<Service>,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> ApiResult<Response> {
+    let body = body_bytes(body)?;
+    let is_json = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.contains("json"));
+    let text =
+        std::str::from_utf8(&body).map_err(|_| ApiError::bad("the scene is not UTF-8 text"))?;
+    let table: toml::Table = if is_json {
+        let v: Value = serde_json::from_str(text)
+            .map_err(|e| ApiError::bad(format!("not valid JSON: {e}")))?;
+        match json_to_toml(&v, "")? {
+            toml::Value::Table(t) => t,
+            _ => return Err(ApiError::bad("a JSON scene must be an object")),
+        }
+    } else {
+        // Syntax errors are reported by the scene parser, with the line.
+        match text.parse::<toml::Table>() {
+            Ok(t) => t,
+            Err(_) => {
+                let e = parse_scene(&service.inner.cache, text).err();
+                return Err(ApiError::bad(
+                    e.map(|e| e.to_string())
+                        .unwrap_or_else(|| "not valid TOML".into()),
+                ));
+            }
+        }
+    };
+    check_scene_limits(&service, &table)?;
+    let canonical = toml::to_string(&table)
+        .map_err(|e| ApiError::bad(format!("cannot re-encode the scene: {e}")))?;
+    let cache = service.inner.cache.clone();
+    let parse_text = canonical.clone();
+    // Generators and volume files can take a moment: off the async threads.
+    let scene = tokio::task::spawn_blocking(move || parse_scene(&cache, &parse_text))
+        .await
+        .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "scene parsing panicked"))?
+        .map_err(|e| ApiError::bad(e.to_string()))?;
+    let cells: usize = scene.medium.grid.dims.iter().product();
+    if cells > service.inner.limits.max_cells {
+        return Err(ApiError::bad(format!(
+            "volume.dims: {cells} cells exceed the server's limit of {}",
+            service.inner.limits.max_cells
+        )));
+    }
+    let (id, queued) = service.submit(scene, &canonical).map_err(|e| match e {
+        SubmitError::TooMany(n) => ApiError::new(
+            StatusCode::TOO_MANY_REQUESTS,
+            format!("the server already holds {n} scenes; DELETE some first"),
+        ),
+        SubmitError::Storage(m) => ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, m),
+    })?;
+    let jobs = service.lock();
+    let mut v = jobs
+        .get(&id)
+        .map(|j| describe(&id, j, false))
+        .unwrap_or_else(|| json!({ "id": id }));
+    v["queued"] = json!(queued);
+    drop(jobs);
+    let mut resp = (StatusCode::ACCEPTED, Json(v)).into_response();
+    if let Ok(loc) = format!("/v1/scenes/{id}").parse() {
+        resp.headers_mut().insert(header::LOCATION, loc);
+    }
+    Ok(resp)
+}
+
+/// JSON → TOML, refusing what TOML cannot hold (null, numbers out of range).
+fn json_to_toml(v: &Value, key: &str) -> ApiResult<toml::Value> {
+    let name = |k: &str| {
+        if k.is_empty() {
+            "(top level)".to_string()
+        } else {
+            k.to_string()
+        }
+    };
+    Ok(match v {
+        Value::Null => {
+            return Err(ApiError::bad(format!(
+                "`{}`: null is not allowed",
+                name(key)
+            )))
+        }
+        Value::Bool(b) => toml::Value::Boolean(*b),
+        Value::Number(n) => {
+            match n.as_i64() {
+                Some(i) => toml::Value::Integer(i),
+                None => toml::Value::Float(n.as_f64().ok_or_else(|| {
+                    ApiError::bad(format!("`{}`: number out of range", name(key)))
+                })?),
+            }
+        }
+        Value::String(s) => toml::Value::String(s.clone()),
+        Value::Array(a) => toml::Value::Array(
+            a.iter()
+                .enumerate()
+                .map(|(i, x)| json_to_toml(x, &format!("{key}[{i}]")))
+                .collect::<ApiResult<_>>()?,
+        ),
+        Value::Object(o) => {
+            let mut t = toml::Table::new();
+            for (k, x) in o {
+                let sub = if key.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{key}.{k}")
+                };
+                t.insert(k.clone(), json_to_toml(x, &sub)?);
+            }
+            toml::Value::Table(t)
+        }
+    })
+}
+
+/// Limits that must hold before the scene is built (a generator on huge dims would allocate),
+/// and the rule that volume files are only uploaded volumes.
+fn check_scene_limits(service: &Service, table: &toml::Table) -> ApiResult<()> {
+    let limits = &service.inner.limits;
+    let volume = table.get("volume").and_then(|v| v.as_table());
+    if let Some(volume) = volume {
+        if let Some(file) = volume.get("file") {
+            let name = file.as_str().unwrap_or("");
+            let ok = name
+                .strip_suffix(".f32")
+                .is_some_and(|stem| stem.len() == 64 && is_id(stem));
+            if !ok {
+                return Err(ApiError::bad(
+                    "volume.file: the service only reads uploaded volumes: POST the raw f32 data to \
+                     /v1/volumes?dims=NX,NY,NZ and use the `file` it returns",
+                ));
+            }
+            if !service.inner.cache.volume_path(name).exists() {
+                return Err(ApiError::bad(format!(
+                    "volume.file: no uploaded volume `{name}` (upload it to /v1/volumes first)"
+                )));
+            }
+        }
+        if let Some(dims) = volume.get("dims").and_then(|d| d.as_array()) {
+            let mut cells: u128 = 1;
+            for d in dims {
+                if let Some(n) = d.as_integer() {
+                    cells = cells.saturating_mul(n.max(0) as u128);
+                }
+            }
+            if cells > limits.max_cells as u128 {
+                return Err(ApiError::bad(format!(
+                    "volume.dims: {cells} cells exceed the server's limit of {}",
+                    limits.max_cells
+                )));
+            }
+        }
+    }
+    if let Some(solve) = table.get("solve").and_then(|v| v.as_table()) {
+        if let Some(b) = solve.get("bins").and_then(|v| v.as_integer()) {
+            if b > limits.max_bins as i64 {
+                return Err(ApiError::bad(format!(
+                    "solve.bins: {b} exceeds the server's limit of {}",
+                    limits.max_bins
+                )));
+            }
+        }
+        if let Some(m) = solve.get("max_iterations").and_then(|v| v.as_integer()) {
+            if m > limits.max_iterations as i64 {
+                return Err(ApiError::bad(format!(
+                    "solve.max_iterations: {m} exceeds the server's limit of {}",
+                    limits.max_iterations
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+async fn list_scenes(State(service): State<Service>) -> Json<Value> {
+    let jobs = service.lock();
+    let mut ids: Vec<&String> = jobs.keys().collect();
+    ids.sort();
+    let scenes: Vec<Value> = ids
+        .iter()
+        .map(|id| describe(id, &jobs[*id], false))
+        .collect();
+    Json(json!({ "scenes": scenes }))
+}
+
+async fn get_scene(
+    State(service): State<Service>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let jobs = service.lock();
+    let job = jobs.get(&id).ok_or_else(|| ApiError::not_found(&id))?;
+    Ok(Json(describe(&id, job, true)))
+}
+
+async fn delete_scene(
+    State(service): State<Service>,
+    Path(id): Path<String>,
+) -> ApiResult<StatusCode> {
+    if service.delete(&id) {
+        Ok(StatusCode::NO_CONTENT)
+    } else {
+        Err(ApiError::not_found(&id))
+    }
+}
+
+async fn cancel_scene(
+    State(service): State<Service>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<Value>> {
+    let cancelled = service
+        .cancel(&id)
+        .ok_or_else(|| ApiError::not_found(&id))?;
+    let jobs = service.lock();
+    let mut v = jobs
+        .get(&id)
+        .map(|j| describe(&id, j, false))
+        .unwrap_or(json!({}));
+    v["cancelled"] = json!(cancelled);
+    Ok(Json(v))
+}
+
+/// `POST /v1/volumes?dims=NX,NY,NZ`: a raw little-endian f32 volume (x fastest).
+async fn post_volume(
+    State(service): State<Service>,
+    q: Result<Query<HashMap<String, String>>, QueryRejection>,
+    body: Result<Bytes, BytesRejection>,
+) -> ApiResult<Response> {
+    let q = query_map(q)?;
+    let body = body_bytes(body)?;
+    let dims_text = q
+        .get("dims")
+        .ok_or_else(|| ApiError::bad("dims: required, as NX,NY,NZ"))?;
+    let parts: Vec<&str> = dims_text.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(ApiError::bad(format!(
+            "dims: expected NX,NY,NZ, got `{dims_text}`"
+        )));
+    }
+    let mut dims = [0usize; 3];
+    for (slot, p) in dims.iter_mut().zip(&parts) {
+        *slot = p
+            .parse::<usize>()
+            .ok()
+            .filter(|&n| n >= 1)
+            .ok_or_else(|| ApiError::bad(format!("dims: `{p}` is not a positive integer")))?;
+    }
+    let cells = dims
+        .iter()
+        .try_fold(1usize, |a, &n| a.checked_mul(n))
+        .unwrap_or(usize::MAX);
+    let limits = &service.inner.limits;
+    if cells > limits.max_cells {
+        return Err(ApiError::bad(format!(
+            "dims: {cells} cells exceed the server's limit of {}",
+            limits.max_cells
+        )));
+    }
+    if body.len() as u128 != cells as u128 * 4 {
+        return Err(ApiError::bad(format!(
+            "volume size {} bytes does not match dims {}×{}×{} ({} bytes of f32)",
+            body.len(),
+            dims[0],
+            dims[1],
+            dims[2],
+            cells as u128 * 4
+        )));
+    }
+    if let Some(i) = body
+        .chunks_exact(4)
+        .position(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite())
+    {
+        return Err(ApiError::bad(format!(
+            "volume value {i} is not a finite number"
+        )));
+    }
+    let name = {
+        use sha2::{Digest, Sha256};
+        let mut h = Sha256::new();
+        h.update(&body);
+        let hex: String = h.finalize().iter().map(|b| format!("{b:02x}")).collect();
+        format!("{hex}.f32")
+    };
+    let svc = service.clone();
+    let stored = name.clone();
+    tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
+        let _guard = svc
+            .inner
+            .volume_lock
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        let path = svc.inner.cache.volume_path(&stored);
+        if !path.exists() {
+            cache::write_atomic(&path, &body)?;
+        }
+        // Oldest uploads go first once the store is over its limit (never the new one).
+        let vols = svc.inner.cache.volumes_by_age();
+        let mut total: u64 = vols.iter().map(|v| v.1).sum();
+        for (p, n) in vols {
+            if total <= svc.inner.limits.max_volume_bytes {
+                break;
+            }
+            if p != path {
+                let _ = std::fs::remove_file(&p);
+                total -= n;
+            }
+        }
+        Ok(())
+    })
+    .await
+    .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "volume store panicked"))?
+    .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?;
+    Ok((
+        StatusCode::CREATED,
+        Json(json!({ "file": name, "dims": dims })),
+    )
+        .into_response())
+}
+
+fn parse_f64(q: &HashMap<String, String>, key: &str) -> ApiResult<Option<f64>> {
+    match q.get(key) {
+        None => Ok(None),
+        Some(s) => s
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .map(Some)
+            .ok_or_else(|| ApiError::bad(format!("{key}: `{s}` is not a finite number"))),
+    }
+}
+
+fn parse_u32(q: &HashMap<String, String>, key: &str) -> ApiResult<Option<u32>> {
+    match q.get(key) {
+        None => Ok(None),
+        Some(s) => s
+            .trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&n| n >= 1)
+            .map(Some)
+            .ok_or_else(|| ApiError::bad(format!("{key}: `{s}` is not a positive integer"))),
+    }
+}
+
+fn parse_vec3(q: &HashMap<String, String>, key: &str) -> ApiResult<Option<DVec3>> {
+    let Some(s) = q.get(key) else { return Ok(None) };
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(ApiError::bad(format!("{key}: expected x,y,z, got `{s}`")));
+    }
+    let mut v = [0.0; 3];
+    for (slot, p) in v.iter_mut().zip(&parts) {
+        *slot = p
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| ApiError::bad(format!("{key}: `{p}` is not a finite number")))?;
+    }
+    Ok(Some(DVec3::from(v)))
+}
+
+/// Output formats of `render`.
+#[derive(Clone, Copy, PartialEq)]
+enum RenderFormat {
+    Png,
+    Pfm,
+}
+
+/// The camera of a render request: the solution's first camera (or a default looking at the
+/// volume) with the query's overrides, checked against the limits.
+fn request_camera(
+    sol: &Solution,
+    q: &HashMap<String, String>,
+    service: &Service,
+) -> ApiResult<CameraSpec> {
+    let g = &sol.medium.grid;
+    let extent = DVec3::new(g.dims[0] as f64, g.dims[1] as f64, g.dims[2] as f64) * g.cell_size;
+    let center = extent * 0.5;
+    let mut cam = sol.cameras.first().cloned().unwrap_or(CameraSpec {
+        name: "default".into(),
+        eye: center + DVec3::new(0.0, -2.5 * extent.max_element(), 0.0),
+        target: center,
+        up: DVec3::Z,
+        projection: Projection::Perspective {
+            fov_y_degrees: 40.0,
+        },
+        width: 512,
+        height: 384,
+    });
+    if let Some(e) = parse_vec3(q, "eye")? {
+        cam.eye = e;
+        cam.name = "request".into();
+    }
+    if let Some(t) = parse_vec3(q, "target")? {
+        cam.target = t;
+    }
+    if let Some(u) = parse_vec3(q, "up")? {
+        cam.up = u;
+    }
+    if let Some(f) = parse_f64(q, "fov")? {
+        if !(f > 0.0 && f < 180.0) {
+            return Err(ApiError::bad(format!(
+                "fov: {f} is not in (0, 180) degrees"
+            )));
+        }
+        cam.projection = Projection::Perspective { fov_y_degrees: f };
+    }
+    if let Some(w) = parse_u32(q, "width")? {
+        cam.width = w;
+    }
+    if let Some(h) = parse_u32(q, "height")? {
+        cam.height = h;
+    }
+    let limits = &service.inner.limits;
+    if cam.width > limits.max_image_side || cam.height > limits.max_image_side {
+        return Err(ApiError::bad(format!(
+            "width/height: {}×{} exceeds the server's limit of {} pixels per side",
+            cam.width, cam.height, limits.max_image_side
+        )));
+    }
+    if cam.width as u64 * cam.height as u64 > limits.max_image_pixels {
+        return Err(ApiError::bad(format!(
+            "width/height: {}×{} exceeds the server's limit of {} pixels",
+            cam.width, cam.height, limits.max_image_pixels
+        )));
+    }
+    if (cam.eye - cam.target).length() < 1e-9 {
+        return Err(ApiError::bad("eye and target must differ"));
+    }
+    if (cam.eye - cam.target).cross(cam.up).length()
+        < 1e-9 * (cam.eye - cam.target).length() * cam.up.length().max(1e-300)
+    {
+        return Err(ApiError::bad(
+            "up must not be parallel to the view direction",
+        ));
+    }
+    Ok(cam)
+}
+
+/// `GET /v1/scenes/{id}/render`: renders from the in-memory solution on a bounded pool.
+async fn render(
+    State(service): State<Service>,
+    Path(id): Path<String>,
+    q: Result<Query<HashMap<String, String>>, QueryRejection>,
+) -> ApiResult<Response> {
+    let q = query_map(q)?;
+    let format = match q.get("format").map(String::as_str) {
+        None | Some("png") => RenderFormat::Png,
+        Some("pfm") => RenderFormat::Pfm,
+        Some(other) => {
+            return Err(ApiError::bad(format!(
+                "format: `{other}` is not png or pfm"
+            )))
+        }
+    };
+    let spp = parse_u32(&q, "spp")?;
+    let limits = &service.inner.limits;
+    if let Some(s) = spp {
+        if s > limits.max_spp {
+            return Err(ApiError::bad(format!(
+                "spp: {s} exceeds the server's limit of {}",
+                limits.max_spp
+            )));
+        }
+    }
+    let exposure = parse_f64(&q, "exposure")?;
+    if exposure.is_some_and(|e| e < 0.0) {
+        return Err(ApiError::bad("exposure: must not be negative"));
+    }
+    let solution = match service.solution(&id) {
+        Some(s) => s,
+        None => {
+            let state = service.state(&id).ok_or_else(|| ApiError::not_found(&id))?;
+            let why = match state {
+                JobState::Failed { reason } => format!("scene `{id}` has no solution: {reason}"),
+                s => format!("scene `{id}` is {}; render it when it is done", s.name()),
+            };
+            return Err(ApiError::new(StatusCode::CONFLICT, why));
+        }
+    };
+    let camera = request_camera(&solution, &q, &service)?;
+    if spp.unwrap_or(solution.render.spp) > limits.max_spp {
+        return Err(ApiError::bad(format!(
+            "spp: the scene's {} exceeds the server's limit of {}; give spp",
+            solution.render.spp, limits.max_spp
+        )));
+    }
+    let exposure = exposure.unwrap_or(solution.render.exposure);
+    let permit = Arc::clone(&service.inner.render_slots)
+        .acquire_owned()
+        .await
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the server is shutting down",
+            )
+        })?;
+    let encoded = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, String> {
+        let _permit = permit;
+        let image =
+            crate::pipeline::render_view(&solution, &camera, spp).map_err(|e| format!("{e:#}"))?;
+        match format {
+            RenderFormat::Png => encode_png(&image, exposure),
+            RenderFormat::Pfm => {
+                let mut out = Vec::new();
+                image.write_pfm_to(&mut out).map_err(|e| e.to_string())?;
+                Ok(out)
+            }
+        }
+    })
+    .await
+    .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "the renderer panicked"))?
+    .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e))?;
+    let content_type = match format {
+        RenderFormat::Png => "image/png",
+        RenderFormat::Pfm => "application/x-portable-floatmap",
+    };
+    Ok((
+        [
+            (header::CONTENT_TYPE, content_type),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        encoded,
+    )
+        .into_response())
+}
+
+/// Tone-mapped 8-bit PNG in memory (fast compression: renders are viewed, not archived).
+fn encode_png(image: &gather::Image, exposure: f64) -> Result<Vec<u8>, String> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    let color = if image.channels == 1 {
+        image::ExtendedColorType::L8
+    } else {
+        image::ExtendedColorType::Rgb8
+    };
+    let mut out = Vec::new();
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Sub)
+        .write_image(
+            &image.tone_mapped(exposure),
+            image.width,
+            image.height,
+            color,
+        )
+        .map_err(|e| e.to_string())?;
+    Ok(out)
+}
