@@ -23,6 +23,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Solve(args)) => crate::commands::solve(&args, cli.quiet),
         Some(Command::Info(args)) => info(&args),
         Some(Command::Export(args)) => crate::commands::export(&args),
+        Some(Command::Serve(args)) => crate::service::run_cli(&args, cli.quiet),
         Some(Command::Bench(crate::cli::BenchCommand::Albedo(args))) => crate::bench_albedo::run(&args, cli.quiet),
     }
 }

@@ -45,6 +45,8 @@ pub enum Command {
     Info(InfoArgs),
     /// Write a solved per-cell field (fluence, source, sigma-t) as raw f32 or NRRD.
     Export(ExportArgs),
+    /// Serve solves and renders over HTTP, with a viewer page at `/`.
+    Serve(ServeArgs),
     /// Benchmarks of the solver.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -150,6 +152,37 @@ pub struct SolveArgs {
     /// Override `[solve] max_iterations`.
     #[arg(long)]
     pub max_iterations: Option<usize>,
+}
+
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub addr: String,
+    /// Directory of cached solutions (created when missing).
+    #[arg(long, default_value = "volrad-cache")]
+    pub cache: PathBuf,
+    /// Largest request body in bytes.
+    #[arg(long, default_value_t = 64 << 20)]
+    pub max_body_bytes: usize,
+    /// Largest grid (nx·ny·nz) a scene may have.
+    #[arg(long, default_value_t = 4_000_000)]
+    pub max_cells: usize,
+    /// Largest image side in pixels.
+    #[arg(long, default_value_t = 4096)]
+    pub max_image_side: u32,
+    /// Largest samples per pixel of a render.
+    #[arg(long, default_value_t = 64)]
+    pub max_spp: u32,
+    /// Largest `[solve] max_iterations`.
+    #[arg(long, default_value_t = 10_000)]
+    pub max_iterations: usize,
+    /// Cache size limit in MiB (least recently used solutions are evicted beyond it).
+    #[arg(long, default_value_t = 2048)]
+    pub max_cache_mib: u64,
+    /// Renders at once (default: the core count).
+    #[arg(long)]
+    pub render_slots: Option<usize>,
 }
 
 #[derive(Debug, Args)]

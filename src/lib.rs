@@ -12,3 +12,4 @@ pub mod info;
 pub mod methods;
 pub mod pipeline;
 pub mod progress;
+pub mod service;
