@@ -133,8 +133,8 @@ impl Solution {
             for (l, f) in sol.light_pass.fields.iter().enumerate() {
                 arrays.push((format!("light/{c}/{l}/cell_irradiance"), f.cell_irradiance.clone()));
                 arrays.push((
-                    format!("light/{c}/{l}/corner_transmittance"),
-                    f.corner_transmittance.clone(),
+                    format!("light/{c}/{l}/corner_optical_depth"),
+                    f.corner_optical_depth.clone(),
                 ));
             }
             let field = match &sol.scattered {
@@ -223,8 +223,8 @@ impl Solution {
                 fields.push(LightField {
                     light: *light,
                     cell_irradiance: take(format!("light/{ci}/{l}/cell_irradiance"), cells)?,
-                    corner_transmittance: take(
-                        format!("light/{ci}/{l}/corner_transmittance"),
+                    corner_optical_depth: take(
+                        format!("light/{ci}/{l}/corner_optical_depth"),
                         grid.corner_count(),
                     )?,
                     energy,

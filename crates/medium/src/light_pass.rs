@@ -66,10 +66,6 @@ impl LightEnergy {
     }
 }
 
-/// Corner transmittances below this count as this in [`LightPass::transmittance_at`]'s
-/// log-space interpolation (1e-30: far below anything visible, far above f64 underflow).
-const MIN_INTERPOLATED_TRANSMITTANCE: f64 = 1e-30;
-
 /// One light's result.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LightField {
@@ -78,8 +74,11 @@ pub struct LightField {
     /// the flow, times transmittance). The power extinguished in cell `i` is
     /// `σt_i V cell_irradiance_i`.
     pub cell_irradiance: Vec<f32>,
-    /// `T_L` at every cell corner, indexed by [`Grid::corner_index`] (no `1/r²`, no cone).
-    pub corner_transmittance: Vec<f32>,
+    /// Optical depth toward the light, `τ = −ln T_L`, at every cell corner, indexed by
+    /// [`Grid::corner_index`] (no `1/r²`, no cone). Stored as depth, not transmittance, because
+    /// renders interpolate it across cell faces: τ varies about linearly there while `T_L`
+    /// varies exponentially, and linear interpolation of `T_L` overestimates it.
+    pub corner_optical_depth: Vec<f32>,
     pub energy: LightEnergy,
 }
 
@@ -292,12 +291,12 @@ struct StencilEntry {
     length: f64,
 }
 
-/// Exact `T_L` at every corner for a directional light, layer by layer along the dominant
+/// Exact optical depth toward the light (`−ln T_L`) at every corner for a directional light, layer by layer along the dominant
 /// axis. The backward ray from any corner crosses its `q`-th layer at the same sub-cell
 /// position for every corner (all corners sit on the lattice), so the split of that crossing
 /// among at most three cells is computed once per `q` and applied to every corner: the
 /// optical depth is a sum of `length × σt` over precomputed stencils, with no per-ray DDA.
-fn directional_corner_transmittance(grid: &Grid, sigma_t: &[f32], direction: DVec3) -> Vec<f32> {
+fn directional_corner_optical_depth(grid: &Grid, sigma_t: &[f32], direction: DVec3) -> Vec<f32> {
     let back = -direction;
     let a = (0..3)
         .max_by(|&x, &y| back[x].abs().total_cmp(&back[y].abs()))
@@ -385,7 +384,7 @@ fn directional_corner_transmittance(grid: &Grid, sigma_t: &[f32], direction: DVe
                     }
                 }
             }
-            tau.iter().map(|&t| (-t).exp() as f32).collect()
+            tau.iter().map(|&t| t as f32).collect()
         })
         .collect();
     let mut out = vec![0.0f32; grid.corner_count()];
@@ -400,8 +399,9 @@ fn directional_corner_transmittance(grid: &Grid, sigma_t: &[f32], direction: DVe
     out
 }
 
-/// `T_L` at every corner: one backward ray per corner toward the light (point and spot).
-fn corner_transmittance(grid: &Grid, sigma_t: &[f32], light: &Light) -> Vec<f32> {
+/// Optical depth toward the light at every corner: one backward ray per corner (point and
+/// spot).
+fn corner_optical_depth(grid: &Grid, sigma_t: &[f32], light: &Light) -> Vec<f32> {
     let [nx, ny, _] = grid.dims;
     let h = grid.cell_size;
     let plane = (nx + 1) * (ny + 1);
@@ -422,7 +422,7 @@ fn corner_transmittance(grid: &Grid, sigma_t: &[f32], light: &Light) -> Vec<f32>
                         let to_light = position - x;
                         let r = to_light.length();
                         if r == 0.0 {
-                            slab[i + (nx + 1) * j] = 1.0;
+                            slab[i + (nx + 1) * j] = 0.0;
                             continue;
                         }
                         (
@@ -434,8 +434,7 @@ fn corner_transmittance(grid: &Grid, sigma_t: &[f32], light: &Light) -> Vec<f32>
                         )
                     }
                 };
-                let tau = grid.optical_depth(sigma_t, &ray, 0.0, t_max);
-                slab[i + (nx + 1) * j] = (-tau).exp() as f32;
+                slab[i + (nx + 1) * j] = grid.optical_depth(sigma_t, &ray, 0.0, t_max) as f32;
             }
         }
     });
@@ -533,11 +532,11 @@ impl LightPass {
             fields.push(LightField {
                 light,
                 cell_irradiance,
-                corner_transmittance: match light {
+                corner_optical_depth: match light {
                     Light::Directional { direction, .. } => {
-                        directional_corner_transmittance(grid, sigma_t, direction)
+                        directional_corner_optical_depth(grid, sigma_t, direction)
                     }
-                    _ => corner_transmittance(grid, sigma_t, &light),
+                    _ => corner_optical_depth(grid, sigma_t, &light),
                 },
                 energy: LightEnergy {
                     entering: deposit.entering,
@@ -630,23 +629,17 @@ impl LightPass {
         let (ua, va) = ((face_axis + 1) % 3, (face_axis + 2) % 3);
         let fu = ((p[ua] - lo[ua]) / h).clamp(0.0, 1.0);
         let fv = ((p[va] - lo[va]) / h).clamp(0.0, 1.0);
-        // Bilinear in log T: transmittance varies exponentially across a face (optical depth
-        // varies about linearly), and linear interpolation of an exponential overestimates it
-        // (by ~2 % in the image mean of the cloud24 reference, measured against the path
-        // tracer's first bounce). The floor keeps fully shadowed corners finite.
-        let log_corner = |du: usize, dv: usize| {
+        let depth = |du: usize, dv: usize| {
             let mut c = base;
             c[ua] += du;
             c[va] += dv;
-            (field.corner_transmittance[grid.corner_index(c[0], c[1], c[2])] as f64)
-                .max(MIN_INTERPOLATED_TRANSMITTANCE)
-                .ln()
+            field.corner_optical_depth[grid.corner_index(c[0], c[1], c[2])] as f64
         };
-        let log_face = (1.0 - fu) * (1.0 - fv) * log_corner(0, 0)
-            + fu * (1.0 - fv) * log_corner(1, 0)
-            + (1.0 - fu) * fv * log_corner(0, 1)
-            + fu * fv * log_corner(1, 1);
-        (log_face - sigma * t_exit).exp()
+        let face_depth = (1.0 - fu) * (1.0 - fv) * depth(0, 0)
+            + fu * (1.0 - fv) * depth(1, 0)
+            + (1.0 - fu) * fv * depth(0, 1)
+            + fu * fv * depth(1, 1);
+        (-face_depth - sigma * t_exit).exp()
     }
 
     /// The light's flow direction at `x` and its irradiance there without shadows (the

@@ -125,7 +125,7 @@ fn axis_aligned_slab_matches_closed_form() {
     }
     for k in 0..=nz {
         let expected = (-(s as f64) * h * (nz - k) as f64).exp();
-        let got = f.corner_transmittance[grid.corner_index(1, 2, k)] as f64;
+        let got = (-f.corner_optical_depth[grid.corner_index(1, 2, k)] as f64).exp();
         assert!(
             (got - expected).abs() < 1e-6,
             "corner plane {k}: {got} vs {expected}"
@@ -323,7 +323,7 @@ fn point_light_in_vacuum_falls_as_inverse_square() {
     };
     let pass = LightPass::compute(&grid, &channel(vec![0.0; grid.cell_count()]), &[light]).unwrap();
     let f = &pass.fields[0];
-    assert!(f.corner_transmittance.iter().all(|&t| t == 1.0));
+    assert!(f.corner_optical_depth.iter().all(|&t| t == 0.0));
     let mut rng = Pcg64Mcg::seed_from_u64(5);
     for _ in 0..100 {
         let x = DVec3::new(rng.random(), rng.random(), rng.random()) * 10.0;
@@ -432,7 +432,7 @@ fn corner_and_interior_transmittance() {
                 for i in 0..=nx {
                     let x = DVec3::new(i as f64, j as f64, k as f64) * grid.cell_size;
                     let exact = exact_transmittance(&grid, &sigma, light, x);
-                    let got = pass.fields[l].corner_transmittance[grid.corner_index(i, j, k)];
+                    let got = (-pass.fields[l].corner_optical_depth[grid.corner_index(i, j, k)]).exp();
                     assert!(
                         (got as f64 - exact).abs() < 1e-6,
                         "light {l} corner {i},{j},{k}"
