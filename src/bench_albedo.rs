@@ -482,7 +482,7 @@ pub fn plot_iterations(path: &Path, runs: &[AlbedoRun], title: &str) -> Result<(
         .y_label_area_size(72)
         .build_cartesian_2d(
             (one_position * 0.7..max_gap * 1.5).log_scale(),
-            (0.8..max_iter * 2.0).log_scale(),
+            (0.8..max_iter * 4.0).log_scale(),
         )
         .map_err(plot_error)?;
     chart
@@ -529,6 +529,36 @@ pub fn plot_iterations(path: &Path, runs: &[AlbedoRun], title: &str) -> Result<(
                 Circle::new((x, y), 4, style)
             }))
             .map_err(plot_error)?;
+    }
+    // The Jacobi count that the power-iteration ρ(aK) predicts, dashed, per σ-scale.
+    for scale in distinct(runs.iter().map(|r| r.sigma_scale)) {
+        let mut predicted: Vec<(f64, f64)> = Vec::new();
+        for r in runs.iter().filter(|r| r.sigma_scale == scale) {
+            let x = x_of(r.albedo);
+            if let Some(n) = r.predicted_jacobi_iterations {
+                if !predicted.iter().any(|p| p.0 == x) {
+                    predicted.push((x, n.max(1) as f64));
+                }
+            }
+        }
+        predicted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        if predicted.is_empty() {
+            continue;
+        }
+        chart
+            .draw_series(DashedLineSeries::new(
+                predicted,
+                6,
+                4,
+                BLACK.stroke_width(1),
+            ))
+            .map_err(plot_error)?
+            .label(series_label(
+                "jacobi predicted by ρ(aK)",
+                scale,
+                several_scales,
+            ))
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK.stroke_width(1)));
     }
     chart
         .configure_series_labels()
