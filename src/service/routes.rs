@@ -137,7 +137,11 @@ async fn post_scene(
     let scene = tokio::task::spawn_blocking(move || parse_scene(&cache, &parse_text))
         .await
         .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "scene parsing panicked"))?
-        .map_err(|e| ApiError::bad(e.to_string()))?;
+        .map_err(|e| {
+            // Name uploaded volumes as the client did, not by their place on the server.
+            let dir = format!("{}/", service.inner.cache.volumes_dir().display());
+            ApiError::bad(e.to_string().replace(&dir, ""))
+        })?;
     let cells: usize = scene.medium.grid.dims.iter().product();
     if cells > service.inner.limits.max_cells {
         return Err(ApiError::bad(format!(

@@ -1,0 +1,536 @@
+//! `volrad serve` end to end over loopback HTTP: solve, poll, render, limits and errors,
+//! deletion, cancellation, and a restart on the same cache directory (valid solutions served
+//! again, corrupt ones never).
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+use volrad::service::client::{get, request, HttpResponse};
+use volrad::service::{ServerHandle, ServiceConfig};
+
+fn scene(seed: u32, albedo: f64) -> String {
+    format!(
+        r#"
+[volume]
+generator = {{ kind = "cloud", seed = {seed} }}
+dims = [10, 10, 8]
+
+[medium]
+albedo = {albedo}
+phase = {{ kind = "isotropic" }}
+
+[[light]]
+kind = "directional"
+direction = [0.5, -1.0, 0.35]
+irradiance = 1.0
+
+[solve]
+method = "zonal"
+
+[render]
+exposure = 4.0
+
+[[camera]]
+name = "front"
+eye = [5.0, -20.0, 4.0]
+target = [5.0, 5.0, 4.0]
+up = [0.0, 0.0, 1.0]
+fov_y = 40.0
+width = 64
+height = 48
+"#
+    )
+}
+
+fn start(dir: &std::path::Path) -> ServerHandle {
+    ServerHandle::start(ServiceConfig::new(dir), "127.0.0.1:0").expect("server starts")
+}
+
+fn post_scene(addr: SocketAddr, text: &str) -> HttpResponse {
+    request(
+        addr,
+        "POST",
+        "/v1/scenes",
+        Some("application/toml"),
+        text.as_bytes(),
+    )
+    .unwrap()
+}
+
+fn submit(addr: SocketAddr, text: &str) -> String {
+    let r = post_scene(addr, text);
+    assert_eq!(r.status, 202, "{}", r.text());
+    r.json()["id"].as_str().expect("id").to_string()
+}
+
+/// Polls until the scene leaves queued/solving; returns its final description.
+fn wait_finished(addr: SocketAddr, id: &str) -> Value {
+    let start = Instant::now();
+    loop {
+        let r = get(addr, &format!("/v1/scenes/{id}")).unwrap();
+        assert_eq!(r.status, 200, "{}", r.text());
+        let v = r.json();
+        match v["state"].as_str() {
+            Some("queued") | Some("solving") => {}
+            _ => return v,
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "solve took too long: {v}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn png_size(bytes: &[u8]) -> (u32, u32) {
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "not a PNG");
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png).expect("decodes");
+    (img.width(), img.height())
+}
+
+fn assert_error(r: &HttpResponse, status: u16, mentions: &str) {
+    assert_eq!(r.status, status, "{}", r.text());
+    let msg = r.json()["error"].as_str().unwrap_or_default().to_string();
+    assert!(
+        msg.contains(mentions),
+        "error `{msg}` should mention `{mentions}`"
+    );
+}
+
+#[test]
+fn solve_poll_render_and_same_scene_is_one_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let text = scene(7, 0.9);
+    let id = submit(addr, &text);
+    let again = post_scene(addr, &text);
+    assert_eq!(again.status, 202);
+    assert_eq!(
+        again.json()["id"].as_str(),
+        Some(id.as_str()),
+        "same scene, same id"
+    );
+
+    // The same scene as JSON is the same content, so the same id.
+    let as_json: Value =
+        serde_json::to_value(toml::from_str::<toml::Table>(&text).unwrap()).unwrap();
+    let j = request(
+        addr,
+        "POST",
+        "/v1/scenes",
+        Some("application/json"),
+        as_json.to_string().as_bytes(),
+    )
+    .unwrap();
+    assert_eq!(j.status, 202, "{}", j.text());
+    assert_eq!(j.json()["id"].as_str(), Some(id.as_str()));
+
+    let done = wait_finished(addr, &id);
+    assert_eq!(done["state"], "done", "{done}");
+    let report = &done["report"]["channels"][0];
+    assert!(report["iterations"].as_u64().unwrap() > 0);
+    assert!(report["converged"].as_bool().unwrap());
+    assert!(!report["residual_history"].as_array().unwrap().is_empty());
+    assert!(
+        dir.path().join(format!("{id}.vrs")).exists(),
+        "solution cached by id"
+    );
+
+    let list = get(addr, "/v1/scenes").unwrap().json();
+    let scenes = list["scenes"].as_array().unwrap();
+    assert_eq!(scenes.len(), 1);
+    assert_eq!(scenes[0]["id"].as_str(), Some(id.as_str()));
+
+    let png = get(
+        addr,
+        &format!("/v1/scenes/{id}/render?width=96&height=72&spp=1"),
+    )
+    .unwrap();
+    assert_eq!(png.status, 200, "{}", png.text());
+    assert_eq!(png.header("content-type"), Some("image/png"));
+    assert_eq!(png_size(&png.body), (96, 72));
+    let img = image::load_from_memory(&png.body).unwrap().to_luma8();
+    let (lo, hi) = img
+        .pixels()
+        .fold((255u8, 0u8), |(lo, hi), p| (lo.min(p[0]), hi.max(p[0])));
+    assert!(
+        hi > lo + 20,
+        "the lit cloud is visible against the background ({lo}..{hi})"
+    );
+
+    // Default camera from the scene; an orbiting eye gives a different image.
+    let default = get(addr, &format!("/v1/scenes/{id}/render")).unwrap();
+    assert_eq!(png_size(&default.body), (64, 48));
+    let side = get(
+        addr,
+        &format!("/v1/scenes/{id}/render?eye=25,5,4&target=5,5,4&up=0,0,1&fov=40"),
+    )
+    .unwrap();
+    assert_eq!(side.status, 200);
+    assert_ne!(side.body, default.body);
+
+    let pfm = get(
+        addr,
+        &format!("/v1/scenes/{id}/render?width=8&height=6&format=pfm"),
+    )
+    .unwrap();
+    assert_eq!(pfm.status, 200);
+    assert!(pfm.body.starts_with(b"Pf\n8 6\n"), "grey PFM header");
+    assert!(pfm.body.len() >= 8 * 6 * 4);
+
+    let spec = get(addr, "/v1/openapi.json").unwrap();
+    let spec = spec.json();
+    for path in [
+        "/v1/scenes",
+        "/v1/scenes/{id}",
+        "/v1/scenes/{id}/render",
+        "/v1/scenes/{id}/cancel",
+        "/v1/volumes",
+    ] {
+        assert!(spec["paths"][path].is_object(), "openapi lists {path}");
+    }
+    let page = get(addr, "/").unwrap();
+    assert_eq!(page.status, 200);
+    assert!(
+        page.text().contains("/v1/scenes"),
+        "the viewer talks to the API"
+    );
+}
+
+#[test]
+fn bad_input_is_refused_with_json_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = ServiceConfig::new(dir.path());
+    config.limits.max_body_bytes = 64 * 1024;
+    config.limits.max_image_pixels = 1_000_000;
+    let server = ServerHandle::start(config, "127.0.0.1:0").unwrap();
+    let addr = server.addr;
+
+    assert_error(&post_scene(addr, &scene(7, 1.5)), 400, "medium.albedo");
+    assert_error(&post_scene(addr, "[volume\n"), 400, "line 1");
+    assert_error(
+        &post_scene(addr, &scene(7, 0.5).replace("irradiance", "irradianse")),
+        400,
+        "irradianse",
+    );
+    assert_error(
+        &post_scene(
+            addr,
+            &scene(7, 0.5).replace("dims = [10, 10, 8]", "dims = [4000, 4000, 4000]"),
+        ),
+        400,
+        "volume.dims",
+    );
+    assert_error(
+        &post_scene(
+            addr,
+            &scene(7, 0.5).replace(
+                "method = \"zonal\"",
+                "method = \"zonal\"\nmax_iterations = 99999999",
+            ),
+        ),
+        400,
+        "solve.max_iterations",
+    );
+    assert_error(
+        &post_scene(
+            addr,
+            &scene(7, 0.5).replace(
+                "generator = { kind = \"cloud\", seed = 7 }",
+                "file = \"/etc/passwd\"",
+            ),
+        ),
+        400,
+        "volume.file",
+    );
+    let big = vec![b'#'; 100 * 1024];
+    assert_error(
+        &request(addr, "POST", "/v1/scenes", None, &big).unwrap(),
+        413,
+        "limit",
+    );
+    assert_error(
+        &request(
+            addr,
+            "POST",
+            "/v1/scenes",
+            Some("application/json"),
+            b"{\"volume\": nul",
+        )
+        .unwrap(),
+        400,
+        "JSON",
+    );
+
+    // Volumes: the size must match the dims.
+    let seven = [0u8; 7];
+    assert_error(
+        &request(addr, "POST", "/v1/volumes?dims=1,1,2", None, &seven).unwrap(),
+        400,
+        "does not match",
+    );
+    assert_error(
+        &request(addr, "POST", "/v1/volumes?dims=1,x,2", None, &seven).unwrap(),
+        400,
+        "dims",
+    );
+    let nan = f32::NAN.to_le_bytes();
+    assert_error(
+        &request(addr, "POST", "/v1/volumes?dims=1,1,1", None, &nan).unwrap(),
+        400,
+        "finite",
+    );
+
+    // Unknown ids.
+    assert_error(
+        &get(addr, "/v1/scenes/0123456789abcdef").unwrap(),
+        404,
+        "0123456789abcdef",
+    );
+    assert_error(&get(addr, "/v1/scenes/nope/render").unwrap(), 404, "nope");
+    assert_error(
+        &request(addr, "DELETE", "/v1/scenes/nope", None, &[]).unwrap(),
+        404,
+        "nope",
+    );
+    assert_error(
+        &request(addr, "POST", "/v1/scenes/nope/cancel", None, &[]).unwrap(),
+        404,
+        "nope",
+    );
+    assert_error(&get(addr, "/v2/whatever").unwrap(), 404, "route");
+
+    // Render requests against a solved scene.
+    let id = submit(addr, &scene(3, 0.8));
+    assert_eq!(wait_finished(addr, &id)["state"], "done");
+    let render = |q: &str| get(addr, &format!("/v1/scenes/{id}/render?{q}")).unwrap();
+    assert_error(&render("width=100000&height=10"), 400, "width");
+    assert_error(&render("width=2000&height=2000&spp=1"), 400, "pixels");
+    assert_error(&render("width=abc"), 400, "width");
+    assert_error(&render("width=-3"), 400, "width");
+    assert_error(&render("eye=1,2"), 400, "eye");
+    assert_error(&render("eye=1,2,nan"), 400, "eye");
+    assert_error(&render("fov=1e999"), 400, "fov");
+    assert_error(&render("fov=200"), 400, "fov");
+    assert_error(&render("spp=100000"), 400, "spp");
+    assert_error(&render("format=gif"), 400, "format");
+    assert_error(&render("eye=5,5,4&target=5,5,4"), 400, "eye");
+    assert_error(&render("eye=5,5,20&target=5,5,4&up=0,0,1"), 400, "up");
+    // The server is still answering after all of that.
+    assert_eq!(render("width=16&height=12").status, 200);
+}
+
+#[test]
+fn raw_volume_upload_is_solved_and_rendered() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let dims = [6usize, 5, 4];
+    let data: Vec<u8> = (0..dims.iter().product::<usize>())
+        .flat_map(|i| (0.2 + (i % 7) as f32 * 0.1).to_le_bytes())
+        .collect();
+    let r = request(
+        addr,
+        "POST",
+        "/v1/volumes?dims=6,5,4",
+        Some("application/octet-stream"),
+        &data,
+    )
+    .unwrap();
+    assert_eq!(r.status, 201, "{}", r.text());
+    let file = r.json()["file"].as_str().unwrap().to_string();
+    let text = scene(1, 0.7).replace(
+        "generator = { kind = \"cloud\", seed = 1 }\ndims = [10, 10, 8]",
+        &format!("file = \"{file}\"\ndims = [6, 5, 4]"),
+    );
+    let id = submit(addr, &text);
+    assert_eq!(wait_finished(addr, &id)["state"], "done");
+    let v = get(addr, &format!("/v1/scenes/{id}")).unwrap().json();
+    assert_eq!(v["dims"], serde_json::json!([6, 5, 4]));
+    // Declaring other dims for the same data is refused, naming the key.
+    let wrong = text.replace("dims = [6, 5, 4]", "dims = [6, 5, 5]");
+    assert_error(&post_scene(addr, &wrong), 400, "volume.dims");
+    let png = get(addr, &format!("/v1/scenes/{id}/render?width=32&height=24")).unwrap();
+    assert_eq!(png_size(&png.body), (32, 24));
+}
+
+#[test]
+fn delete_and_cancel() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let id = submit(addr, &scene(5, 0.9));
+    assert_eq!(wait_finished(addr, &id)["state"], "done");
+    let path = dir.path().join(format!("{id}.vrs"));
+    assert!(path.exists());
+    let del = request(addr, "DELETE", &format!("/v1/scenes/{id}"), None, &[]).unwrap();
+    assert_eq!(del.status, 204);
+    assert!(!path.exists(), "the cached solution is deleted");
+    assert_eq!(get(addr, &format!("/v1/scenes/{id}")).unwrap().status, 404);
+    assert_eq!(
+        get(addr, &format!("/v1/scenes/{id}/render"))
+            .unwrap()
+            .status,
+        404
+    );
+
+    // A slow solve (high albedo, unreachable tolerance, Jacobi) is cancelled while it runs.
+    let slow = scene(9, 0.999)
+        .replace("dims = [10, 10, 8]", "dims = [16, 16, 12]")
+        .replace(
+            "method = \"zonal\"",
+            "method = \"discrete-ordinates\"\nbins = 24\niteration = \"jacobi\"\ntolerance = 1e-14\nmax_iterations = 10000",
+        );
+    let sid = submit(addr, &slow);
+    let queued_behind = submit(addr, &scene(11, 0.5));
+    let start = Instant::now();
+    loop {
+        let v = get(addr, &format!("/v1/scenes/{sid}")).unwrap().json();
+        if v["state"] == "solving" && v["iteration"].as_u64().unwrap_or(0) >= 1 {
+            break;
+        }
+        assert_ne!(
+            v["state"], "done",
+            "the slow scene must still be running: {v}"
+        );
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "no progress reported: {v}"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let c = request(addr, "POST", &format!("/v1/scenes/{sid}/cancel"), None, &[]).unwrap();
+    assert_eq!(c.status, 200, "{}", c.text());
+    assert_eq!(c.json()["cancelled"], true);
+    let v = get(addr, &format!("/v1/scenes/{sid}")).unwrap().json();
+    assert_eq!(v["state"], "failed");
+    assert_eq!(v["reason"], "cancelled");
+    // The worker moves on to the next scene, and the cancelled one leaves no solution.
+    assert_eq!(wait_finished(addr, &queued_behind)["state"], "done");
+    assert!(!dir.path().join(format!("{sid}.vrs")).exists());
+    assert_eq!(
+        get(addr, &format!("/v1/scenes/{sid}/render"))
+            .unwrap()
+            .status,
+        409
+    );
+}
+
+#[test]
+fn restart_serves_cached_solutions_and_never_corrupt_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let (kept, resolved, orphan) = {
+        let server = start(dir.path());
+        let addr = server.addr;
+        let ids: Vec<String> = [1, 2, 3]
+            .iter()
+            .map(|&s| submit(addr, &scene(s, 0.9)))
+            .collect();
+        for id in &ids {
+            assert_eq!(wait_finished(addr, id)["state"], "done");
+        }
+        server.stop();
+        (ids[0].clone(), ids[1].clone(), ids[2].clone())
+    };
+    // Damage two cached solutions: one whose scene text is kept, one whose text is lost.
+    for id in [&resolved, &orphan] {
+        let path = dir.path().join(format!("{id}.vrs"));
+        let mut bytes = std::fs::read(&path).unwrap();
+        let mid = bytes.len() / 2;
+        bytes[mid] ^= 0xff;
+        bytes[mid + 1] ^= 0x55;
+        std::fs::write(&path, bytes).unwrap();
+    }
+    std::fs::remove_file(dir.path().join(format!("{orphan}.toml"))).unwrap();
+    let reference =
+        volrad::solution::Solution::read(&dir.path().join(format!("{kept}.vrs"))).unwrap();
+
+    let server = start(dir.path());
+    let addr = server.addr;
+    // The intact one is served at once, without a new solve.
+    let v = get(addr, &format!("/v1/scenes/{kept}")).unwrap().json();
+    assert_eq!(v["state"], "done", "{v}");
+    let png = get(
+        addr,
+        &format!("/v1/scenes/{kept}/render?width=40&height=30"),
+    )
+    .unwrap();
+    assert_eq!(png.status, 200);
+    assert_eq!(png_size(&png.body), (40, 30));
+    let served = server.service.solution(&kept).unwrap();
+    assert_eq!(served.scene_hash, reference.scene_hash);
+
+    // The orphan is reported, never served.
+    let v = get(addr, &format!("/v1/scenes/{orphan}")).unwrap().json();
+    assert_eq!(v["state"], "failed", "{v}");
+    assert!(v["reason"].as_str().unwrap().contains("corrupt"), "{v}");
+    assert_error(
+        &get(addr, &format!("/v1/scenes/{orphan}/render")).unwrap(),
+        409,
+        "corrupt",
+    );
+
+    // The one with a known scene is solved again and then served from a valid file.
+    let v = wait_finished(addr, &resolved);
+    assert_eq!(v["state"], "done", "{v}");
+    assert!(
+        v["note"].as_str().unwrap_or_default().contains("corrupt"),
+        "{v}"
+    );
+    volrad::solution::Solution::read(&dir.path().join(format!("{resolved}.vrs")))
+        .expect("re-solved file is valid");
+    assert_eq!(
+        get(
+            addr,
+            &format!("/v1/scenes/{resolved}/render?width=8&height=8")
+        )
+        .unwrap()
+        .status,
+        200
+    );
+}
+
+#[test]
+fn least_recently_used_solutions_are_evicted() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = ServiceConfig::new(dir.path());
+    // Room for about two small solutions.
+    let one = {
+        let server = start(&dir.path().join("probe"));
+        let id = submit(server.addr, &scene(1, 0.9));
+        wait_finished(server.addr, &id);
+        std::fs::metadata(dir.path().join("probe").join(format!("{id}.vrs")))
+            .unwrap()
+            .len()
+    };
+    config.cache_dir = dir.path().join("lru");
+    config.limits.max_cache_bytes = one * 5 / 2;
+    let server = ServerHandle::start(config, "127.0.0.1:0").unwrap();
+    let addr = server.addr;
+    let a = submit(addr, &scene(1, 0.9));
+    wait_finished(addr, &a);
+    let b = submit(addr, &scene(2, 0.9));
+    wait_finished(addr, &b);
+    // Use `a`, so `b` is the least recently used when `c` arrives.
+    assert_eq!(
+        get(addr, &format!("/v1/scenes/{a}/render?width=4&height=4"))
+            .unwrap()
+            .status,
+        200
+    );
+    let c = submit(addr, &scene(4, 0.9));
+    assert_eq!(wait_finished(addr, &c)["state"], "done");
+    let vb = get(addr, &format!("/v1/scenes/{b}")).unwrap().json();
+    assert_eq!(vb["state"], "failed", "{vb}");
+    assert!(vb["reason"].as_str().unwrap().contains("evicted"));
+    assert!(!dir.path().join("lru").join(format!("{b}.vrs")).exists());
+    assert_eq!(
+        get(addr, &format!("/v1/scenes/{a}")).unwrap().json()["state"],
+        "done"
+    );
+    // Posting it again solves it again.
+    assert_eq!(submit(addr, &scene(2, 0.9)), b);
+    assert_eq!(wait_finished(addr, &b)["state"], "done");
+}
