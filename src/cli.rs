@@ -103,6 +103,13 @@ pub struct RenderArgs {
     pub exposure: Option<f64>,
     #[command(flatten)]
     pub view: ViewArgs,
+    /// How to compute the image: from the (stored or in-memory) solution, or by unbiased
+    /// Monte Carlo path tracing of the scene (no solve; `--spp` paths per pixel).
+    #[arg(long, value_enum, default_value_t = RenderMethod::Solution)]
+    pub method: RenderMethod,
+    /// Seed of the path tracer's random streams.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
     /// Render N views on a circle around the volume (one solve or solution read for all).
     /// OUT names a directory, or a file stem to which _000, _001, ... are appended.
     #[arg(long)]
@@ -191,6 +198,15 @@ pub struct InfoArgs {
     /// Print as JSON.
     #[arg(long)]
     pub json: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum RenderMethod {
+    /// The scene's `[solve]` method (or the stored solution): first bounce exact, higher
+    /// orders from the solution.
+    Solution,
+    /// Volumetric path tracing with next-event estimation, unlimited depth.
+    PathTrace,
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]

@@ -10,7 +10,7 @@ use medium::scene::SolveMethod;
 use medium::Scene;
 
 use crate::app::{choose_camera, load_scene, orbit_cameras, view_outputs};
-use crate::cli::{ExportArgs, ExportField, RenderArgs, SolveArgs};
+use crate::cli::{ExportArgs, ExportField, RenderArgs, RenderMethod, SolveArgs};
 use crate::pipeline::{render_view, solve_scene, SolveHooks};
 use crate::progress::SolveProgress;
 use crate::solution::Solution;
@@ -68,6 +68,9 @@ pub fn solve_with_progress(
 }
 
 pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
+    if args.method == RenderMethod::PathTrace {
+        return render_path_traced(args);
+    }
     let solution = match (&args.solution, &args.scene) {
         (Some(path), _) => Solution::read(path)?,
         (None, Some(scene_path)) => {
@@ -110,6 +113,41 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         tracing::info!(camera = %view.name, seconds = started.elapsed().as_secs_f64(), "rendered");
         println!("wrote {}", out.display());
     }
+    Ok(())
+}
+
+/// `render --method path-trace`: unbiased Monte Carlo of the scene, no solve.
+fn render_path_traced(args: &RenderArgs) -> Result<()> {
+    let (medium, lights, background, cameras, exposure) = match (&args.scene, &args.solution) {
+        (Some(path), _) => {
+            let scene = load_scene(path)?;
+            (scene.medium, scene.lights, scene.background, scene.cameras, scene.render.exposure)
+        }
+        (None, Some(path)) => {
+            let s = Solution::read(path)?;
+            (s.medium, s.lights, s.background, s.cameras, s.render.exposure)
+        }
+        (None, None) => bail!("render needs a scene file or --solution FILE"),
+    };
+    if args.orbit.is_some() {
+        bail!("--orbit is for renders from a solution; path tracing renders one camera");
+    }
+    let spec = choose_camera(&cameras, args.camera.as_deref(), &args.view, medium.grid.center())?;
+    let camera = gather::Camera::from_spec(&spec)?;
+    let options = montecarlo::path_trace::PathTraceOptions {
+        spp: args.spp.unwrap_or(64),
+        seed: args.seed,
+        ..Default::default()
+    };
+    let started = Instant::now();
+    let image = montecarlo::path_trace::path_trace_image(&medium, &lights, background, &camera, &options)?;
+    let seconds = started.elapsed().as_secs_f64();
+    let paths = camera.width as f64 * camera.height as f64 * options.spp as f64 * medium.channels.len() as f64;
+    tracing::info!(seconds, paths_per_second = paths / seconds, "path traced");
+    image
+        .save(&args.output, args.exposure.unwrap_or(exposure))
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    println!("wrote {}", args.output.display());
     Ok(())
 }
 
