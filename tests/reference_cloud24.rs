@@ -72,3 +72,21 @@ fn hierarchical_matches_exact_source_terms() {
     println!("hierarchical vs exact source terms: relative L2 {rel:.5}");
     assert!(rel < 0.01, "relative L2 {rel}");
 }
+
+/// Discrete ordinates (Max's 96 bins) against the forward-scattering reference
+/// (tests/data/cloud24-anisotropic, Henyey–Greenstein g = 0.6): issue #5's target is 5 %
+/// (measured 2.8 % with 96 bins, 2.2 % with 384).
+#[test]
+fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-anisotropic");
+    let scene = Scene::from_file(&dir.join("scene.toml")).unwrap();
+    assert_eq!(scene.solve.method, SolveMethod::DiscreteOrdinates);
+    let solution = solve_scene(&scene, &scene.solve, &SolveHooks::default()).unwrap();
+    assert!(solution.channels[0].report.as_ref().unwrap().converged);
+    let image = render_view(&solution, &scene.cameras[0], Some(16)).unwrap();
+    let read = |n: &str| gather::read_pfm(&dir.join(n)).unwrap();
+    let c = compare(&image, &read("front.pfm"), Some(&read("front_stderr.pfm")), 0.01, 1).unwrap();
+    println!("discrete ordinates (96 bins) vs Mitsuba, g = 0.6: {c:?}");
+    assert!(c.relative_rms < 0.05, "relative RMS {:.4}", c.relative_rms);
+    assert!(c.mean_ratio_error.abs() < 0.04, "mean off by {:.4}", c.mean_ratio_error);
+}
