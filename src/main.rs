@@ -4,6 +4,12 @@
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
+    // `volrad info … | head` must end quietly, as other Unix tools do, not panic in println!.
+    #[cfg(unix)]
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = volrad::cli::Cli::parse();
     let default_level = match cli.verbose {
         0 if cli.quiet => "warn",
