@@ -5,6 +5,26 @@
 //! the solve worker), [`cache`] (files on disk: solutions, scene texts, uploaded volumes),
 //! [`client`] (a minimal loopback HTTP/1.1 client for tests and the load test). The OpenAPI
 //! description and the viewer page are embedded files beside this one.
+//!
+//! A session (ids are content hashes: posting the same scene again returns the same id):
+//!
+//! ```text
+//! volrad serve --addr 127.0.0.1:8080 --cache ./volrad-cache &
+//! curl -s -X POST --data-binary @cloud.toml localhost:8080/v1/scenes
+//!   {"id":"16e252f6…","state":"queued","queued":true,…}                        (202)
+//! curl -s localhost:8080/v1/scenes/16e252f6…
+//!   {"state":"solving","iteration":7,"residual":0.0019,…} … {"state":"done","report":{…}}
+//! curl -s -o view.png 'localhost:8080/v1/scenes/16e252f6…/render?eye=5,-20,4&width=512&height=384'
+//! curl -s -X POST --data-binary @density.f32 'localhost:8080/v1/volumes?dims=24,24,18'
+//!   {"file":"c4af7a3e….f32","dims":[24,24,18]}   → use as `[volume] file = "c4af7a3e….f32"`
+//! curl -s -X POST localhost:8080/v1/scenes/16e252f6…/cancel
+//! curl -s -X DELETE localhost:8080/v1/scenes/16e252f6…                          (204)
+//! ```
+//!
+//! Raw volumes are uploaded on their own (`POST /v1/volumes?dims=…`, stored by content hash
+//! under `volumes/`) and named by the scene's `[volume] file`; a scene may not name any
+//! other file. Every valid solution in the cache directory is loaded at start-up and kept in
+//! memory; renders share it through an `Arc`.
 
 pub mod cache;
 pub mod client;

@@ -590,6 +590,7 @@ async fn render(
         )));
     }
     let exposure = exposure.unwrap_or(solution.render.exposure);
+    let queued_at = std::time::Instant::now();
     let permit = Arc::clone(&service.inner.render_slots)
         .acquire_owned()
         .await
@@ -599,30 +600,43 @@ async fn render(
                 "the server is shutting down",
             )
         })?;
-    let encoded = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, String> {
-        let _permit = permit;
-        let image =
-            crate::pipeline::render_view(&solution, &camera, spp).map_err(|e| format!("{e:#}"))?;
-        match format {
-            RenderFormat::Png => encode_png(&image, exposure),
-            RenderFormat::Pfm => {
-                let mut out = Vec::new();
-                image.write_pfm_to(&mut out).map_err(|e| e.to_string())?;
-                Ok(out)
-            }
-        }
-    })
-    .await
-    .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "the renderer panicked"))?
-    .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e))?;
+    let (encoded, timing) =
+        tokio::task::spawn_blocking(move || -> Result<(Vec<u8>, String), String> {
+            let _permit = permit;
+            let t0 = std::time::Instant::now();
+            let wait_ms = (t0 - queued_at).as_secs_f64() * 1e3;
+            let image = crate::pipeline::render_view(&solution, &camera, spp)
+                .map_err(|e| format!("{e:#}"))?;
+            let t1 = std::time::Instant::now();
+            let bytes = match format {
+                RenderFormat::Png => encode_png(&image, exposure)?,
+                RenderFormat::Pfm => {
+                    let mut out = Vec::new();
+                    image.write_pfm_to(&mut out).map_err(|e| e.to_string())?;
+                    out
+                }
+            };
+            let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64() * 1e3;
+            // Server-Timing lets clients (the load test, browser dev tools) see where time went.
+            let timing = format!(
+                "wait;dur={wait_ms:.1}, render;dur={:.1}, encode;dur={:.1}",
+                ms(t0, t1),
+                ms(t1, std::time::Instant::now())
+            );
+            Ok((bytes, timing))
+        })
+        .await
+        .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "the renderer panicked"))?
+        .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e))?;
     let content_type = match format {
         RenderFormat::Png => "image/png",
         RenderFormat::Pfm => "application/x-portable-floatmap",
     };
     Ok((
         [
-            (header::CONTENT_TYPE, content_type),
-            (header::CACHE_CONTROL, "no-store"),
+            (header::CONTENT_TYPE, content_type.to_string()),
+            (header::CACHE_CONTROL, "no-store".to_string()),
+            (header::HeaderName::from_static("server-timing"), timing),
         ],
         encoded,
     )
