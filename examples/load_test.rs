@@ -235,8 +235,8 @@ fn main() -> Result<()> {
     let failures: usize = results.iter().map(|r| r.1).sum();
     let mut phases = [0.0f64; 3];
     for r in &results {
-        for k in 0..3 {
-            phases[k] += r.2[k];
+        for (sum, part) in phases.iter_mut().zip(r.2) {
+            *sum += part;
         }
     }
     let mut lat: Vec<f64> = results.into_iter().flat_map(|r| r.0).collect();
