@@ -245,6 +245,15 @@ fn bad_input_is_refused_with_json_errors() {
         400,
         "volume.file",
     );
+    // Exact zonal on 64³ cells needs (64³)² form factors: refused before any work.
+    assert_error(
+        &post_scene(
+            addr,
+            &scene(7, 0.5).replace("dims = [10, 10, 8]", "dims = [64, 64, 64]"),
+        ),
+        400,
+        "MiB",
+    );
     let big = vec![b'#'; 100 * 1024];
     assert_error(
         &request(addr, "POST", "/v1/scenes", None, &big).unwrap(),
@@ -533,4 +542,43 @@ fn least_recently_used_solutions_are_evicted() {
     // Posting it again solves it again.
     assert_eq!(submit(addr, &scene(2, 0.9)), b);
     assert_eq!(wait_finished(addr, &b)["state"], "done");
+}
+
+#[test]
+fn renders_beyond_the_waiting_limit_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = ServiceConfig::new(dir.path());
+    config.limits.max_waiting_renders = 2;
+    config.render_slots = 1;
+    let server = ServerHandle::start(config, "127.0.0.1:0").unwrap();
+    let addr = server.addr;
+    let id = submit(addr, &scene(7, 0.9));
+    assert_eq!(wait_finished(addr, &id)["state"], "done");
+    // Twelve simultaneous large renders through one slot: at most one runs and two wait, so
+    // some are refused with 503, and every one is answered either with an image or that.
+    let statuses: Vec<u16> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..12)
+            .map(|i| {
+                let path = format!(
+                    "/v1/scenes/{id}/render?width=600&height=450&spp=4&eye={},-20,4",
+                    i
+                );
+                s.spawn(move || get(addr, &path).unwrap().status)
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert!(
+        statuses.iter().all(|&c| c == 200 || c == 503),
+        "{statuses:?}"
+    );
+    assert!(statuses.contains(&503), "{statuses:?}");
+    assert!(statuses.contains(&200), "{statuses:?}");
+    // Once the flood is over, renders are served again.
+    assert_eq!(
+        get(addr, &format!("/v1/scenes/{id}/render?width=8&height=8"))
+            .unwrap()
+            .status,
+        200
+    );
 }

@@ -63,6 +63,8 @@ pub(crate) struct Inner {
     pub limits: Limits,
     pub jobs: Mutex<HashMap<String, Job>>,
     pub render_slots: Arc<tokio::sync::Semaphore>,
+    /// Render requests waiting for a slot (bounded by `limits.max_waiting_renders`).
+    pub waiting_renders: std::sync::atomic::AtomicUsize,
     clock: AtomicU64,
     queue: Mutex<Option<mpsc::Sender<WorkerMsg>>>,
     worker: Mutex<Option<std::thread::JoinHandle<()>>>,
@@ -107,6 +109,7 @@ impl Service {
             limits: config.limits.clone(),
             jobs: Mutex::new(HashMap::new()),
             render_slots: Arc::new(tokio::sync::Semaphore::new(config.render_slots.max(1))),
+            waiting_renders: std::sync::atomic::AtomicUsize::new(0),
             clock: AtomicU64::new(1),
             queue: Mutex::new(Some(tx)),
             worker: Mutex::new(None),

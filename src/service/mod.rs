@@ -54,6 +54,10 @@ pub struct Limits {
     pub max_bins: usize,
     /// Largest `[solve] max_iterations`.
     pub max_iterations: usize,
+    /// Largest memory a solve may need (the estimate of `volrad info`), bytes.
+    pub max_solve_bytes: usize,
+    /// Largest number of render requests waiting for a slot; more are refused with 503.
+    pub max_waiting_renders: usize,
     /// Largest number of scenes the server keeps track of.
     pub max_scenes: usize,
     /// Total size of cached solution files; least recently used ones are evicted beyond it.
@@ -72,6 +76,8 @@ impl Default for Limits {
             max_spp: 64,
             max_bins: 384,
             max_iterations: 10_000,
+            max_solve_bytes: 2 << 30,
+            max_waiting_renders: 64,
             max_scenes: 1000,
             max_cache_bytes: 2 << 30,
             max_volume_bytes: 1 << 30,

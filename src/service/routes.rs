@@ -149,6 +149,16 @@ async fn post_scene(
             service.inner.limits.max_cells
         )));
     }
+    let estimate = crate::info::SceneInfo::of(&scene).solve_memory_estimate_bytes;
+    if estimate > service.inner.limits.max_solve_bytes {
+        return Err(ApiError::bad(format!(
+            "solve.method: `{}` on {cells} cells needs about {} MiB, over the server's limit of {} MiB \
+             (use a smaller grid, or zonal-hierarchical / discrete-ordinates with fewer bins)",
+            scene.solve.method.name(),
+            estimate >> 20,
+            service.inner.limits.max_solve_bytes >> 20
+        )));
+    }
     let (id, queued) = service.submit(scene, &canonical).map_err(|e| match e {
         SubmitError::TooMany(n) => ApiError::new(
             StatusCode::TOO_MANY_REQUESTS,
@@ -591,6 +601,7 @@ async fn render(
     }
     let exposure = exposure.unwrap_or(solution.render.exposure);
     let queued_at = std::time::Instant::now();
+    let waiting = WaitingRender::enter(&service)?;
     let permit = Arc::clone(&service.inner.render_slots)
         .acquire_owned()
         .await
@@ -600,6 +611,7 @@ async fn render(
                 "the server is shutting down",
             )
         })?;
+    drop(waiting);
     let (encoded, timing) =
         tokio::task::spawn_blocking(move || -> Result<(Vec<u8>, String), String> {
             let _permit = permit;
@@ -641,6 +653,34 @@ async fn render(
         encoded,
     )
         .into_response())
+}
+
+/// A render request waiting for a slot; the count is bounded so a flood of requests is
+/// refused (503) instead of piling up.
+struct WaitingRender<'a>(&'a Service);
+
+impl<'a> WaitingRender<'a> {
+    fn enter(service: &'a Service) -> ApiResult<Self> {
+        use std::sync::atomic::Ordering;
+        let before = service.inner.waiting_renders.fetch_add(1, Ordering::AcqRel);
+        let guard = WaitingRender(service);
+        if before >= service.inner.limits.max_waiting_renders {
+            return Err(ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!("{before} renders are already waiting; try again shortly"),
+            ));
+        }
+        Ok(guard)
+    }
+}
+
+impl Drop for WaitingRender<'_> {
+    fn drop(&mut self) {
+        self.0
+            .inner
+            .waiting_renders
+            .fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
+    }
 }
 
 /// Tone-mapped 8-bit PNG in memory (fast compression: renders are viewed, not archived).
