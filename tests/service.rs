@@ -191,6 +191,17 @@ fn solve_poll_render_and_same_scene_is_one_job() {
     ] {
         assert!(spec["paths"][path].is_object(), "openapi lists {path}");
     }
+    // Every documented route and method exists (an unknown id answers 404 from the route,
+    // not the "no such route" fallback).
+    for (path, item) in spec["paths"].as_object().unwrap() {
+        for method in item.as_object().unwrap().keys() {
+            let url = path.replace("{id}", "ffffffffffffffff");
+            let r = request(addr, &method.to_uppercase(), &url, None, &[]).unwrap();
+            let msg = r.json()["error"].as_str().unwrap_or_default().to_string();
+            assert_ne!(msg, "no such route", "{method} {path}");
+            assert_ne!(r.status, 405, "{method} {path}");
+        }
+    }
     let page = get(addr, "/").unwrap();
     assert_eq!(page.status, 200);
     assert!(
