@@ -161,6 +161,8 @@ pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
                 medium::scene::SOLVE_METHOD_NAMES.join(", ")
             )
         })?;
+        // A new method brings its own default iteration unless --iteration says otherwise.
+        settings.iteration = medium::scene::IterationMethod::default_for(settings.method);
     }
     if let Some(it) = &args.iteration {
         crate::methods::set_iteration(&mut settings, it)?;
