@@ -24,7 +24,9 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Info(args)) => info(&args),
         Some(Command::Export(args)) => crate::commands::export(&args),
         Some(Command::Serve(args)) => crate::service::run_cli(&args, cli.quiet),
-        Some(Command::Bench(crate::cli::BenchCommand::Albedo(args))) => crate::bench_albedo::run(&args, cli.quiet),
+        Some(Command::Bench(crate::cli::BenchCommand::Albedo(args))) => {
+            crate::bench_albedo::run(&args, cli.quiet)
+        }
     }
 }
 
@@ -40,10 +42,17 @@ pub fn choose_camera(
     grid_center: DVec3,
 ) -> Result<CameraSpec> {
     let base = match name {
-        Some(n) => cameras.iter().find(|c| c.name == n).cloned().with_context(|| {
-            let known: Vec<&str> = cameras.iter().map(|c| c.name.as_str()).collect();
-            format!("no camera named `{n}` (the scene has: {})", known.join(", "))
-        })?,
+        Some(n) => cameras
+            .iter()
+            .find(|c| c.name == n)
+            .cloned()
+            .with_context(|| {
+                let known: Vec<&str> = cameras.iter().map(|c| c.name.as_str()).collect();
+                format!(
+                    "no camera named `{n}` (the scene has: {})",
+                    known.join(", ")
+                )
+            })?,
         None => match cameras.first() {
             Some(c) => c.clone(),
             None if view.eye.is_some() => CameraSpec {
@@ -51,7 +60,9 @@ pub fn choose_camera(
                 eye: DVec3::ZERO,
                 target: grid_center,
                 up: DVec3::Z,
-                projection: Projection::Perspective { fov_y_degrees: 40.0 },
+                projection: Projection::Perspective {
+                    fov_y_degrees: 40.0,
+                },
                 width: 512,
                 height: 384,
             },
@@ -126,8 +137,14 @@ pub fn view_outputs(out: &Path, names: &[String]) -> Vec<PathBuf> {
             if is_dir {
                 out.join(format!("{n}.png"))
             } else {
-                let stem = out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-                let ext = out.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_else(|| "png".into());
+                let stem = out
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                let ext = out
+                    .extension()
+                    .map(|e| e.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "png".into());
                 out.with_file_name(format!("{stem}_{n}.{ext}"))
             }
         })
@@ -145,7 +162,9 @@ mod tests {
             eye: DVec3::new(10.0, -20.0, 15.0),
             target: DVec3::new(10.0, 10.0, 5.0),
             up: DVec3::Z,
-            projection: Projection::Perspective { fov_y_degrees: 40.0 },
+            projection: Projection::Perspective {
+                fov_y_degrees: 40.0,
+            },
             width: 8,
             height: 8,
         };

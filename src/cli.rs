@@ -63,7 +63,11 @@ pub struct BenchAlbedoArgs {
     /// Scene file (TOML); its `[solve] method` picks the operator family.
     pub scene: PathBuf,
     /// Uniform single-scattering albedos, comma-separated, each in (0, 1].
-    #[arg(long, value_delimiter = ',', default_value = "0.5,0.8,0.9,0.95,0.99,0.999,1.0")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0.5,0.8,0.9,0.95,0.99,0.999,1.0"
+    )]
     pub albedo: Vec<f64>,
     /// Solve methods, comma-separated (jacobi, gauss-seidel, sor:1.5, gmres:30, bicgstab, cg, coarse-cg, coarse-gs).
     #[arg(long, value_delimiter = ',', default_value = "jacobi,gauss-seidel")]

@@ -20,7 +20,10 @@ pub fn run_default(output: &Path, quiet: bool) -> Result<()> {
     let scene = Scene::builtin_default();
     let started = Instant::now();
     let solution = solve_with_progress(&scene, &scene.solve, quiet)?;
-    let camera = scene.cameras.first().context("the built-in scene has a camera")?;
+    let camera = scene
+        .cameras
+        .first()
+        .context("the built-in scene has a camera")?;
     let image = render_view(&solution, camera, None)?;
     image
         .save(output, solution.render.exposure)
@@ -88,7 +91,11 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
     let mut views = Vec::new();
     let all_cameras = args.camera.is_none() && args.orbit.is_none() && args.output.is_dir();
     if all_cameras {
-        views.extend(cameras.iter().map(|c| crate::app::apply_view(c.clone(), &args.view)));
+        views.extend(
+            cameras
+                .iter()
+                .map(|c| crate::app::apply_view(c.clone(), &args.view)),
+        );
     } else {
         let base = choose_camera(&cameras, args.camera.as_deref(), &args.view, center)?;
         match args.orbit {
@@ -121,18 +128,35 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
     let (medium, lights, background, cameras, exposure) = match (&args.scene, &args.solution) {
         (Some(path), _) => {
             let scene = load_scene(path)?;
-            (scene.medium, scene.lights, scene.background, scene.cameras, scene.render.exposure)
+            (
+                scene.medium,
+                scene.lights,
+                scene.background,
+                scene.cameras,
+                scene.render.exposure,
+            )
         }
         (None, Some(path)) => {
             let s = Solution::read(path)?;
-            (s.medium, s.lights, s.background, s.cameras, s.render.exposure)
+            (
+                s.medium,
+                s.lights,
+                s.background,
+                s.cameras,
+                s.render.exposure,
+            )
         }
         (None, None) => bail!("render needs a scene file or --solution FILE"),
     };
     if args.orbit.is_some() {
         bail!("--orbit is for renders from a solution; path tracing renders one camera");
     }
-    let spec = choose_camera(&cameras, args.camera.as_deref(), &args.view, medium.grid.center())?;
+    let spec = choose_camera(
+        &cameras,
+        args.camera.as_deref(),
+        &args.view,
+        medium.grid.center(),
+    )?;
     let camera = gather::Camera::from_spec(&spec)?;
     let options = montecarlo::path_trace::PathTraceOptions {
         spp: args.spp.unwrap_or(64),
@@ -140,9 +164,13 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
         ..Default::default()
     };
     let started = Instant::now();
-    let image = montecarlo::path_trace::path_trace_image(&medium, &lights, background, &camera, &options)?;
+    let image =
+        montecarlo::path_trace::path_trace_image(&medium, &lights, background, &camera, &options)?;
     let seconds = started.elapsed().as_secs_f64();
-    let paths = camera.width as f64 * camera.height as f64 * options.spp as f64 * medium.channels.len() as f64;
+    let paths = camera.width as f64
+        * camera.height as f64
+        * options.spp as f64
+        * medium.channels.len() as f64;
     tracing::info!(seconds, paths_per_second = paths / seconds, "path traced");
     image
         .save(&args.output, args.exposure.unwrap_or(exposure))
@@ -212,7 +240,10 @@ pub fn export(args: &ExportArgs) -> Result<()> {
         ("units".to_string(), units.to_string()),
         ("channel".to_string(), args.channel.to_string()),
         ("solution".to_string(), args.solution.display().to_string()),
-        ("cell_size".to_string(), solution.medium.grid.cell_size.to_string()),
+        (
+            "cell_size".to_string(),
+            solution.medium.grid.cell_size.to_string(),
+        ),
     ];
     match ext.as_str() {
         "nrrd" => medium::volume_io::write_nrrd(
@@ -237,8 +268,11 @@ pub fn export(args: &ExportArgs) -> Result<()> {
                 "cell_size": solution.medium.grid.cell_size,
                 "channel": args.channel,
             });
-            crate::solution::write_atomic(&sidecar, serde_json::to_string_pretty(&meta)?.as_bytes())
-                .with_context(|| format!("writing {}", sidecar.display()))?;
+            crate::solution::write_atomic(
+                &sidecar,
+                serde_json::to_string_pretty(&meta)?.as_bytes(),
+            )
+            .with_context(|| format!("writing {}", sidecar.display()))?;
             println!("wrote {}", sidecar.display());
         }
         _ => bail!(

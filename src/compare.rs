@@ -57,7 +57,9 @@ pub fn compare(
             let r = mean_block(reference, bx, by, false);
             let x = mean_block(image, bx, by, false);
             // Variance of a block mean of independent pixels: mean of s² / block².
-            let var = stderr.map_or(0.0, |s| mean_block(s, bx, by, true) / (block * block) as f64);
+            let var = stderr.map_or(0.0, |s| {
+                mean_block(s, bx, by, true) / (block * block) as f64
+            });
             refs.push((r, x, var));
         }
     }

@@ -74,7 +74,11 @@ impl SceneInfo {
             sigma_t_max: hi,
             occupied_fraction: occupied as f64 / cells as f64,
             max_axis_optical_depth: max_axis_optical_depth(m),
-            albedo_max: m.channels.iter().map(|c| c.albedo.max() as f64).fold(0.0, f64::max),
+            albedo_max: m
+                .channels
+                .iter()
+                .map(|c| c.albedo.max() as f64)
+                .fold(0.0, f64::max),
             phase: format!("{:?}", m.phase),
             lights: scene.lights.len(),
             cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
@@ -105,7 +109,11 @@ impl fmt::Display for SceneInfo {
             self.sigma_t_max,
             100.0 * self.occupied_fraction
         )?;
-        writeln!(f, "optical depth    {:.3} at most across the grid (axis-parallel)", self.max_axis_optical_depth)?;
+        writeln!(
+            f,
+            "optical depth    {:.3} at most across the grid (axis-parallel)",
+            self.max_axis_optical_depth
+        )?;
         writeln!(f, "albedo           ≤ {}", self.albedo_max)?;
         writeln!(f, "phase            {}", self.phase)?;
         writeln!(f, "lights           {}", self.lights)?;

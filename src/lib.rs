@@ -2,7 +2,6 @@
 //! `formfactor`, `solver`, `gather`). Only this crate knows files of solutions, the command
 //! line, HTTP and JSON.
 
-pub mod solution;
 pub mod app;
 pub mod bench_albedo;
 pub mod cli;
@@ -13,3 +12,4 @@ pub mod methods;
 pub mod pipeline;
 pub mod progress;
 pub mod service;
+pub mod solution;

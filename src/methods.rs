@@ -95,17 +95,36 @@ pub fn solve_zonal(
         SolveMethod::Zonal => {
             let op = FormFactorMatrix::build(grid, channel, &ExactOptions::default(), None)
                 .context("building the exact form factors")?;
-            tracing::info!(entries = op.report.entries, seconds = op.report.seconds, "form factors built");
+            tracing::info!(
+                entries = op.report.entries,
+                seconds = op.report.seconds,
+                "form factors built"
+            );
             run_solver(&op, &source, settings, hooks)?
         }
         _ => {
-            let op = HierarchicalOperator::build(grid, channel, &HierarchicalOptions { tolerance: HIERARCHY_TOLERANCE, ..HierarchicalOptions::default() })
-                .context("building the hierarchical form factors")?;
-            tracing::info!(links = op.report.entries, seconds = op.report.seconds, "hierarchy built");
+            let op = HierarchicalOperator::build(
+                grid,
+                channel,
+                &HierarchicalOptions {
+                    tolerance: HIERARCHY_TOLERANCE,
+                    ..HierarchicalOptions::default()
+                },
+            )
+            .context("building the hierarchical form factors")?;
+            tracing::info!(
+                links = op.report.entries,
+                seconds = op.report.seconds,
+                "hierarchy built"
+            );
             run_solver(&op, &source, settings, hooks)?
         }
     };
-    let higher_order = g.iter().zip(&source).map(|(g, e)| (g - e).max(0.0) as f32).collect();
+    let higher_order = g
+        .iter()
+        .zip(&source)
+        .map(|(g, e)| (g - e).max(0.0) as f32)
+        .collect();
     Ok((
         ScatteredField::Isotropic {
             source: g.iter().map(|&v| v as f32).collect(),
@@ -317,17 +336,23 @@ impl fmt::Display for SolveSummary {
         writeln!(f, "method      {}", self.method)?;
         for (c, ch) in self.channels.iter().enumerate() {
             match (&ch.iteration, ch.final_residual) {
-                (Some(it), Some(res)) => writeln!(
+                (Some(it), Some(res)) => {
+                    writeln!(
                     f,
                     "channel {c}   {it}: {} iterations, relative residual {res:.3e}, {} ({:.2} s)",
                     ch.iterations,
                     if ch.converged { "converged" } else { "NOT converged" },
                     ch.solve_seconds.unwrap_or(0.0)
-                )?,
+                )?
+                }
                 _ => writeln!(f, "channel {c}   light pass only (no linear solve)")?,
             }
         }
-        writeln!(f, "total       {:.2} s, scene hash {}", self.seconds, self.scene_hash)
+        writeln!(
+            f,
+            "total       {:.2} s, scene hash {}",
+            self.seconds, self.scene_hash
+        )
     }
 }
 

@@ -44,7 +44,11 @@ fn origin_label(scene: &Scene) -> String {
 }
 
 /// Solves the scene's light transport with `settings` (usually `scene.solve`).
-pub fn solve_scene(scene: &Scene, settings: &SolveSettings, hooks: &SolveHooks) -> Result<Solution> {
+pub fn solve_scene(
+    scene: &Scene,
+    settings: &SolveSettings,
+    hooks: &SolveHooks,
+) -> Result<Solution> {
     let medium = &scene.medium;
     let mut channels = Vec::with_capacity(medium.channels.len());
     for (c, channel) in medium.channels.iter().enumerate() {
@@ -112,11 +116,7 @@ impl InScattering for CellSource<'_> {
 }
 
 /// Renders one view of a solution.
-pub fn render_view(
-    solution: &Solution,
-    camera: &CameraSpec,
-    spp: Option<u32>,
-) -> Result<Image> {
+pub fn render_view(solution: &Solution, camera: &CameraSpec, spp: Option<u32>) -> Result<Image> {
     let camera = Camera::from_spec(camera)?;
     let options = RenderOptions {
         model: solution.render.model,
@@ -131,5 +131,10 @@ pub fn render_view(
         .map(|(c, ch)| crate::methods::channel_scattering(solution, c, ch, options.model))
         .collect::<Result<Vec<Box<dyn InScattering + '_>>>>()?;
     let refs: Vec<&dyn InScattering> = sources.iter().map(|b| b.as_ref()).collect();
-    Ok(gather::render_image(&solution.medium, &camera, &options, &refs)?)
+    Ok(gather::render_image(
+        &solution.medium,
+        &camera,
+        &options,
+        &refs,
+    )?)
 }

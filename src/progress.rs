@@ -24,7 +24,10 @@ impl SolveProgress {
                     .unwrap_or_else(|_| ProgressStyle::default_spinner()),
             );
             bar.enable_steady_tick(Duration::from_millis(200));
-            bar.set_message(format!("solving ({}); Ctrl-C cancels", settings.method.name()));
+            bar.set_message(format!(
+                "solving ({}); Ctrl-C cancels",
+                settings.method.name()
+            ));
             bar
         };
         SolveProgress {
@@ -57,7 +60,9 @@ static CURRENT: OnceLock<std::sync::Mutex<Option<Arc<SolveControl>>>> = OnceLock
 pub fn cancel_on_ctrl_c(control: Arc<SolveControl>) {
     let slot = CURRENT.get_or_init(|| {
         let _ = ctrlc::set_handler(|| {
-            let slot = CURRENT.get().and_then(|m| m.lock().ok().and_then(|g| g.clone()));
+            let slot = CURRENT
+                .get()
+                .and_then(|m| m.lock().ok().and_then(|g| g.clone()));
             match slot {
                 Some(c) if !c.is_cancelled() => {
                     eprintln!("\ncancelling the solve (Ctrl-C again to quit at once)");

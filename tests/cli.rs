@@ -71,8 +71,14 @@ fn solution_round_trip_renders_bit_for_bit_and_many_views() {
     for (method, phase) in [
         ("zonal", r#"{ kind = "isotropic" }"#),
         ("zonal-hierarchical", r#"{ kind = "isotropic" }"#),
-        ("discrete-ordinates", r#"{ kind = "henyey-greenstein", g = 0.6 }"#),
-        ("single-scatter", r#"{ kind = "henyey-greenstein", g = 0.6 }"#),
+        (
+            "discrete-ordinates",
+            r#"{ kind = "henyey-greenstein", g = 0.6 }"#,
+        ),
+        (
+            "single-scatter",
+            r#"{ kind = "henyey-greenstein", g = 0.6 }"#,
+        ),
     ] {
         let dir = tempfile::tempdir().unwrap();
         let scene = small_scene(dir.path(), method, phase);
@@ -90,7 +96,9 @@ fn solution_round_trip_renders_bit_for_bit_and_many_views() {
         let direct = dir.path().join("direct.pfm");
         let a = dir.path().join("a.pfm");
         let b = dir.path().join("b.pfm");
-        assert!(volrad(&["-q", "render", s(&scene), "-o", s(&direct)]).status.success());
+        assert!(volrad(&["-q", "render", s(&scene), "-o", s(&direct)])
+            .status
+            .success());
         for p in [&a, &b] {
             let o = volrad(&["-q", "render", "--solution", s(&sol), "-o", s(p)]);
             assert!(o.status.success(), "{}", stderr(&o));
@@ -101,13 +109,25 @@ fn solution_round_trip_renders_bit_for_bit_and_many_views() {
             std::fs::read(&direct).unwrap(),
         );
         assert_eq!(da, db, "{method}: renders of one solution differ");
-        assert_eq!(da, dd, "{method}: render from file differs from render from scene");
+        assert_eq!(
+            da, dd,
+            "{method}: render from file differs from render from scene"
+        );
         let img = gather::read_pfm(&a).unwrap();
         assert!(img.pixels.iter().any(|&v| v > 0.0), "{method}: black image");
 
         // Orbit: N views from one read of the solution.
         let orbit = dir.path().join("orbit.png");
-        let o = volrad(&["-q", "render", "--solution", s(&sol), "--orbit", "3", "-o", s(&orbit)]);
+        let o = volrad(&[
+            "-q",
+            "render",
+            "--solution",
+            s(&sol),
+            "--orbit",
+            "3",
+            "-o",
+            s(&orbit),
+        ]);
         assert!(o.status.success(), "{}", stderr(&o));
         for i in 0..3 {
             assert!(dir.path().join(format!("orbit_front_{i:03}.png")).exists());
@@ -120,22 +140,40 @@ fn every_corrupt_solution_is_refused_with_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let scene = small_scene(dir.path(), "zonal", r#"{ kind = "isotropic" }"#);
     let sol = dir.path().join("s.volrad");
-    assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]).status.success());
+    assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)])
+        .status
+        .success());
     let bytes = std::fs::read(&sol).unwrap();
     let cases: Vec<(&str, Vec<u8>, &str)> = vec![
-        ("truncated", bytes[..bytes.len() - 100].to_vec(), "truncated"),
-        ("flipped", {
-            let mut b = bytes.clone();
-            let i = b.len() / 2;
-            b[i] ^= 0x10;
-            b
-        }, "checksum"),
-        ("newer", {
-            let mut b = bytes.clone();
-            b[8] = 99;
-            b
-        }, "newer"),
-        ("foreign", b"P5\n1 1\n255\n\0".to_vec(), "not a volrad solution"),
+        (
+            "truncated",
+            bytes[..bytes.len() - 100].to_vec(),
+            "truncated",
+        ),
+        (
+            "flipped",
+            {
+                let mut b = bytes.clone();
+                let i = b.len() / 2;
+                b[i] ^= 0x10;
+                b
+            },
+            "checksum",
+        ),
+        (
+            "newer",
+            {
+                let mut b = bytes.clone();
+                b[8] = 99;
+                b
+            },
+            "newer",
+        ),
+        (
+            "foreign",
+            b"P5\n1 1\n255\n\0".to_vec(),
+            "not a volrad solution",
+        ),
         ("empty", Vec::new(), "not a volrad solution"),
     ];
     for (name, data, expect) in cases {
@@ -145,7 +183,10 @@ fn every_corrupt_solution_is_refused_with_a_clear_error() {
         let o = volrad(&["-q", "render", "--solution", s(&bad), "-o", s(&out_png)]);
         assert!(!o.status.success(), "{name} was accepted");
         let err = stderr(&o);
-        assert!(err.contains(expect) && err.contains(&format!("{name}.volrad")), "{name}: {err}");
+        assert!(
+            err.contains(expect) && err.contains(&format!("{name}.volrad")),
+            "{name}: {err}"
+        );
         assert!(!out_png.exists(), "{name}: an image was written anyway");
     }
 }
@@ -153,12 +194,19 @@ fn every_corrupt_solution_is_refused_with_a_clear_error() {
 #[test]
 fn bad_scenes_and_arguments_are_refused_without_writing() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = small_scene(dir.path(), "zonal", r#"{ kind = "henyey-greenstein", g = 1.2 }"#);
+    let scene = small_scene(
+        dir.path(),
+        "zonal",
+        r#"{ kind = "henyey-greenstein", g = 1.2 }"#,
+    );
     let sol = dir.path().join("never.volrad");
     let o = volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]);
     assert!(!o.status.success());
     let err = stderr(&o);
-    assert!(err.contains("medium.phase") && err.contains("scene-zonal.toml"), "{err}");
+    assert!(
+        err.contains("medium.phase") && err.contains("scene-zonal.toml"),
+        "{err}"
+    );
     assert!(!sol.exists());
 
     let good = small_scene(dir.path(), "single-scatter", r#"{ kind = "isotropic" }"#);
@@ -166,7 +214,15 @@ fn bad_scenes_and_arguments_are_refused_without_writing() {
     assert!(!o.status.success() && stderr(&o).contains("no camera named `nope`"));
     let o = volrad(&["-q", "render", s(&good), "-o", s(&dir.path().join("x.bmp"))]);
     assert!(!o.status.success() && stderr(&o).contains("unknown image extension"));
-    let o = volrad(&["-q", "solve", s(&good), "--iteration", "newton", "-o", s(&sol)]);
+    let o = volrad(&[
+        "-q",
+        "solve",
+        s(&good),
+        "--iteration",
+        "newton",
+        "-o",
+        s(&sol),
+    ]);
     assert!(!o.status.success() && stderr(&o).contains("--iteration `newton`"));
 }
 
@@ -181,7 +237,9 @@ fn info_and_export_describe_the_solution() {
     assert!(info["max_axis_optical_depth"].as_f64().unwrap() > 0.0);
 
     let sol = dir.path().join("s.volrad");
-    assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]).status.success());
+    assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)])
+        .status
+        .success());
     let nrrd = dir.path().join("fluence.nrrd");
     let o = volrad(&["export", s(&sol), "--field", "fluence", "-o", s(&nrrd)]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -209,7 +267,15 @@ fn path_traced_render_agrees_with_the_zonal_solution() {
     let o = volrad(&["-q", "render", s(&scene), "--spp", "4", "-o", s(&zonal)]);
     assert!(o.status.success(), "{}", stderr(&o));
     let o = volrad(&[
-        "-q", "render", s(&scene), "--method", "path-trace", "--spp", "256", "-o", s(&traced),
+        "-q",
+        "render",
+        s(&scene),
+        "--method",
+        "path-trace",
+        "--spp",
+        "256",
+        "-o",
+        s(&traced),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let mean = |p: &Path| {
@@ -221,5 +287,8 @@ fn path_traced_render_agrees_with_the_zonal_solution() {
     // Cells here are optically thick (σt h up to 0.8) and the cloud only a few cells across:
     // the zonal method's piecewise-constant source makes it ~5 % bright (measured 5.1 %; the
     // finer cloud24 reference gives 0.8 %). The bound catches gross errors in either method.
-    assert!(t > 0.0 && ((z / t) - 1.0).abs() < 0.08, "zonal {z} vs path traced {t}");
+    assert!(
+        t > 0.0 && ((z / t) - 1.0).abs() < 0.08,
+        "zonal {z} vs path traced {t}"
+    );
 }

@@ -11,11 +11,19 @@ use volrad::pipeline::{render_view, solve_scene, SolveHooks};
 use volrad::solution::ScatteredField;
 
 fn reference(name: &str) -> gather::Image {
-    gather::read_pfm(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic").join(name)).unwrap()
+    gather::read_pfm(
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/cloud24-isotropic")
+            .join(name),
+    )
+    .unwrap()
 }
 
 fn scene() -> Scene {
-    Scene::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic/scene.toml")).unwrap()
+    Scene::from_file(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic/scene.toml"),
+    )
+    .unwrap()
 }
 
 /// The zonal solution rendered with 16 spp (box filter, like the reference), against the
@@ -30,11 +38,21 @@ fn zonal_render_matches_mitsuba_reference() {
     let solution = solve_scene(&scene, &settings, &SolveHooks::default()).unwrap();
     assert!(solution.channels[0].report.as_ref().unwrap().converged);
     let image = render_view(&solution, &scene.cameras[0], Some(16)).unwrap();
-    let c = compare(&image, &reference("front.pfm"), Some(&reference("front_stderr.pfm")), 0.01, 1)
-        .unwrap();
+    let c = compare(
+        &image,
+        &reference("front.pfm"),
+        Some(&reference("front_stderr.pfm")),
+        0.01,
+        1,
+    )
+    .unwrap();
     println!("zonal vs Mitsuba: {c:?}");
     assert!(c.relative_rms < 0.03, "relative RMS {:.4}", c.relative_rms);
-    assert!(c.mean_ratio_error.abs() < 0.02, "mean off by {:.4}", c.mean_ratio_error);
+    assert!(
+        c.mean_ratio_error.abs() < 0.02,
+        "mean off by {:.4}",
+        c.mean_ratio_error
+    );
 
     // Single scattering alone is far darker at albedo 0.99: the solve is doing real work.
     let mut single = settings.clone();
@@ -85,8 +103,19 @@ fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
     assert!(solution.channels[0].report.as_ref().unwrap().converged);
     let image = render_view(&solution, &scene.cameras[0], Some(16)).unwrap();
     let read = |n: &str| gather::read_pfm(&dir.join(n)).unwrap();
-    let c = compare(&image, &read("front.pfm"), Some(&read("front_stderr.pfm")), 0.01, 1).unwrap();
+    let c = compare(
+        &image,
+        &read("front.pfm"),
+        Some(&read("front_stderr.pfm")),
+        0.01,
+        1,
+    )
+    .unwrap();
     println!("discrete ordinates (96 bins) vs Mitsuba, g = 0.6: {c:?}");
     assert!(c.relative_rms < 0.05, "relative RMS {:.4}", c.relative_rms);
-    assert!(c.mean_ratio_error.abs() < 0.04, "mean off by {:.4}", c.mean_ratio_error);
+    assert!(
+        c.mean_ratio_error.abs() < 0.04,
+        "mean off by {:.4}",
+        c.mean_ratio_error
+    );
 }

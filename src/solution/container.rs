@@ -244,10 +244,12 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
 
     /// Writes atomically: temp file beside the target, fsync, rename.
     pub fn write(&self, path: &Path) -> Result<(), ContainerError> {
-        let bytes = self.to_bytes().map_err(|message| ContainerError::Malformed {
-            path: path.to_path_buf(),
-            message,
-        })?;
+        let bytes = self
+            .to_bytes()
+            .map_err(|message| ContainerError::Malformed {
+                path: path.to_path_buf(),
+                message,
+            })?;
         write_atomic(path, &bytes).map_err(|source| ContainerError::Io {
             path: path.to_path_buf(),
             source,
@@ -330,14 +332,19 @@ mod tests {
         for cut in [0, 5, 23, 30, bytes.len() - 1] {
             let err = Container::<Meta>::from_bytes(&bytes[..cut], Path::new("x")).unwrap_err();
             assert!(
-                matches!(err, ContainerError::Truncated { .. } | ContainerError::BadMagic { .. }),
+                matches!(
+                    err,
+                    ContainerError::Truncated { .. } | ContainerError::BadMagic { .. }
+                ),
                 "cut at {cut}: {err}"
             );
         }
         let mut newer = bytes.clone();
         newer[8..12].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
         let err = Container::<Meta>::from_bytes(&newer, Path::new("x")).unwrap_err();
-        assert!(matches!(err, ContainerError::NewerVersion { found, .. } if found == FORMAT_VERSION + 1));
+        assert!(
+            matches!(err, ContainerError::NewerVersion { found, .. } if found == FORMAT_VERSION + 1)
+        );
         assert!(err.to_string().contains("upgrade"));
         let err = Container::<Meta>::from_bytes(b"P6\n2 2\n255\n....", Path::new("x")).unwrap_err();
         assert!(matches!(err, ContainerError::BadMagic { .. }));
@@ -349,7 +356,10 @@ mod tests {
         let path = dir.path().join("s.volrad");
         sample().write(&path).unwrap();
         sample().write(&path).unwrap();
-        let names: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names.len(), 1, "{names:?}");
         assert_eq!(Container::<Meta>::read(&path).unwrap(), sample());
     }

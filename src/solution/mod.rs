@@ -131,7 +131,10 @@ impl Solution {
             let albedo = uniform_or_array(&ch.albedo, format!("albedo/{c}"), &mut arrays);
             let emission = uniform_or_array(&ch.emission, format!("emission/{c}"), &mut arrays);
             for (l, f) in sol.light_pass.fields.iter().enumerate() {
-                arrays.push((format!("light/{c}/{l}/cell_irradiance"), f.cell_irradiance.clone()));
+                arrays.push((
+                    format!("light/{c}/{l}/cell_irradiance"),
+                    f.cell_irradiance.clone(),
+                ));
                 arrays.push((
                     format!("light/{c}/{l}/corner_optical_depth"),
                     f.corner_optical_depth.clone(),
@@ -139,12 +142,18 @@ impl Solution {
             }
             let field = match &sol.scattered {
                 ScatteredField::None => FieldKind::None,
-                ScatteredField::Isotropic { source, higher_order } => {
+                ScatteredField::Isotropic {
+                    source,
+                    higher_order,
+                } => {
                     arrays.push((format!("source/{c}"), source.clone()));
                     arrays.push((format!("higher_order/{c}"), higher_order.clone()));
                     FieldKind::Isotropic
                 }
-                ScatteredField::Binned { radiance, higher_order } => {
+                ScatteredField::Binned {
+                    radiance,
+                    higher_order,
+                } => {
                     arrays.push((format!("radiance/{c}"), radiance.clone()));
                     arrays.push((format!("higher_order/{c}"), higher_order.clone()));
                     FieldKind::Binned
@@ -188,7 +197,8 @@ impl Solution {
             message,
         };
         let meta = c.meta;
-        let grid = Grid::new(meta.grid.dims, meta.grid.cell_size).map_err(|e| bad(e.to_string()))?;
+        let grid =
+            Grid::new(meta.grid.dims, meta.grid.cell_size).map_err(|e| bad(e.to_string()))?;
         let cells = grid.cell_count();
         let mut take = |name: String, len: usize| -> Result<Vec<f32>, SolutionError> {
             let pos = c
@@ -198,7 +208,10 @@ impl Solution {
                 .ok_or_else(|| bad(format!("array `{name}` is missing")))?;
             let v = std::mem::take(&mut c.arrays[pos].1);
             if v.len() != len {
-                return Err(bad(format!("array `{name}` has {} values, expected {len}", v.len())));
+                return Err(bad(format!(
+                    "array `{name}` has {} values, expected {len}",
+                    v.len()
+                )));
             }
             Ok(v)
         };
@@ -216,7 +229,11 @@ impl Solution {
                 None => CellValues::PerCell(take(format!("emission/{ci}"), cells)?),
             };
             if cm.light_energy.len() != meta.lights.len() {
-                return Err(bad(format!("channel {ci} has {} light fields for {} lights", cm.light_energy.len(), meta.lights.len())));
+                return Err(bad(format!(
+                    "channel {ci} has {} light fields for {} lights",
+                    cm.light_energy.len(),
+                    meta.lights.len()
+                )));
             }
             let mut fields = Vec::new();
             for (l, (light, energy)) in meta.lights.iter().zip(cm.light_energy).enumerate() {
@@ -261,7 +278,11 @@ impl Solution {
                 emission,
             });
         }
-        let data = if meta.has_data { Some(take("data".into(), cells)?) } else { None };
+        let data = if meta.has_data {
+            Some(take("data".into(), cells)?)
+        } else {
+            None
+        };
         let medium = Medium::new(grid, medium_channels, meta.phase, meta.interpolation, data)
             .map_err(|e| bad(e.to_string()))?;
         Ok(Solution {

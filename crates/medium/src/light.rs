@@ -31,7 +31,10 @@ impl Light {
         let unit = |v: DVec3, what: &'static str| {
             let len = v.length();
             if !(len.is_finite() && len > 1e-12) {
-                Err(MediumError::invalid(what, format!("{v:?} has no direction")))
+                Err(MediumError::invalid(
+                    what,
+                    format!("{v:?} has no direction"),
+                ))
             } else {
                 Ok(v / len)
             }
@@ -40,15 +43,24 @@ impl Light {
             if x.is_finite() && x >= 0.0 {
                 Ok(x)
             } else {
-                Err(MediumError::invalid(what, format!("{x} must be finite and ≥ 0")))
+                Err(MediumError::invalid(
+                    what,
+                    format!("{x} must be finite and ≥ 0"),
+                ))
             }
         };
         Ok(match self {
-            Light::Directional { direction, irradiance } => Light::Directional {
+            Light::Directional {
+                direction,
+                irradiance,
+            } => Light::Directional {
                 direction: unit(direction, "light direction")?,
                 irradiance: non_negative(irradiance, "light irradiance")?,
             },
-            Light::Point { position, intensity } => {
+            Light::Point {
+                position,
+                intensity,
+            } => {
                 if !finite(position) {
                     return Err(MediumError::invalid("light position", "not finite"));
                 }
@@ -57,7 +69,12 @@ impl Light {
                     intensity: non_negative(intensity, "light intensity")?,
                 }
             }
-            Light::Spot { position, axis, half_angle, intensity } => {
+            Light::Spot {
+                position,
+                axis,
+                half_angle,
+                intensity,
+            } => {
                 if !finite(position) {
                     return Err(MediumError::invalid("light position", "not finite"));
                 }
@@ -82,13 +99,24 @@ impl Light {
     #[inline]
     pub fn arriving_at(&self, x: DVec3) -> (DVec3, f64) {
         match *self {
-            Light::Directional { direction, irradiance } => (direction, irradiance),
-            Light::Point { position, intensity } => {
+            Light::Directional {
+                direction,
+                irradiance,
+            } => (direction, irradiance),
+            Light::Point {
+                position,
+                intensity,
+            } => {
                 let d = x - position;
                 let r2 = d.length_squared().max(1e-300);
                 (d / r2.sqrt(), intensity / r2)
             }
-            Light::Spot { position, axis, half_angle, intensity } => {
+            Light::Spot {
+                position,
+                axis,
+                half_angle,
+                intensity,
+            } => {
                 let d = x - position;
                 let r2 = d.length_squared().max(1e-300);
                 let dir = d / r2.sqrt();

@@ -19,12 +19,18 @@ const INV_4PI: f64 = 1.0 / (4.0 * PI);
 pub enum PhaseFunction {
     Isotropic,
     /// Henyey–Greenstein with asymmetry `g ∈ (-1, 1)`.
-    HenyeyGreenstein { g: f64 },
+    HenyeyGreenstein {
+        g: f64,
+    },
     /// Blinn's (1982) phase function of large diffuse (Lambertian) spheres (Max §V).
     LambertianSphere,
     /// Blasi & Wuethrich's two-lobe mix `r·HG(g1) + (1−r)·HG(g2)`, typically one forward and
     /// one backward lobe.
-    TwoLobe { r: f64, g1: f64, g2: f64 },
+    TwoLobe {
+        r: f64,
+        g1: f64,
+        g2: f64,
+    },
 }
 
 impl Default for PhaseFunction {
@@ -64,9 +70,12 @@ impl PhaseFunction {
                     format!("two-lobe g1 = {g1}, g2 = {g2}: |g| must be below 1 (r = {r})"),
                 ))
             }
-            PhaseFunction::TwoLobe { r, .. } if !(0.0..=1.0).contains(&r) => Err(
-                MediumError::invalid("phase", format!("two-lobe weight r = {r} is outside [0, 1]")),
-            ),
+            PhaseFunction::TwoLobe { r, .. } if !(0.0..=1.0).contains(&r) => {
+                Err(MediumError::invalid(
+                    "phase",
+                    format!("two-lobe weight r = {r} is outside [0, 1]"),
+                ))
+            }
             _ => Ok(()),
         }
     }
@@ -75,7 +84,9 @@ impl PhaseFunction {
         match *self {
             PhaseFunction::Isotropic => true,
             PhaseFunction::HenyeyGreenstein { g } => g == 0.0,
-            PhaseFunction::TwoLobe { r, g1, g2 } => (r == 1.0 || g2 == 0.0) && (r == 0.0 || g1 == 0.0),
+            PhaseFunction::TwoLobe { r, g1, g2 } => {
+                (r == 1.0 || g2 == 0.0) && (r == 0.0 || g1 == 0.0)
+            }
             PhaseFunction::LambertianSphere => false,
         }
     }
@@ -157,7 +168,11 @@ mod tests {
             PhaseFunction::HenyeyGreenstein { g: -0.3 },
             PhaseFunction::HenyeyGreenstein { g: 0.85 },
             PhaseFunction::LambertianSphere,
-            PhaseFunction::TwoLobe { r: 0.7, g1: 0.8, g2: -0.4 },
+            PhaseFunction::TwoLobe {
+                r: 0.7,
+                g1: 0.8,
+                g2: -0.4,
+            },
         ]
     }
 
@@ -185,7 +200,11 @@ mod tests {
     fn mean_cosine_matches_quadrature() {
         for p in all() {
             let m = integrate(|c| p.eval(c) * c);
-            assert!((m - p.mean_cosine()).abs() < 1e-6, "{p:?}: {m} vs {}", p.mean_cosine());
+            assert!(
+                (m - p.mean_cosine()).abs() < 1e-6,
+                "{p:?}: {m} vs {}",
+                p.mean_cosine()
+            );
         }
     }
 
@@ -230,9 +249,21 @@ mod tests {
 
     #[test]
     fn refuses_bad_parameters() {
-        assert!(PhaseFunction::HenyeyGreenstein { g: 1.0 }.validate().is_err());
-        assert!(PhaseFunction::HenyeyGreenstein { g: f64::NAN }.validate().is_err());
-        assert!(PhaseFunction::TwoLobe { r: 1.5, g1: 0.1, g2: 0.1 }.validate().is_err());
-        assert!(PhaseFunction::HenyeyGreenstein { g: -0.99 }.validate().is_ok());
+        assert!(PhaseFunction::HenyeyGreenstein { g: 1.0 }
+            .validate()
+            .is_err());
+        assert!(PhaseFunction::HenyeyGreenstein { g: f64::NAN }
+            .validate()
+            .is_err());
+        assert!(PhaseFunction::TwoLobe {
+            r: 1.5,
+            g1: 0.1,
+            g2: 0.1
+        }
+        .validate()
+        .is_err());
+        assert!(PhaseFunction::HenyeyGreenstein { g: -0.99 }
+            .validate()
+            .is_ok());
     }
 }

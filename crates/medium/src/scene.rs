@@ -1325,7 +1325,9 @@ impl Ctx<'_> {
                     out.iteration = IterationMethod::parse(text).ok_or_else(|| {
                         self.err(
                             "solve.iteration",
-                            format!("unknown iteration `{text}` (expected one of {ITERATION_NAMES})"),
+                            format!(
+                                "unknown iteration `{text}` (expected one of {ITERATION_NAMES})"
+                            ),
                         )
                     })?;
                 }

@@ -203,7 +203,10 @@ mod tests {
         let g = Grid::new([4, 4, 4], 1.0).unwrap();
         let ray = Ray::new(DVec3::new(-1.0, 2.5, 3.5), DVec3::X);
         let segs: Vec<_> = g.traverse(&ray, 0.0, f64::INFINITY).collect();
-        assert_eq!(segs.iter().map(|s| s.cell).collect::<Vec<_>>(), vec![56, 57, 58, 59]);
+        assert_eq!(
+            segs.iter().map(|s| s.cell).collect::<Vec<_>>(),
+            vec![56, 57, 58, 59]
+        );
         assert!(segs.iter().all(|s| (s.length() - 1.0).abs() < 1e-12));
     }
 

@@ -432,7 +432,8 @@ fn corner_and_interior_transmittance() {
                 for i in 0..=nx {
                     let x = DVec3::new(i as f64, j as f64, k as f64) * grid.cell_size;
                     let exact = exact_transmittance(&grid, &sigma, light, x);
-                    let got = (-pass.fields[l].corner_optical_depth[grid.corner_index(i, j, k)]).exp();
+                    let got =
+                        (-pass.fields[l].corner_optical_depth[grid.corner_index(i, j, k)]).exp();
                     assert!(
                         (got as f64 - exact).abs() < 1e-6,
                         "light {l} corner {i},{j},{k}"
