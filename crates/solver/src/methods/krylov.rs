@@ -28,6 +28,22 @@ fn residual(ctx: &mut Ctx<'_>, x: &[f64], r: &mut [f64]) -> f64 {
 }
 
 /// `y += a x`.
+/// At each (re)start, from the true residual `rel`: the first call records it with the
+/// monitor; later ones stop on convergence or on the monitor's limits.
+fn restart_check(ctx: &mut Ctx<'_>, rel: f64, first: &mut bool) -> Option<Stop> {
+    let reason = if std::mem::take(first) {
+        ctx.mon.observe(0, rel)
+    } else if rel <= ctx.mon.tolerance {
+        Some(StopReason::Converged)
+    } else {
+        ctx.mon.limits()
+    };
+    reason.map(|reason| Stop {
+        reason,
+        true_residual: Some(rel),
+    })
+}
+
 fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
     for_each_mut(y, |i, v| v + a * x[i]);
 }
@@ -162,24 +178,8 @@ pub(crate) fn bicgstab(ctx: &mut Ctx<'_>, x: &mut [f64]) -> Stop {
     let mut first = true;
     'restart: loop {
         let rel = residual(ctx, x, &mut r);
-        if first {
-            first = false;
-            if let Some(reason) = ctx.mon.observe(0, rel) {
-                return Stop {
-                    reason,
-                    true_residual: Some(rel),
-                };
-            }
-        } else if rel <= ctx.mon.tolerance {
-            return Stop {
-                reason: StopReason::Converged,
-                true_residual: Some(rel),
-            };
-        } else if let Some(reason) = ctx.mon.limits() {
-            return Stop {
-                reason,
-                true_residual: Some(rel),
-            };
+        if let Some(stop) = restart_check(ctx, rel, &mut first) {
+            return stop;
         }
         if restarts_without_progress > 3 {
             return Stop {
@@ -263,24 +263,8 @@ pub(crate) fn cg(
     let mut first = true;
     loop {
         let rel = residual(ctx, x, &mut r);
-        if first {
-            first = false;
-            if let Some(reason) = ctx.mon.observe(0, rel) {
-                return Stop {
-                    reason,
-                    true_residual: Some(rel),
-                };
-            }
-        } else if rel <= ctx.mon.tolerance {
-            return Stop {
-                reason: StopReason::Converged,
-                true_residual: Some(rel),
-            };
-        } else if let Some(reason) = ctx.mon.limits() {
-            return Stop {
-                reason,
-                true_residual: Some(rel),
-            };
+        if let Some(stop) = restart_check(ctx, rel, &mut first) {
+            return stop;
         }
         let precondition = |r: &[f64], z: &mut Vec<f64>, coarse: &mut Option<CoarseSpace<'_>>| {
             if let Some(c) = coarse {
