@@ -580,7 +580,16 @@ impl LightPass {
     /// The light's transmittance `T_L(x)` for `x` inside `cell`: the corner field on the
     /// face where the ray toward the light leaves the cell (bilinear), times the exact
     /// `e^{−σt d}` inside the cell.
+    #[inline]
     pub fn transmittance_at(&self, light_index: usize, x: DVec3, cell: usize) -> f64 {
+        (-self.optical_depth_at(light_index, x, cell)).exp()
+    }
+
+    /// `−ln T_L(x)` for `x` inside `cell`: the optical depth toward the light, interpolated
+    /// bilinearly on the exit face plus `σt d` inside the cell. Renders that need `ln T_L`
+    /// call this and skip an `exp`/`ln` pair.
+    #[inline]
+    pub fn optical_depth_at(&self, light_index: usize, x: DVec3, cell: usize) -> f64 {
         let field = &self.fields[light_index];
         let grid = &self.grid;
         let h = grid.cell_size;
@@ -592,7 +601,7 @@ impl LightPass {
                 let v = position - x;
                 let r = v.length();
                 if r == 0.0 {
-                    return 1.0;
+                    return 0.0;
                 }
                 (v / r, r)
             }
@@ -617,7 +626,7 @@ impl LightPass {
         let sigma = self.sigma_t[cell] as f64;
         if dist_to_light <= t_exit {
             // The light is inside this cell.
-            return (-sigma * dist_to_light).exp();
+            return sigma * dist_to_light;
         }
         let t_exit = t_exit.max(0.0);
         let p = x + to_light * t_exit;
@@ -639,7 +648,7 @@ impl LightPass {
             + fu * (1.0 - fv) * depth(1, 0)
             + (1.0 - fu) * fv * depth(0, 1)
             + fu * fv * depth(1, 1);
-        (-face_depth - sigma * t_exit).exp()
+        face_depth + sigma * t_exit
     }
 
     /// The light's flow direction at `x` and its irradiance there without shadows (the
