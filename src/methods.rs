@@ -176,6 +176,44 @@ pub fn solve_ordinates(
     ))
 }
 
+/// Photons per light of the two-pass method's energetization pass.
+pub const TWO_PASS_PHOTONS: u64 = 1 << 21;
+
+/// Blasi & Wuethrich's two-pass method for channel `c`: second and higher orders stored by a
+/// seeded, deterministic photon pass (the render adds the exact first bounce).
+pub fn solve_two_pass(
+    scene: &Scene,
+    c: usize,
+    hooks: &SolveHooks,
+) -> Result<(ScatteredField, Option<SolveReport>)> {
+    use montecarlo::two_pass::{energetize, EnergetizeOptions};
+    let bins = if scene.medium.phase.is_isotropic() {
+        montecarlo::DirectionBins::ISOTROPIC
+    } else {
+        montecarlo::DirectionBins {
+            n_theta: 12,
+            n_phi: 24,
+        }
+    };
+    let options = EnergetizeOptions {
+        photons_per_light: TWO_PASS_PHOTONS,
+        bins,
+        include_first_bounce: false,
+        ..EnergetizeOptions::default()
+    };
+    if hooks.control.is_cancelled() {
+        bail!("solve cancelled");
+    }
+    let solution = energetize(&scene.medium, c, &scene.lights, &options, None)
+        .context("two-pass energetization")?;
+    tracing::info!(
+        photons = solution.energy.photons,
+        imbalance = solution.energy.relative_imbalance(),
+        "two-pass energetization done"
+    );
+    Ok((ScatteredField::TwoPass(Box::new(solution)), None))
+}
+
 /// The direction bins a solution stores (discrete ordinates only).
 pub fn stored_bins(settings: &SolveSettings) -> Option<StoredBins> {
     if settings.method != SolveMethod::DiscreteOrdinates {
@@ -279,6 +317,7 @@ pub fn channel_scattering<'a>(
         (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
             Box::new((first, BinnedSource::new(higher_order, bins.face_resolution)))
         }
+        (ScatteredField::TwoPass(t), _) => Box::new((first, t.as_ref())),
         _ => Box::new(first),
     })
 }

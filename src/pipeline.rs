@@ -64,6 +64,7 @@ pub fn solve_scene(
             SolveMethod::DiscreteOrdinates => {
                 crate::methods::solve_ordinates(scene, c, &light_pass, settings, hooks)?
             }
+            SolveMethod::TwoPass => crate::methods::solve_two_pass(scene, c, hooks)?,
         };
         channels.push(ChannelSolution {
             light_pass,

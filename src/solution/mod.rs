@@ -33,6 +33,9 @@ pub enum ScatteredField {
         radiance: Vec<f32>,
         higher_order: Vec<f32>,
     },
+    /// Blasi & Wuethrich's two-pass method: second and higher orders stored per optical
+    /// voxel and direction bin by the energetization pass.
+    TwoPass(Box<montecarlo::two_pass::TwoPassSolution>),
 }
 
 /// Direction bins as stored: what a render needs to look radiance up by direction.
@@ -81,6 +84,9 @@ struct ChannelMeta {
     light_energy: Vec<LightEnergy>,
     field: FieldKind,
     report: Option<solver::SolveReport>,
+    /// The two-pass method's stored result (its arrays are small: one value per optical
+    /// voxel and direction bin).
+    two_pass: Option<montecarlo::two_pass::TwoPassSolution>,
 }
 
 #[derive(Serialize, Deserialize, PartialEq, Clone, Copy)]
@@ -88,6 +94,7 @@ enum FieldKind {
     None,
     Isotropic,
     Binned,
+    TwoPass,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -140,8 +147,13 @@ impl Solution {
                     f.corner_optical_depth.clone(),
                 ));
             }
+            let mut two_pass = None;
             let field = match &sol.scattered {
                 ScatteredField::None => FieldKind::None,
+                ScatteredField::TwoPass(t) => {
+                    two_pass = Some((**t).clone());
+                    FieldKind::TwoPass
+                }
                 ScatteredField::Isotropic {
                     source,
                     higher_order,
@@ -165,6 +177,7 @@ impl Solution {
                 light_energy: sol.light_pass.fields.iter().map(|f| f.energy).collect(),
                 field,
                 report: sol.report.clone(),
+                two_pass,
             });
         }
         if let Some(d) = &self.medium.data {
@@ -253,6 +266,13 @@ impl Solution {
                     source: take(format!("source/{ci}"), cells)?,
                     higher_order: take(format!("higher_order/{ci}"), cells)?,
                 },
+                FieldKind::TwoPass => {
+                    let t = cm
+                        .two_pass
+                        .ok_or_else(|| bad("two-pass field without its stored result".into()))?;
+                    t.check_grid(&grid).map_err(|e| bad(e.to_string()))?;
+                    ScatteredField::TwoPass(Box::new(t))
+                }
                 FieldKind::Binned => {
                     if bins == 0 {
                         return Err(bad("binned radiance without direction bins".into()));

@@ -68,6 +68,9 @@ pub enum SolveMethod {
     Zonal,
     ZonalHierarchical,
     SingleScatter,
+    /// Blasi & Wuethrich's Monte Carlo two-pass method (photons from the lights deposited in
+    /// the grid with their directions; the render adds the exact first bounce).
+    TwoPass,
     None,
 }
 
@@ -191,11 +194,12 @@ pub enum VolumeSource {
 }
 
 /// Names of `[solve] method`, in the scene's spelling.
-pub const SOLVE_METHOD_NAMES: [&str; 5] = [
+pub const SOLVE_METHOD_NAMES: [&str; 6] = [
     "discrete-ordinates",
     "zonal",
     "zonal-hierarchical",
     "single-scatter",
+    "two-pass",
     "none",
 ];
 
@@ -215,6 +219,7 @@ impl SolveMethod {
             "zonal" => SolveMethod::Zonal,
             "zonal-hierarchical" => SolveMethod::ZonalHierarchical,
             "single-scatter" => SolveMethod::SingleScatter,
+            "two-pass" => SolveMethod::TwoPass,
             "none" => SolveMethod::None,
             _ => return None,
         })
@@ -226,6 +231,7 @@ impl SolveMethod {
             SolveMethod::Zonal => "zonal",
             SolveMethod::ZonalHierarchical => "zonal-hierarchical",
             SolveMethod::SingleScatter => "single-scatter",
+            SolveMethod::TwoPass => "two-pass",
             SolveMethod::None => "none",
         }
     }
