@@ -222,6 +222,34 @@ impl<'a> SingleScatter<'a> {
     }
 }
 
+/// `∫_0^len e^{−λ s} f(s) ds` by `nodes`-point Gauss–Legendre in `u = (1 − e^{−λ s})/λ`, which
+/// absorbs the exponential exactly, so `f` need only be smooth.
+#[inline]
+fn exponential_quadrature(
+    lambda: f64,
+    len: f64,
+    nodes: usize,
+    mut f: impl FnMut(f64) -> f64,
+) -> f64 {
+    let flat = (lambda * len).abs() < 1e-9;
+    let big_w = if flat {
+        len
+    } else {
+        -(-lambda * len).exp_m1() / lambda
+    };
+    let mut sum = 0.0;
+    for &(xi, wi) in GAUSS_LEGENDRE[nodes - 1] {
+        let u = 0.5 * big_w * (xi + 1.0);
+        let s = if flat {
+            u
+        } else {
+            -(-lambda * u).ln_1p() / lambda
+        };
+        sum += wi * f(s.clamp(0.0, len));
+    }
+    0.5 * big_w * sum
+}
+
 impl SingleScatter<'_> {
     /// `∫_a^b e^{−σt (t−a)} T_L(ray(t)) dt` for a directional light over a piece with one exit
     /// face. There `ln T_L` is exactly quadratic in `t` (linear in-cell attenuation plus the
@@ -244,25 +272,10 @@ impl SingleScatter<'_> {
         // ln T(a + s) = la − r s + c2 s (s − len).
         let r = (la - lb) / len;
         let c2 = 2.0 * (la - 2.0 * lm + lb) / (len * len);
-        let lambda = sigma_t + r;
-        let flat = (lambda * len).abs() < 1e-9;
-        let big_w = if flat {
-            len
-        } else {
-            -(-lambda * len).exp_m1() / lambda
-        };
-        let mut sum = 0.0;
-        for &(xi, wi) in GAUSS_LEGENDRE[self.options.nodes - 1] {
-            let u = 0.5 * big_w * (xi + 1.0);
-            let s = if flat {
-                u
-            } else {
-                -(-lambda * u).ln_1p() / lambda
-            };
-            let s = s.clamp(0.0, len);
-            sum += wi * (c2 * s * (s - len)).exp();
-        }
-        la.exp() * 0.5 * big_w * sum
+        la.exp()
+            * exponential_quadrature(sigma_t + r, len, self.options.nodes, |s| {
+                (c2 * s * (s - len)).exp()
+            })
     }
 
     /// `∫_a^b e^{−σt (t−a)} Q1_l(ray(t)) dt` by Gauss–Legendre in `u = (1 − e^{−λ(t−a)})/λ`,
@@ -281,28 +294,10 @@ impl SingleScatter<'_> {
         sigma_s: f64,
         extra: f64,
     ) -> f64 {
-        let len = b - a;
         let w = -ray.direction;
-        let lambda = sigma_t + extra;
-        let flat = (lambda * len).abs() < 1e-9;
-        let big_w = if flat {
-            len
-        } else {
-            -(-lambda * len).exp_m1() / lambda
-        };
-        let mut sum = 0.0;
-        for &(xi, wi) in GAUSS_LEGENDRE[self.options.nodes - 1] {
-            let u = 0.5 * big_w * (xi + 1.0);
-            let s = if flat {
-                u
-            } else {
-                -(-lambda * u).ln_1p() / lambda
-            };
-            let s = s.clamp(0.0, len);
-            let q = self.source_from(l, ray.at(a + s), cell, w, sigma_s);
-            sum += wi * q * (extra * s).exp();
-        }
-        0.5 * big_w * sum
+        exponential_quadrature(sigma_t + extra, b - a, self.options.nodes, |s| {
+            self.source_from(l, ray.at(a + s), cell, w, sigma_s) * (extra * s).exp()
+        })
     }
 
     /// Points of `(t0, t1)` where the face through which the ray toward light `l` leaves
