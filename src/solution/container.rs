@@ -26,7 +26,8 @@ use std::path::{Path, PathBuf};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 pub const MAGIC: &[u8; 8] = b"VOLRADSL";
-pub const FORMAT_VERSION: u32 = 1;
+/// Bumped whenever the metadata or array layout changes (2: two-pass fields).
+pub const FORMAT_VERSION: u32 = 2;
 const FIXED_HEADER: usize = 24;
 const ALIGN: usize = 64;
 
@@ -52,6 +53,12 @@ pub enum ContainerError {
     BadMagic { path: PathBuf },
     #[error("{path}: solution format version {found} is newer than this volrad understands ({supported}); upgrade volrad")]
     NewerVersion {
+        path: PathBuf,
+        found: u32,
+        supported: u32,
+    },
+    #[error("{path}: solution format version {found} was written by an older volrad (this one reads {supported}); solve the scene again")]
+    OlderVersion {
         path: PathBuf,
         found: u32,
         supported: u32,
@@ -175,8 +182,15 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
             });
         }
         let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
-        if version > FORMAT_VERSION || version == 0 {
+        if version > FORMAT_VERSION {
             return Err(ContainerError::NewerVersion {
+                path: path_buf(),
+                found: version,
+                supported: FORMAT_VERSION,
+            });
+        }
+        if version < FORMAT_VERSION {
+            return Err(ContainerError::OlderVersion {
                 path: path_buf(),
                 found: version,
                 supported: FORMAT_VERSION,
@@ -346,6 +360,11 @@ mod tests {
             matches!(err, ContainerError::NewerVersion { found, .. } if found == FORMAT_VERSION + 1)
         );
         assert!(err.to_string().contains("upgrade"));
+        let mut older = bytes.clone();
+        older[8..12].copy_from_slice(&(FORMAT_VERSION - 1).to_le_bytes());
+        let err = Container::<Meta>::from_bytes(&older, Path::new("x")).unwrap_err();
+        assert!(matches!(err, ContainerError::OlderVersion { .. }), "{err}");
+        assert!(err.to_string().contains("solve the scene again"));
         let err = Container::<Meta>::from_bytes(b"P6\n2 2\n255\n....", Path::new("x")).unwrap_err();
         assert!(matches!(err, ContainerError::BadMagic { .. }));
     }
