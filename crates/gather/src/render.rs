@@ -416,31 +416,10 @@ impl Trilinear {
                 let sigma = self.sample(|c| sigma_t[c] as f64);
                 (sigma, *e as f64)
             }
-            CellValues::PerCell(e) => {
-                let (mut s, mut q) = (0.0, 0.0);
-                for dz in 0..2 {
-                    let wz = if dz == 0 {
-                        1.0 - self.frac[2]
-                    } else {
-                        self.frac[2]
-                    };
-                    let oz = self.index[2][dz] * self.strides[2];
-                    for dy in 0..2 {
-                        let wy = if dy == 0 {
-                            1.0 - self.frac[1]
-                        } else {
-                            self.frac[1]
-                        };
-                        let oy = oz + self.index[1][dy] * self.strides[1];
-                        let wyz = wy * wz;
-                        let (c0, c1) = (oy + self.index[0][0], oy + self.index[0][1]);
-                        let (w0, w1) = ((1.0 - self.frac[0]) * wyz, self.frac[0] * wyz);
-                        s += w0 * sigma_t[c0] as f64 + w1 * sigma_t[c1] as f64;
-                        q += w0 * e[c0] as f64 + w1 * e[c1] as f64;
-                    }
-                }
-                (s, q)
-            }
+            CellValues::PerCell(e) => (
+                self.sample(|c| sigma_t[c] as f64),
+                self.sample(|c| e[c] as f64),
+            ),
         }
     }
 
