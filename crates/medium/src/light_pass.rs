@@ -175,7 +175,318 @@ fn deposit_parallel(
         .unwrap_or_else(|| Deposit::new(cells))
 }
 
-/// Directional light: `m × m` rays per cell on each face the light enters through.
+/// `1/n!` for `n ≤ 11`.
+const INV_FACTORIAL: [f64; 12] = [
+    1.0,
+    1.0,
+    0.5,
+    0.16666666666666666,
+    0.041666666666666664,
+    0.008333333333333333,
+    0.001388888888888889,
+    0.0001984126984126984,
+    2.48015873015873e-05,
+    2.7557319223985893e-06,
+    2.755731922398589e-07,
+    2.505210838544172e-08,
+];
+
+/// Interception `1 − e^{−x}` for `x ≥ 0`, to a relative 1e-14 also for small `x`. Branch-free
+/// so that loops over rays vectorise: `e^{−x} = 2^k e^r` with `|r| ≤ ln2/2` (magic-number
+/// rounding for `k`), `e^r − 1` by its Taylor series, and
+/// `1 − e^{−x} = (1 − 2^k) − 2^k (e^r − 1)`, exact in the series when `k = 0`. `x` is capped
+/// at 700, where `e^{−x}` no longer matters.
+#[inline(always)]
+fn interception(x: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
+    let y = -x.min(700.0);
+    let shifted = y * std::f64::consts::LOG2_E + MAGIC;
+    let k = shifted - MAGIC;
+    let r = y - k * std::f64::consts::LN_2;
+    let mut series = INV_FACTORIAL[11];
+    for factor in INV_FACTORIAL[1..11].iter().rev() {
+        series = factor + r * series;
+    }
+    let r_expm1 = r * series;
+    // The low mantissa bits of `shifted` hold k (two's complement): k + 1023 into the exponent.
+    let two_k = f64::from_bits(shifted.to_bits().wrapping_add(1023) << 52);
+    (1.0 - two_k) - two_k * r_expm1
+}
+
+/// The frame of a directional light's layer sweep: layers `l = 0..na` perpendicular to the
+/// dominant axis of the light direction, in the order the light crosses them; lateral
+/// coordinates `(u, v)` oriented so the light moves by `shift ≥ 0` cells per layer. Arrays in
+/// this frame are laid out `u + nu (v + nv l)` (u contiguous).
+#[derive(Clone, Copy, Debug)]
+struct SweepFrame {
+    /// Grid axes of `(u, v, l)`.
+    axes: [usize; 3],
+    /// `(nu, nv, na)`.
+    n: [usize; 3],
+    /// Per frame axis: the frame coordinate runs against the grid index.
+    flipped: [bool; 3],
+    /// Lateral cells moved per layer, `|d_u/d_a|`, `|d_v/d_a|`, both in `[0, 1]`.
+    shift: [f64; 2],
+    /// Path length through one layer, `h / |d_a|`.
+    layer_length: f64,
+}
+
+impl SweepFrame {
+    fn new(grid: &Grid, direction: DVec3) -> SweepFrame {
+        let a = (0..3)
+            .max_by(|&x, &y| direction[x].abs().total_cmp(&direction[y].abs()))
+            .unwrap_or(2);
+        let (p, q) = ((a + 1) % 3, (a + 2) % 3);
+        // The lateral axis with the smaller memory stride is contiguous.
+        let (u, v) = if p < q { (p, q) } else { (q, p) };
+        let axes = [u, v, a];
+        let da = direction[a].abs();
+        SweepFrame {
+            axes,
+            n: axes.map(|x| grid.dims[x]),
+            // `-0.0 < 0.0` is false: an axis the light does not move along is never flipped.
+            flipped: axes.map(|x| direction[x] < 0.0),
+            shift: [direction[u].abs() / da, direction[v].abs() / da],
+            layer_length: grid.cell_size / da,
+        }
+    }
+
+    /// The same sweep with u and v exchanged (v contiguous).
+    fn transposed(&self) -> SweepFrame {
+        SweepFrame {
+            axes: [self.axes[1], self.axes[0], self.axes[2]],
+            n: [self.n[1], self.n[0], self.n[2]],
+            flipped: [self.flipped[1], self.flipped[0], self.flipped[2]],
+            shift: [self.shift[1], self.shift[0]],
+            layer_length: self.layer_length,
+        }
+    }
+
+    fn cell_count(&self) -> usize {
+        self.n[0] * self.n[1] * self.n[2]
+    }
+
+    /// Calls `visit(frame_index, grid_index)` for every cell.
+    fn for_each_cell(&self, grid: &Grid, mut visit: impl FnMut(usize, usize)) {
+        let [nu, nv, na] = self.n;
+        let mut g = [0usize; 3];
+        let mut frame_index = 0;
+        for l in 0..na {
+            for v in 0..nv {
+                for u in 0..nu {
+                    for (f, c) in [u, v, l].into_iter().enumerate() {
+                        g[self.axes[f]] = if self.flipped[f] {
+                            self.n[f] - 1 - c
+                        } else {
+                            c
+                        };
+                    }
+                    visit(frame_index, grid.index(g[0], g[1], g[2]));
+                    frame_index += 1;
+                }
+            }
+        }
+    }
+
+    /// Grid corner index of frame corner `(u, v, plane)` (`plane` 0 is where the light enters).
+    fn grid_corner_index(&self, grid: &Grid, frame: [usize; 3]) -> usize {
+        let mut g = [0usize; 3];
+        for f in 0..3 {
+            g[self.axes[f]] = if self.flipped[f] {
+                self.n[f] - frame[f]
+            } else {
+                frame[f]
+            };
+        }
+        grid.corner_index(g[0], g[1], g[2])
+    }
+}
+
+/// σt in a sweep frame, with `1/σt` (0 where σt = 0) for the deposits.
+struct FrameMedium {
+    frame: SweepFrame,
+    sigma: Vec<f32>,
+    inv_sigma: Vec<f64>,
+}
+
+impl FrameMedium {
+    fn new(grid: &Grid, sigma_t: &[f32], frame: SweepFrame) -> FrameMedium {
+        let mut sigma = vec![0.0f32; frame.cell_count()];
+        frame.for_each_cell(grid, |f, g| sigma[f] = sigma_t[g]);
+        let inv_sigma = sigma
+            .iter()
+            .map(|&s| if s > 0.0 { 1.0 / s as f64 } else { 0.0 })
+            .collect();
+        FrameMedium {
+            frame,
+            sigma,
+            inv_sigma,
+        }
+    }
+}
+
+/// A family of parallel rays that are whole-cell lateral translates of one another: they
+/// share their sub-cell position in every layer, hence the split of each layer crossing
+/// among cells, computed once per layer for the whole family.
+#[derive(Clone, Copy, Debug)]
+struct RayFamily {
+    /// Which frame the family is swept in (0: u contiguous, 1: transposed).
+    frame: usize,
+    /// The first layer the family crosses.
+    first_layer: usize,
+    /// Lateral position (cells) of ray `(0, 0)` on the plane where `first_layer` begins. A
+    /// ray entering through a side face starts there outside the grid (negative
+    /// coordinate); cells outside are skipped, so it is attenuated from its entry point on.
+    start: [f64; 2],
+    /// Rays along u and v: ray `(i, j)` starts at `start + (i, j)`.
+    count: [usize; 2],
+    /// Power of each ray's tube.
+    power: f64,
+}
+
+/// One piece of a layer crossing inside one cell: cell offset from the cell the ray starts
+/// the layer in, and the path length.
+#[derive(Clone, Copy, Debug, Default)]
+struct Piece {
+    offset: [i64; 2],
+    length: f64,
+}
+
+/// Splits the crossing of one layer by a ray at lateral fraction `frac` (in `[0, 1)²`,
+/// moving by `shift` per layer, either sign) into at most three pieces.
+#[inline]
+fn layer_pieces(frac: [f64; 2], shift: [f64; 2], layer_length: f64) -> ([Piece; 3], usize) {
+    // Fractions of the layer where the ray crosses a lateral cell boundary.
+    let mut breaks = [1.0f64; 2];
+    for x in 0..2 {
+        let end = frac[x] + shift[x];
+        if shift[x] > 0.0 && end > 1.0 {
+            breaks[x] = (1.0 - frac[x]) / shift[x];
+        } else if shift[x] < 0.0 && end < 0.0 && frac[x] > 0.0 {
+            breaks[x] = frac[x] / -shift[x];
+        }
+    }
+    if breaks[1] < breaks[0] {
+        breaks.swap(0, 1);
+    }
+    let bounds = [0.0, breaks[0], breaks[1], 1.0];
+    let mut pieces = [Piece::default(); 3];
+    let mut count = 0;
+    for w in bounds.windows(2) {
+        if w[1] > w[0] {
+            let t = 0.5 * (w[0] + w[1]);
+            pieces[count] = Piece {
+                offset: [
+                    (frac[0] + t * shift[0]).floor() as i64,
+                    (frac[1] + t * shift[1]).floor() as i64,
+                ],
+                length: (w[1] - w[0]) * layer_length,
+            };
+            count += 1;
+        }
+    }
+    (pieces, count)
+}
+
+/// Sweeps one family through its layers, depositing `∫ T ds` into `cell_integral` (frame
+/// layout); returns the power the family carries out of the grid.
+#[inline(always)]
+fn sweep_family_body(
+    medium: &FrameMedium,
+    family: &RayFamily,
+    transmitted: &mut Vec<f64>,
+    cell_integral: &mut [f64],
+) -> f64 {
+    let frame = &medium.frame;
+    let [nu, nv, na] = frame.n;
+    let [cu, cv] = family.count;
+    transmitted.clear();
+    transmitted.resize(cu * cv, family.power);
+    for layer in family.first_layer..na {
+        let travelled = (layer - family.first_layer) as f64;
+        let pos = [
+            family.start[0] + travelled * frame.shift[0],
+            family.start[1] + travelled * frame.shift[1],
+        ];
+        let base = [pos[0].floor(), pos[1].floor()];
+        if base[0] >= nu as f64 || base[1] >= nv as f64 {
+            break; // every ray has left through a side face
+        }
+        let (pieces, count) = layer_pieces(
+            [pos[0] - base[0], pos[1] - base[1]],
+            frame.shift,
+            frame.layer_length,
+        );
+        let layer_base = nu * nv * layer;
+        for piece in &pieces[..count] {
+            // Ray (i, j) is in frame cell (i + ou, j + ov) of this layer.
+            let ou = base[0] as i64 + piece.offset[0];
+            let ov = base[1] as i64 + piece.offset[1];
+            let i_lo = (-ou).max(0) as usize;
+            let i_hi = (nu as i64 - ou).clamp(0, cu as i64) as usize;
+            let j_lo = (-ov).max(0) as usize;
+            let j_hi = (nv as i64 - ov).clamp(0, cv as i64) as usize;
+            if i_lo >= i_hi {
+                continue;
+            }
+            let length = piece.length;
+            for j in j_lo..j_hi {
+                let row = layer_base + nu * (j as i64 + ov) as usize;
+                let cells = row + (i_lo as i64 + ou) as usize..row + (i_hi as i64 + ou) as usize;
+                let rays = &mut transmitted[cu * j + i_lo..cu * j + i_hi];
+                let sigma = &medium.sigma[cells.clone()];
+                let inv_sigma = &medium.inv_sigma[cells.clone()];
+                let integral = &mut cell_integral[cells];
+                for (((t, &s), &inv), c) in rays
+                    .iter_mut()
+                    .zip(sigma)
+                    .zip(inv_sigma)
+                    .zip(integral.iter_mut())
+                {
+                    // Exact per-cell bookkeeping: what the ray loses, the cell extinguishes.
+                    let intercepted = interception(s as f64 * length);
+                    let per_sigma = if s > 0.0 { intercepted * inv } else { length };
+                    *c += *t * per_sigma;
+                    *t -= *t * intercepted;
+                }
+            }
+        }
+    }
+    transmitted.iter().sum()
+}
+
+/// [`sweep_family_body`] compiled for AVX2 (four rays per instruction).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn sweep_family_avx2(
+    medium: &FrameMedium,
+    family: &RayFamily,
+    transmitted: &mut Vec<f64>,
+    cell_integral: &mut [f64],
+) -> f64 {
+    sweep_family_body(medium, family, transmitted, cell_integral)
+}
+
+/// [`sweep_family_body`], on AVX2 when the CPU has it (the same operations, so the same
+/// results either way).
+fn sweep_family(
+    medium: &FrameMedium,
+    family: &RayFamily,
+    transmitted: &mut Vec<f64>,
+    cell_integral: &mut [f64],
+) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked on the line above.
+        return unsafe { sweep_family_avx2(medium, family, transmitted, cell_integral) };
+    }
+    sweep_family_body(medium, family, transmitted, cell_integral)
+}
+
+/// Directional light: `m × m` rays per cell on each face the light enters through (tubes of
+/// power `E0 |d·n| δ²` that tile the beam exactly), swept layer by layer along the dominant
+/// axis in families that share each layer's split among cells. The families entering through
+/// the face along u run in a transposed frame, so that every family's rays are contiguous.
 fn directional_deposit(
     grid: &Grid,
     sigma_t: &[f32],
@@ -183,35 +494,94 @@ fn directional_deposit(
     irradiance: f64,
     m: usize,
 ) -> Deposit {
-    let h = grid.cell_size;
-    let delta = h / m as f64;
-    let ext = grid.extent();
-    // Per entry face: the fixed axis and the two lattice axes, one batch per lattice row.
-    let faces: Vec<(usize, usize, usize)> = (0..3)
-        .filter(|&a| direction[a] != 0.0)
-        .map(|a| (a, (a + 1) % 3, (a + 2) % 3))
-        .collect();
-    let rows: Vec<(usize, usize)> = faces
-        .iter()
-        .flat_map(|&(a, _, c)| (0..grid.dims[c] * m).map(move |r| (a, r)))
-        .collect();
-    deposit_parallel(grid.cell_count(), rows.len(), |batch, dep| {
-        let (a, row) = rows[batch];
-        let (b, c) = ((a + 1) % 3, (a + 2) % 3);
-        let power = irradiance * direction[a].abs() * delta * delta;
-        let mut p = DVec3::ZERO;
-        p[a] = if direction[a] > 0.0 { 0.0 } else { ext[a] };
-        p[c] = (row as f64 + 0.5) * delta;
-        for col in 0..grid.dims[b] * m {
-            p[b] = (col as f64 + 0.5) * delta;
-            // Start one cell outside so the clip finds the entry point robustly.
-            let ray = Ray {
-                origin: p - direction * h,
-                direction,
-            };
-            dep.trace(grid, sigma_t, &ray, power);
+    let frame = SweepFrame::new(grid, direction);
+    let media = [
+        FrameMedium::new(grid, sigma_t, frame),
+        FrameMedium::new(grid, sigma_t, frame.transposed()),
+    ];
+    let [nu, nv, na] = frame.n;
+    let delta = grid.cell_size / m as f64;
+    let tube = irradiance * delta * delta;
+    let [du, dv, da] = frame.axes.map(|x| direction[x].abs());
+    let sub = |p: usize| (p as f64 + 0.5) / m as f64;
+    let mut families = Vec::with_capacity(m * m * (1 + 2 * na));
+    // The entry face perpendicular to the sweep: m² families of nu × nv rays.
+    for q in 0..m {
+        for p in 0..m {
+            families.push(RayFamily {
+                frame: 0,
+                first_layer: 0,
+                start: [sub(p), sub(q)],
+                count: [nu, nv],
+                power: tube * da,
+            });
         }
-    })
+    }
+    // Side faces: a ray entering at depth `l + sub(r)` starts on layer l's plane outside the
+    // grid, `sub(r) · shift` before the face.
+    for layer in 0..na {
+        for r in 0..m {
+            let back = sub(r);
+            for p in 0..m {
+                if dv > 0.0 {
+                    families.push(RayFamily {
+                        frame: 0,
+                        first_layer: layer,
+                        start: [sub(p) - back * frame.shift[0], -back * frame.shift[1]],
+                        count: [nu, 1],
+                        power: tube * dv,
+                    });
+                }
+                if du > 0.0 {
+                    families.push(RayFamily {
+                        frame: 1,
+                        first_layer: layer,
+                        start: [sub(p) - back * frame.shift[1], -back * frame.shift[0]],
+                        count: [nv, 1],
+                        power: tube * du,
+                    });
+                }
+            }
+        }
+    }
+    // Families interleaved over a fixed number of chunks (the entry face's large families
+    // spread evenly), summed in a fixed order: deterministic on a given machine.
+    let chunks = rayon::current_num_threads().max(4).min(families.len());
+    let parts: Vec<([Vec<f64>; 2], f64, f64)> = (0..chunks)
+        .into_par_iter()
+        .map(|c| {
+            let mut integrals = [0, 1].map(|_| vec![0.0f64; frame.cell_count()]);
+            let mut transmitted = Vec::with_capacity(nu * nv);
+            let (mut entering, mut leaving) = (0.0, 0.0);
+            for family in families.iter().skip(c).step_by(chunks) {
+                entering += family.power * (family.count[0] * family.count[1]) as f64;
+                leaving += sweep_family(
+                    &media[family.frame],
+                    family,
+                    &mut transmitted,
+                    &mut integrals[family.frame],
+                );
+            }
+            (integrals, entering, leaving)
+        })
+        .collect();
+    let mut dep = Deposit::new(grid.cell_count());
+    let mut totals = [0, 1].map(|_| vec![0.0f64; frame.cell_count()]);
+    for (integrals, entering, leaving) in parts {
+        for (total, part) in totals.iter_mut().zip(&integrals) {
+            for (t, v) in total.iter_mut().zip(part) {
+                *t += v;
+            }
+        }
+        dep.entering += entering;
+        dep.leaving += leaving;
+    }
+    for (medium, total) in media.iter().zip(&totals) {
+        medium
+            .frame
+            .for_each_cell(grid, |f, g| dep.cell_integral[g] += total[f]);
+    }
+    dep
 }
 
 /// `∫∫ dx dy / (1 + x² + y²)^{3/2}` primitive: the solid angle of `[0,x]×[0,y]` on the
@@ -283,116 +653,77 @@ fn point_deposit(
     })
 }
 
-/// One cell's share of a backward ray's crossing of a layer: lateral cell offsets from the
-/// corner the ray started at, and the length inside that cell.
-#[derive(Clone, Copy, Debug)]
-struct StencilEntry {
-    offset: [i64; 2],
-    length: f64,
-}
-
-/// Exact optical depth toward the light (`−ln T_L`) at every corner for a directional light, layer by layer along the dominant
-/// axis. The backward ray from any corner crosses its `q`-th layer at the same sub-cell
-/// position for every corner (all corners sit on the lattice), so the split of that crossing
-/// among at most three cells is computed once per `q` and applied to every corner: the
-/// optical depth is a sum of `length × σt` over precomputed stencils, with no per-ray DDA.
+/// Exact optical depth toward the light (`−ln T_L`) at every corner for a directional light,
+/// plane by plane in the sweep frame. The backward ray from any corner crosses its `q`-th
+/// layer at the same sub-cell position for every corner (all corners sit on the lattice), so
+/// the split of that crossing among at most three cells is computed once per `q` and applied
+/// to whole rows of corners: the optical depth is a sum of `length × σt` over shared pieces,
+/// with no per-ray traversal. Exact (an interpolating sweep would blur shadow edges).
 fn directional_corner_optical_depth(grid: &Grid, sigma_t: &[f32], direction: DVec3) -> Vec<f32> {
-    let back = -direction;
-    let a = (0..3)
-        .max_by(|&x, &y| back[x].abs().total_cmp(&back[y].abs()))
-        .unwrap_or(2);
-    let (b, c) = match a {
-        0 => (1, 2),
-        1 => (0, 2),
-        _ => (0, 1),
-    };
-    let dims = grid.dims;
-    let (na, nb, nc) = (dims[a], dims[b], dims[c]);
-    let cell_stride = [1, dims[0], dims[0] * dims[1]];
-    let corner_stride = [1, dims[0] + 1, (dims[0] + 1) * (dims[1] + 1)];
-    let ra = back[a].abs();
-    // Lateral displacement per layer, in cells, and the path length per layer.
-    let shift = [back[b] / ra, back[c] / ra];
-    let layer_length = grid.cell_size / ra;
-    let upward = back[a] > 0.0;
-    let stencils: Vec<Vec<StencilEntry>> = (1..=na)
-        .map(|q| {
-            let s0 = [shift[0] * (q - 1) as f64, shift[1] * (q - 1) as f64];
-            let mut breaks = vec![0.0, 1.0];
-            for x in 0..2 {
-                if shift[x] != 0.0 {
-                    let s1 = s0[x] + shift[x];
-                    let (lo, hi) = (s0[x].min(s1), s0[x].max(s1));
-                    let n = lo.floor() + 1.0;
-                    if n < hi {
-                        breaks.push((n - s0[x]) / shift[x]);
-                    }
-                }
-            }
-            breaks.sort_by(f64::total_cmp);
-            breaks
-                .windows(2)
-                .filter(|w| w[1] > w[0])
-                .map(|w| {
-                    let t = 0.5 * (w[0] + w[1]);
-                    StencilEntry {
-                        offset: [
-                            (s0[0] + t * shift[0]).floor() as i64,
-                            (s0[1] + t * shift[1]).floor() as i64,
-                        ],
-                        length: (w[1] - w[0]) * layer_length,
-                    }
-                })
-                .collect()
-        })
-        .collect();
-    // Rows of corners along b (the lateral axis with the smaller memory stride) for each c:
-    // for one layer and one stencil entry, a row reads a contiguous run of σt.
-    let (nb_i, nc_i) = (nb as i64, nc as i64);
-    let planes: Vec<Vec<f32>> = (0..=na)
+    let frame = SweepFrame::new(grid, direction);
+    let medium = FrameMedium::new(grid, sigma_t, frame);
+    let [nu, nv, na] = frame.n;
+    let back = [-frame.shift[0], -frame.shift[1]];
+    let (nu_i, nv_i) = (nu as i64, nv as i64);
+    let planes: Vec<Vec<f64>> = (0..=na)
         .into_par_iter()
-        .map(|k| {
-            let layers = if upward { na - k } else { k };
-            let mut tau = vec![0.0f64; (nb + 1) * (nc + 1)];
-            for (q, stencil) in stencils.iter().enumerate().take(layers) {
-                let layer = if upward { k + q } else { k - 1 - q };
-                let layer_base = layer * cell_stride[a];
-                for e in stencil {
-                    let [ob, oc] = e.offset;
-                    // Corners whose cell lies inside; a ray running along a boundary face
-                    // (no lateral motion on that axis) counts the cells inside, as the DDA
-                    // does. Cells outside contribute nothing: a ray that left never returns.
-                    let (b_lo, b_hi) = if shift[0] == 0.0 {
-                        (0, nb_i)
+        .map(|plane| {
+            let mut tau = vec![0.0f64; (nu + 1) * (nv + 1)];
+            for q in 0..plane {
+                let layer = plane - 1 - q;
+                let pos = [q as f64 * back[0], q as f64 * back[1]];
+                let base = [pos[0].floor(), pos[1].floor()];
+                if base[0] + 1.0 < -(nu as f64) || base[1] + 1.0 < -(nv as f64) {
+                    break; // every backward ray has left through a side face
+                }
+                let (pieces, count) = layer_pieces(
+                    [pos[0] - base[0], pos[1] - base[1]],
+                    back,
+                    frame.layer_length,
+                );
+                let layer_base = nu * nv * layer;
+                for piece in &pieces[..count] {
+                    // Corner (i, j) reads cell (i + ou, j + ov). A ray running along a
+                    // boundary face (no lateral motion on that axis) counts the cell inside,
+                    // as the traversal does: the last corner row or column reads the last cell.
+                    let ou = base[0] as i64 + piece.offset[0];
+                    let ov = base[1] as i64 + piece.offset[1];
+                    let i_lo = (-ou).max(0);
+                    let i_hi = (nu_i - ou).min(nu_i + 1); // exclusive
+                    let j_lo = (-ov).max(0);
+                    let j_hi = if back[1] == 0.0 {
+                        nv_i + 1
                     } else {
-                        ((-ob).max(0), (nb_i - 1 - ob).min(nb_i))
+                        (nv_i - ov).min(nv_i + 1)
                     };
-                    let (c_lo, c_hi) = if shift[1] == 0.0 {
-                        (0, nc_i)
-                    } else {
-                        ((-oc).max(0), (nc_i - 1 - oc).min(nc_i))
-                    };
-                    for ic in c_lo..=c_hi {
-                        let cc = (ic + oc).min(nc_i - 1) as usize;
-                        let row_base = layer_base + cc * cell_stride[c];
-                        let row = &mut tau[(nb + 1) * ic as usize..(nb + 1) * (ic as usize + 1)];
-                        for ib in b_lo..=b_hi {
-                            let cb = (ib + ob).min(nb_i - 1) as usize;
-                            row[ib as usize] +=
-                                e.length * sigma_t[row_base + cb * cell_stride[b]] as f64;
+                    if i_lo >= i_hi {
+                        continue;
+                    }
+                    let length = piece.length;
+                    for j in j_lo..j_hi {
+                        let cell_row = layer_base + nu * (j + ov).min(nv_i - 1) as usize;
+                        let corner_row = (nu + 1) * j as usize;
+                        let sigma = &medium.sigma
+                            [cell_row + (i_lo + ou) as usize..cell_row + (i_hi + ou) as usize];
+                        let depth =
+                            &mut tau[corner_row + i_lo as usize..corner_row + i_hi as usize];
+                        for (t, &s) in depth.iter_mut().zip(sigma) {
+                            *t += length * s as f64;
+                        }
+                        if back[0] == 0.0 {
+                            tau[corner_row + nu] += length * medium.sigma[cell_row + nu - 1] as f64;
                         }
                     }
                 }
             }
-            tau.iter().map(|&t| t as f32).collect()
+            tau
         })
         .collect();
     let mut out = vec![0.0f32; grid.corner_count()];
-    for (k, plane) in planes.iter().enumerate() {
-        for ic in 0..=nc {
-            for ib in 0..=nb {
-                out[k * corner_stride[a] + ib * corner_stride[b] + ic * corner_stride[c]] =
-                    plane[ib + (nb + 1) * ic];
+    for (plane, tau) in planes.iter().enumerate() {
+        for v in 0..=nv {
+            for u in 0..=nu {
+                out[frame.grid_corner_index(grid, [u, v, plane])] = tau[u + (nu + 1) * v] as f32;
             }
         }
     }
