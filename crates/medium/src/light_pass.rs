@@ -175,8 +175,8 @@ fn deposit_parallel(
         .unwrap_or_else(|| Deposit::new(cells))
 }
 
-/// `1/n!` for `n ≤ 11`.
-const INV_FACTORIAL: [f64; 12] = [
+/// `1/n!` for `n ≤ 8`.
+const INV_FACTORIAL: [f64; 9] = [
     1.0,
     1.0,
     0.5,
@@ -186,12 +186,10 @@ const INV_FACTORIAL: [f64; 12] = [
     0.001388888888888889,
     0.0001984126984126984,
     2.48015873015873e-05,
-    2.7557319223985893e-06,
-    2.755731922398589e-07,
-    2.505210838544172e-08,
 ];
 
-/// Interception `1 − e^{−x}` for `x ≥ 0`, to a relative 1e-14 also for small `x`. Branch-free
+/// Interception `1 − e^{−x}` for `x ≥ 0`, to a relative 1e-9 also for small `x` (the ray
+/// loses exactly what the cell is credited, whatever this error). Branch-free
 /// so that loops over rays vectorise: `e^{−x} = 2^k e^r` with `|r| ≤ ln2/2` (magic-number
 /// rounding for `k`), `e^r − 1` by its Taylor series, and
 /// `1 − e^{−x} = (1 − 2^k) − 2^k (e^r − 1)`, exact in the series when `k = 0`. `x` is capped
@@ -203,8 +201,8 @@ fn interception(x: f64) -> f64 {
     let shifted = y * std::f64::consts::LOG2_E + MAGIC;
     let k = shifted - MAGIC;
     let r = y - k * std::f64::consts::LN_2;
-    let mut series = INV_FACTORIAL[11];
-    for factor in INV_FACTORIAL[1..11].iter().rev() {
+    let mut series = INV_FACTORIAL[8];
+    for factor in INV_FACTORIAL[1..8].iter().rev() {
         series = factor + r * series;
     }
     let r_expm1 = r * series;
@@ -269,19 +267,25 @@ impl SweepFrame {
     /// Calls `visit(frame_index, grid_index)` for every cell.
     fn for_each_cell(&self, grid: &Grid, mut visit: impl FnMut(usize, usize)) {
         let [nu, nv, na] = self.n;
-        let mut g = [0usize; 3];
+        let grid_stride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
+        // Grid index of frame cell (0, 0, 0) and the signed grid step per frame axis.
+        let mut origin = 0isize;
+        let mut step = [0isize; 3];
+        for f in 0..3 {
+            let stride = grid_stride[self.axes[f]] as isize;
+            if self.flipped[f] {
+                origin += (self.n[f] as isize - 1) * stride;
+                step[f] = -stride;
+            } else {
+                step[f] = stride;
+            }
+        }
         let mut frame_index = 0;
-        for l in 0..na {
-            for v in 0..nv {
-                for u in 0..nu {
-                    for (f, c) in [u, v, l].into_iter().enumerate() {
-                        g[self.axes[f]] = if self.flipped[f] {
-                            self.n[f] - 1 - c
-                        } else {
-                            c
-                        };
-                    }
-                    visit(frame_index, grid.index(g[0], g[1], g[2]));
+        for l in 0..na as isize {
+            for v in 0..nv as isize {
+                let row = origin + l * step[2] + v * step[1];
+                for u in 0..nu as isize {
+                    visit(frame_index, (row + u * step[0]) as usize);
                     frame_index += 1;
                 }
             }
@@ -302,25 +306,51 @@ impl SweepFrame {
     }
 }
 
-/// σt in a sweep frame, with `1/σt` (0 where σt = 0) for the deposits.
+/// σt laid out in a sweep frame, and `1/σt` (0 where σt = 0) so that deposits multiply
+/// instead of divide (f32: the cell averages are stored as f32 anyway).
 struct FrameMedium {
     frame: SweepFrame,
     sigma: Vec<f32>,
-    inv_sigma: Vec<f64>,
+    inv_sigma: Vec<f32>,
 }
 
 impl FrameMedium {
-    fn new(grid: &Grid, sigma_t: &[f32], frame: SweepFrame) -> FrameMedium {
+    fn new(grid: &Grid, sigma_t: &[f32], direction: DVec3) -> FrameMedium {
+        let frame = SweepFrame::new(grid, direction);
         let mut sigma = vec![0.0f32; frame.cell_count()];
         frame.for_each_cell(grid, |f, g| sigma[f] = sigma_t[g]);
         let inv_sigma = sigma
             .iter()
-            .map(|&s| if s > 0.0 { 1.0 / s as f64 } else { 0.0 })
+            .map(|&s| if s > 0.0 { 1.0 / s } else { 0.0 })
             .collect();
         FrameMedium {
             frame,
             sigma,
             inv_sigma,
+        }
+    }
+
+    /// The same medium in the transposed frame (v contiguous).
+    fn transposed(&self) -> FrameMedium {
+        let [nu, nv, _] = self.frame.n;
+        let transpose = |values: &[f32]| {
+            let mut out = vec![0.0f32; values.len()];
+            for (dst, src) in out
+                .chunks_exact_mut(nu * nv)
+                .zip(values.chunks_exact(nu * nv))
+            {
+                for v in 0..nv {
+                    for u in 0..nu {
+                        dst[v + nv * u] = src[u + nu * v];
+                    }
+                }
+            }
+            out
+        };
+        FrameMedium {
+            frame: self.frame.transposed(),
+            sigma: transpose(&self.sigma),
+            inv_sigma: transpose(&self.inv_sigma),
         }
     }
 }
@@ -445,7 +475,11 @@ fn sweep_family_body(
                 {
                     // Exact per-cell bookkeeping: what the ray loses, the cell extinguishes.
                     let intercepted = interception(s as f64 * length);
-                    let per_sigma = if s > 0.0 { intercepted * inv } else { length };
+                    let per_sigma = if s > 0.0 {
+                        intercepted * inv as f64
+                    } else {
+                        length
+                    };
                     *c += *t * per_sigma;
                     *t -= *t * intercepted;
                 }
@@ -489,16 +523,14 @@ fn sweep_family(
 /// the face along u run in a transposed frame, so that every family's rays are contiguous.
 fn directional_deposit(
     grid: &Grid,
-    sigma_t: &[f32],
+    medium: &FrameMedium,
     direction: DVec3,
     irradiance: f64,
     m: usize,
 ) -> Deposit {
-    let frame = SweepFrame::new(grid, direction);
-    let media = [
-        FrameMedium::new(grid, sigma_t, frame),
-        FrameMedium::new(grid, sigma_t, frame.transposed()),
-    ];
+    let frame = medium.frame;
+    let transposed = medium.transposed();
+    let media = [medium, &transposed];
     let [nu, nv, na] = frame.n;
     let delta = grid.cell_size / m as f64;
     let tube = irradiance * delta * delta;
@@ -544,10 +576,11 @@ fn directional_deposit(
             }
         }
     }
-    // Families interleaved over a fixed number of chunks (the entry face's large families
-    // spread evenly), summed in a fixed order: deterministic on a given machine.
-    let chunks = rayon::current_num_threads().max(4).min(families.len());
-    let parts: Vec<([Vec<f64>; 2], f64, f64)> = (0..chunks)
+    // Families interleaved over one chunk per thread (the entry face's large families spread
+    // evenly; each chunk holds two grid-sized sums, so no more chunks than threads), summed
+    // in a fixed order: deterministic for a given thread count.
+    let chunks = rayon::current_num_threads().clamp(1, families.len());
+    let mut parts: Vec<([Vec<f64>; 2], f64, f64)> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             let mut integrals = [0, 1].map(|_| vec![0.0f64; frame.cell_count()]);
@@ -566,7 +599,8 @@ fn directional_deposit(
         })
         .collect();
     let mut dep = Deposit::new(grid.cell_count());
-    let mut totals = [0, 1].map(|_| vec![0.0f64; frame.cell_count()]);
+    let (mut totals, entering, leaving) = parts.swap_remove(0);
+    (dep.entering, dep.leaving) = (entering, leaving);
     for (integrals, entering, leaving) in parts {
         for (total, part) in totals.iter_mut().zip(&integrals) {
             for (t, v) in total.iter_mut().zip(part) {
@@ -659,9 +693,8 @@ fn point_deposit(
 /// the split of that crossing among at most three cells is computed once per `q` and applied
 /// to whole rows of corners: the optical depth is a sum of `length × σt` over shared pieces,
 /// with no per-ray traversal. Exact (an interpolating sweep would blur shadow edges).
-fn directional_corner_optical_depth(grid: &Grid, sigma_t: &[f32], direction: DVec3) -> Vec<f32> {
-    let frame = SweepFrame::new(grid, direction);
-    let medium = FrameMedium::new(grid, sigma_t, frame);
+fn directional_corner_optical_depth(grid: &Grid, medium: &FrameMedium) -> Vec<f32> {
+    let frame = medium.frame;
     let [nu, nv, na] = frame.n;
     let back = [-frame.shift[0], -frame.shift[1]];
     let (nu_i, nv_i) = (nu as i64, nv as i64);
@@ -817,7 +850,7 @@ impl LightPass {
         let mut fields = Vec::with_capacity(lights.len());
         for light in lights {
             let light = light.validated()?;
-            let deposit = match light {
+            let (deposit, corner_optical_depth) = match light {
                 Light::Directional {
                     direction,
                     irradiance,
@@ -829,24 +862,34 @@ impl LightPass {
                     } else {
                         options.rays_per_cell
                     };
-                    directional_deposit(grid, sigma_t, direction, irradiance, m)
+                    let medium = FrameMedium::new(grid, sigma_t, direction);
+                    (
+                        directional_deposit(grid, &medium, direction, irradiance, m),
+                        directional_corner_optical_depth(grid, &medium),
+                    )
                 }
                 Light::Point {
                     position,
                     intensity,
-                } => point_deposit(grid, sigma_t, position, intensity, None, options),
+                } => (
+                    point_deposit(grid, sigma_t, position, intensity, None, options),
+                    corner_optical_depth(grid, sigma_t, &light),
+                ),
                 Light::Spot {
                     position,
                     axis,
                     half_angle,
                     intensity,
-                } => point_deposit(
-                    grid,
-                    sigma_t,
-                    position,
-                    intensity,
-                    Some((axis, half_angle.cos())),
-                    options,
+                } => (
+                    point_deposit(
+                        grid,
+                        sigma_t,
+                        position,
+                        intensity,
+                        Some((axis, half_angle.cos())),
+                        options,
+                    ),
+                    corner_optical_depth(grid, sigma_t, &light),
                 ),
             };
             let extinguished: f64 = deposit
@@ -863,12 +906,7 @@ impl LightPass {
             fields.push(LightField {
                 light,
                 cell_irradiance,
-                corner_optical_depth: match light {
-                    Light::Directional { direction, .. } => {
-                        directional_corner_optical_depth(grid, sigma_t, direction)
-                    }
-                    _ => corner_optical_depth(grid, sigma_t, &light),
-                },
+                corner_optical_depth,
                 energy: LightEnergy {
                     entering: deposit.entering,
                     extinguished,
