@@ -175,40 +175,40 @@ fn deposit_parallel(
         .unwrap_or_else(|| Deposit::new(cells))
 }
 
-/// `1/n!` for `n ≤ 8`.
-const INV_FACTORIAL: [f64; 9] = [
-    1.0,
-    1.0,
-    0.5,
-    0.16666666666666666,
-    0.041666666666666664,
-    0.008333333333333333,
-    0.001388888888888889,
-    0.0001984126984126984,
-    2.48015873015873e-05,
-];
+/// `a b + c`, fused when `FMA` (compiled only where the CPU has it).
+#[inline(always)]
+fn mul_add<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if FMA {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
+    }
+}
 
 /// Interception `1 − e^{−x}` for `x ≥ 0`, to a relative 1e-9 also for small `x` (the ray
-/// loses exactly what the cell is credited, whatever this error). Branch-free
-/// so that loops over rays vectorise: `e^{−x} = 2^k e^r` with `|r| ≤ ln2/2` (magic-number
-/// rounding for `k`), `e^r − 1` by its Taylor series, and
+/// loses exactly what the cell is credited, whatever this error). Branch-free so that loops
+/// over rays vectorise: `e^{−x} = 2^k e^r` with `|r| ≤ ln2/2` (magic-number rounding for
+/// `k`), `e^r − 1 = r Σ_{n<8} r^n/(n+1)!` (Estrin's scheme: a short dependency chain), and
 /// `1 − e^{−x} = (1 − 2^k) − 2^k (e^r − 1)`, exact in the series when `k = 0`. `x` is capped
 /// at 700, where `e^{−x}` no longer matters.
 #[inline(always)]
-fn interception(x: f64) -> f64 {
+fn interception<const FMA: bool>(x: f64) -> f64 {
     const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
     let y = -x.min(700.0);
-    let shifted = y * std::f64::consts::LOG2_E + MAGIC;
+    let shifted = mul_add::<FMA>(y, std::f64::consts::LOG2_E, MAGIC);
     let k = shifted - MAGIC;
-    let r = y - k * std::f64::consts::LN_2;
-    let mut series = INV_FACTORIAL[8];
-    for factor in INV_FACTORIAL[1..8].iter().rev() {
-        series = factor + r * series;
-    }
-    let r_expm1 = r * series;
+    let r = mul_add::<FMA>(-k, std::f64::consts::LN_2, y);
+    let (r2, r4) = (r * r, (r * r) * (r * r));
+    let c01 = mul_add::<FMA>(r, 0.5, 1.0);
+    let c23 = mul_add::<FMA>(r, 1.0 / 24.0, 1.0 / 6.0);
+    let c45 = mul_add::<FMA>(r, 1.0 / 720.0, 1.0 / 120.0);
+    let c67 = mul_add::<FMA>(r, 1.0 / 40320.0, 1.0 / 5040.0);
+    let low = mul_add::<FMA>(c23, r2, c01);
+    let high = mul_add::<FMA>(c67, r2, c45);
+    let r_expm1 = r * mul_add::<FMA>(high, r4, low);
     // The low mantissa bits of `shifted` hold k (two's complement): k + 1023 into the exponent.
     let two_k = f64::from_bits(shifted.to_bits().wrapping_add(1023) << 52);
-    (1.0 - two_k) - two_k * r_expm1
+    mul_add::<FMA>(-two_k, r_expm1, 1.0 - two_k)
 }
 
 /// The frame of a directional light's layer sweep: layers `l = 0..na` perpendicular to the
@@ -265,44 +265,46 @@ impl SweepFrame {
     }
 
     /// Calls `visit(frame_index, grid_index)` for every cell.
-    fn for_each_cell(&self, grid: &Grid, mut visit: impl FnMut(usize, usize)) {
-        let [nu, nv, na] = self.n;
-        let grid_stride = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
-        // Grid index of frame cell (0, 0, 0) and the signed grid step per frame axis.
+    fn for_each_cell(&self, grid: &Grid, visit: impl FnMut(usize, usize)) {
+        let [nx, ny, _] = grid.dims;
+        self.walk(self.n, [1, nx, nx * ny], visit);
+    }
+
+    /// Calls `visit(frame_index, grid_corner_index)` for every corner (frame corners laid out
+    /// `u + (nu + 1) (v + (nv + 1) plane)`, plane 0 where the light enters).
+    fn for_each_corner(&self, grid: &Grid, visit: impl FnMut(usize, usize)) {
+        let [nx, ny, _] = grid.dims;
+        self.walk(
+            self.n.map(|n| n + 1),
+            [1, nx + 1, (nx + 1) * (ny + 1)],
+            visit,
+        );
+    }
+
+    /// `counts` points per frame axis, `strides` per grid axis.
+    fn walk(&self, counts: [usize; 3], strides: [usize; 3], mut visit: impl FnMut(usize, usize)) {
+        // Grid index of frame point (0, 0, 0) and the signed grid step per frame axis.
         let mut origin = 0isize;
         let mut step = [0isize; 3];
         for f in 0..3 {
-            let stride = grid_stride[self.axes[f]] as isize;
+            let stride = strides[self.axes[f]] as isize;
             if self.flipped[f] {
-                origin += (self.n[f] as isize - 1) * stride;
+                origin += (counts[f] as isize - 1) * stride;
                 step[f] = -stride;
             } else {
                 step[f] = stride;
             }
         }
         let mut frame_index = 0;
-        for l in 0..na as isize {
-            for v in 0..nv as isize {
+        for l in 0..counts[2] as isize {
+            for v in 0..counts[1] as isize {
                 let row = origin + l * step[2] + v * step[1];
-                for u in 0..nu as isize {
+                for u in 0..counts[0] as isize {
                     visit(frame_index, (row + u * step[0]) as usize);
                     frame_index += 1;
                 }
             }
         }
-    }
-
-    /// Grid corner index of frame corner `(u, v, plane)` (`plane` 0 is where the light enters).
-    fn grid_corner_index(&self, grid: &Grid, frame: [usize; 3]) -> usize {
-        let mut g = [0usize; 3];
-        for f in 0..3 {
-            g[self.axes[f]] = if self.flipped[f] {
-                self.n[f] - frame[f]
-            } else {
-                frame[f]
-            };
-        }
-        grid.corner_index(g[0], g[1], g[2])
     }
 }
 
@@ -384,7 +386,7 @@ struct Piece {
 
 /// Splits the crossing of one layer by a ray at lateral fraction `frac` (in `[0, 1)²`,
 /// moving by `shift` per layer, either sign) into at most three pieces.
-#[inline]
+#[inline(always)]
 fn layer_pieces(frac: [f64; 2], shift: [f64; 2], layer_length: f64) -> ([Piece; 3], usize) {
     // Fractions of the layer where the ray crosses a lateral cell boundary.
     let mut breaks = [1.0f64; 2];
@@ -421,7 +423,7 @@ fn layer_pieces(frac: [f64; 2], shift: [f64; 2], layer_length: f64) -> ([Piece; 
 /// Sweeps one family through its layers, depositing `∫ T ds` into `cell_integral` (frame
 /// layout); returns the power the family carries out of the grid.
 #[inline(always)]
-fn sweep_family_body(
+fn sweep_family_body<const FMA: bool>(
     medium: &FrameMedium,
     family: &RayFamily,
     transmitted: &mut Vec<f64>,
@@ -474,14 +476,14 @@ fn sweep_family_body(
                     .zip(integral.iter_mut())
                 {
                     // Exact per-cell bookkeeping: what the ray loses, the cell extinguishes.
-                    let intercepted = interception(s as f64 * length);
+                    let intercepted = interception::<FMA>(s as f64 * length);
                     let per_sigma = if s > 0.0 {
                         intercepted * inv as f64
                     } else {
                         length
                     };
-                    *c += *t * per_sigma;
-                    *t -= *t * intercepted;
+                    *c = mul_add::<FMA>(*t, per_sigma, *c);
+                    *t = mul_add::<FMA>(-*t, intercepted, *t);
                 }
             }
         }
@@ -489,20 +491,20 @@ fn sweep_family_body(
     transmitted.iter().sum()
 }
 
-/// [`sweep_family_body`] compiled for AVX2 (four rays per instruction).
+/// [`sweep_family_body`] compiled for AVX2 and FMA (four rays per instruction).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 fn sweep_family_avx2(
     medium: &FrameMedium,
     family: &RayFamily,
     transmitted: &mut Vec<f64>,
     cell_integral: &mut [f64],
 ) -> f64 {
-    sweep_family_body(medium, family, transmitted, cell_integral)
+    sweep_family_body::<true>(medium, family, transmitted, cell_integral)
 }
 
-/// [`sweep_family_body`], on AVX2 when the CPU has it (the same operations, so the same
-/// results either way).
+/// [`sweep_family_body`], on AVX2 and FMA when the CPU has them (results then differ from
+/// the portable build's in the last bits only; each is deterministic).
 fn sweep_family(
     medium: &FrameMedium,
     family: &RayFamily,
@@ -510,11 +512,11 @@ fn sweep_family(
     cell_integral: &mut [f64],
 ) -> f64 {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked on the line above.
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA, checked on the line above.
         return unsafe { sweep_family_avx2(medium, family, transmitted, cell_integral) };
     }
-    sweep_family_body(medium, family, transmitted, cell_integral)
+    sweep_family_body::<false>(medium, family, transmitted, cell_integral)
 }
 
 /// Directional light: `m × m` rays per cell on each face the light enters through (tubes of
@@ -610,11 +612,20 @@ fn directional_deposit(
         dep.entering += entering;
         dep.leaving += leaving;
     }
-    for (medium, total) in media.iter().zip(&totals) {
-        medium
-            .frame
-            .for_each_cell(grid, |f, g| dep.cell_integral[g] += total[f]);
+    // The transposed frame's sums into the first frame (layer by layer, cache-resident),
+    // then one pass to grid order.
+    let [main, side] = &mut totals;
+    for (dst, src) in main
+        .chunks_exact_mut(nu * nv)
+        .zip(side.chunks_exact(nu * nv))
+    {
+        for v in 0..nv {
+            for u in 0..nu {
+                dst[u + nu * v] += src[v + nv * u];
+            }
+        }
     }
+    frame.for_each_cell(grid, |f, g| dep.cell_integral[g] = main[f]);
     dep
 }
 
@@ -752,14 +763,11 @@ fn directional_corner_optical_depth(grid: &Grid, medium: &FrameMedium) -> Vec<f3
             tau
         })
         .collect();
+    let plane_size = (nu + 1) * (nv + 1);
     let mut out = vec![0.0f32; grid.corner_count()];
-    for (plane, tau) in planes.iter().enumerate() {
-        for v in 0..=nv {
-            for u in 0..=nu {
-                out[frame.grid_corner_index(grid, [u, v, plane])] = tau[u + (nu + 1) * v] as f32;
-            }
-        }
-    }
+    frame.for_each_corner(grid, |f, g| {
+        out[g] = planes[f / plane_size][f % plane_size] as f32;
+    });
     out
 }
 
