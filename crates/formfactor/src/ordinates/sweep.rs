@@ -276,17 +276,103 @@ impl EnergyBalance {
 
 /// Per-piece layer buffers, allocated once.
 struct LayerBuffers {
-    /// Outflow of each cell of the current layer (before splitting among faces).
+    /// Outflow of each cell of the layer (before splitting among faces): the previous
+    /// layer's until a cell is updated, then the current layer's.
     out: Vec<f64>,
-    /// z-inflow into the current layer.
+    /// z-inflow into the current layer (periodic layers iterated to convergence only).
     inz: Vec<f64>,
 }
 
 struct Scratch {
+    /// Bin-major densities `S[l·N + c]` (radiance per length): each sweep reads one bin's
+    /// densities contiguously.
     density: Vec<f64>,
     /// Piece-major cell-average radiances, `pieces × cells`.
     piece_out: Vec<f64>,
     layers: Vec<LayerBuffers>,
+    /// Bin-major copies of the iterate and the source for Gauss–Seidel sweeps (allocated
+    /// on the first sweep).
+    g_bins: Vec<f64>,
+    source_bins: Vec<f64>,
+}
+
+/// A piece's per-cell transport coefficients ([`Piece::cell_terms`] in the sweep's units),
+/// precomputed once per cell for each class of pieces that share them, so the sweep does no
+/// exponentials or table look-ups.
+#[derive(Clone, Copy, Debug, Default)]
+struct CellTerms {
+    /// Inflow transmission `e^{−τ}`.
+    transmit: f64,
+    /// Inflow's mean-radiance factor over `s`: `(1 − e^{−τ})/(τ s)`.
+    inflow_mean: f64,
+    /// Outflow per unit source density: `h · source_escape`.
+    source_out: f64,
+    /// Cell-average radiance per unit source density: `h · source_track`.
+    source_mean: f64,
+}
+
+/// Column length of bin-major scratch for `n` cells: padded by one cache line so that the
+/// columns a loop reads side by side do not all map to the same L1 sets (with `8 n` a
+/// multiple of 4096 bytes, as for 64×64×48, the unpadded gather ran 5× slower).
+fn padded_stride(n: usize) -> usize {
+    n + 8
+}
+
+/// Cells per block of the cell-major ↔ bin-major copies.
+const TRANSPOSE_BLOCK: usize = 64;
+
+/// Cells per block of the scattering product (one GEMM call each).
+const SCATTER_BLOCK: usize = 512;
+
+/// Where [`OrdinatesOperator::scatter_into`] writes: `S[c·M + l]` or `S[l·N + c]`.
+#[derive(Clone, Copy, PartialEq)]
+enum Layout {
+    CellMajor,
+    BinMajor,
+}
+
+/// A raw pointer shared by rayon tasks that write disjoint elements.
+#[derive(Clone, Copy)]
+struct SharedMut(*mut f64);
+// SAFETY: every task writes a disjoint set of cells (its block), see `scatter_into`.
+unsafe impl Send for SharedMut {}
+unsafe impl Sync for SharedMut {}
+
+impl SharedMut {
+    /// The pointer (a method, so that closures capture the `Sync` wrapper, not the field).
+    #[inline(always)]
+    fn ptr(self) -> *mut f64 {
+        self.0
+    }
+}
+
+/// Pieces whose cell coefficients agree (they are images of each other under the cube's
+/// symmetries): `(class of each piece, one representative per class)`.
+fn piece_classes(pieces: &[Piece]) -> (Vec<usize>, Vec<usize>) {
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
+    let same = |a: &Piece, b: &Piece| {
+        close(a.projected, b.projected)
+            && a.source_table
+                .iter()
+                .zip(&b.source_table)
+                .all(|(x, y)| close(*x, *y))
+            && a.exit_moments
+                .iter()
+                .zip(&b.exit_moments)
+                .all(|(x, y)| close(*x, *y))
+    };
+    let mut reps: Vec<usize> = Vec::new();
+    let mut class = Vec::with_capacity(pieces.len());
+    for (p, piece) in pieces.iter().enumerate() {
+        match reps.iter().position(|&r| same(&pieces[r], piece)) {
+            Some(k) => class.push(k),
+            None => {
+                class.push(reps.len());
+                reps.push(p);
+            }
+        }
+    }
+    (class, reps)
 }
 
 /// The discrete-ordinates operator `K` for one colour channel (see the module doc).
@@ -294,8 +380,12 @@ pub struct OrdinatesOperator {
     grid: Grid,
     sigma_t: Vec<f64>,
     sigma_s: Vec<f64>,
-    /// `table_coordinate(σt h)` per cell.
-    table_x: Vec<f64>,
+    /// Class of each piece ([`piece_classes`]).
+    piece_class: Vec<usize>,
+    /// Class-major cell coefficients, `classes × cells`.
+    terms: Vec<CellTerms>,
+    /// Distance between consecutive bins' (pieces') columns in the bin-major scratch.
+    stride: usize,
     bins: DirectionBins,
     phase: PhaseFunction,
     matrix: PhaseMatrix,
@@ -361,7 +451,7 @@ impl OrdinatesOperator {
         }
         let m = bins.len();
         let omega = bins.solid_angles();
-        let scatter = (0..m * m)
+        let scatter: Vec<f64> = (0..m * m)
             .map(|idx| matrix.values()[idx] * omega[idx % m])
             .collect();
         let pieces = pieces_of(&bins);
@@ -370,31 +460,51 @@ impl OrdinatesOperator {
             bin_pieces[piece.bin].push(p);
         }
         let layer = grid.dims[0] * grid.dims[1];
+        let stride = padded_stride(n);
         let scratch = Scratch {
-            density: vec![0.0; n * m],
-            piece_out: vec![0.0; n * pieces.len()],
+            density: vec![0.0; stride * m],
+            piece_out: vec![0.0; stride * pieces.len()],
             layers: (0..pieces.len())
                 .map(|_| LayerBuffers {
                     out: vec![0.0; layer],
                     inz: vec![0.0; layer],
                 })
                 .collect(),
+            g_bins: Vec::new(),
+            source_bins: Vec::new(),
         };
-        let table_x = sigma_t
-            .iter()
-            .map(|s| table_coordinate(s * grid.cell_size))
-            .collect();
+        let (piece_class, representatives) = piece_classes(&pieces);
+        let h = grid.cell_size;
+        let table_x: Vec<f64> = sigma_t.iter().map(|s| table_coordinate(s * h)).collect();
+        let mut terms = vec![CellTerms::default(); representatives.len() * n];
+        for (class_terms, &r) in terms.chunks_mut(n).zip(&representatives) {
+            let piece = &pieces[r];
+            class_terms
+                .par_iter_mut()
+                .zip(sigma_t.par_iter().zip(&table_x))
+                .for_each(|(ct, (&st, &x))| {
+                    let (t, esc, src_esc, track) = piece.cell_terms_at(st * h, x);
+                    *ct = CellTerms {
+                        transmit: t,
+                        inflow_mean: esc / piece.projected,
+                        source_out: h * src_esc,
+                        source_mean: h * track,
+                    };
+                });
+        }
         Ok(OrdinatesOperator {
             grid,
             sigma_t,
             sigma_s,
-            table_x,
             bins,
             phase,
             matrix,
             scatter,
             pieces,
             bin_pieces,
+            piece_class,
+            terms,
+            stride,
             options,
             scratch: Mutex::new(scratch),
         })
@@ -430,33 +540,152 @@ impl OrdinatesOperator {
         &self.sigma_s
     }
 
-    /// Bytes of the operator's own buffers per cell per bin (f64 scratch: density and sweep
-    /// output), excluding the solver's vectors.
+    /// Bytes of the operator's own buffers (f64 scratch: density, sweep output and layer
+    /// buffers; the per-cell coefficients), excluding the solver's vectors.
     pub fn scratch_bytes(&self) -> usize {
         let s = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-        (s.density.len() + s.piece_out.len()) * 8
+        // The Gauss–Seidel copies of g and the source count whether allocated yet or not.
+        (s.density.len() + s.piece_out.len() + 2 * self.bins.len() * self.stride) * 8
             + s.layers
                 .iter()
                 .map(|l| (l.out.len() + l.inz.len()) * 8)
                 .sum::<usize>()
+            + self.terms.len() * std::mem::size_of::<CellTerms>()
     }
 
     /// Scattering density `S[c·M + l] = σs_c Σ_j P_lj x_j Ω_j` (radiance per length).
     pub fn scatter_density(&self, x: &[f64], density: &mut [f64]) {
         let m = self.bins.len();
-        density
-            .par_chunks_mut(m)
-            .zip(x.par_chunks(m))
-            .enumerate()
-            .for_each(|(c, (d, xc))| {
-                let ss = self.sigma_s[c];
-                if ss == 0.0 {
-                    d.fill(0.0);
-                    return;
+        assert!(
+            x.len() == self.len() && density.len() == self.len(),
+            "scatter_density: vectors must have cells × bins entries"
+        );
+        self.scatter_into(x, density, Layout::CellMajor, 0, m);
+    }
+
+    /// Scattering densities of bins `l0..l1` in `layout`, by blocks of cells: one GEMM
+    /// `X_block (cells × M) · (P Ω)ᵀ (M × bins)` per block, then the rows scaled by σs. Blocks
+    /// without scattering cells are written as zeros without the product.
+    fn scatter_into(&self, x: &[f64], dst: &mut [f64], layout: Layout, l0: usize, l1: usize) {
+        let n = self.grid.cell_count();
+        let m = self.bins.len();
+        debug_assert!(x.len() == n * m && l0 < l1 && l1 <= m);
+        debug_assert!(
+            dst.len()
+                >= m * if layout == Layout::BinMajor {
+                    self.stride
+                } else {
+                    n
                 }
-                for (l, dl) in d.iter_mut().enumerate() {
-                    let row = &self.scatter[l * m..(l + 1) * m];
-                    *dl = ss * row.iter().zip(xc).map(|(a, b)| a * b).sum::<f64>();
+        );
+        let base = SharedMut(dst.as_mut_ptr());
+        let blocks = n.div_ceil(SCATTER_BLOCK);
+        (0..blocks).into_par_iter().for_each(|b| {
+            let c0 = b * SCATTER_BLOCK;
+            let c1 = (c0 + SCATTER_BLOCK).min(n);
+            // SAFETY: `x` has N·M cell-major elements, `dst` is large enough for `layout`
+            // (asserted above), and block b is this task's alone.
+            unsafe {
+                self.scatter_block(x.as_ptr(), Layout::CellMajor, base, layout, l0..l1, c0..c1)
+            };
+        });
+    }
+
+    /// `(row, column)` strides of a cell × bin array in `layout`.
+    fn strides(&self, layout: Layout) -> (usize, usize) {
+        match layout {
+            Layout::CellMajor => (self.bins.len(), 1),
+            Layout::BinMajor => (1, self.stride),
+        }
+    }
+
+    /// [`scatter_into`](Self::scatter_into) for the cells `cells` of `x` (laid out as
+    /// `x_layout`), written into `dst` (laid out as `layout`).
+    ///
+    /// # Safety
+    /// `x` and `dst` must point to whole cell × bin arrays in their layouts, and no one else
+    /// may write `x` for these cells, or access the elements (c, l) of `dst` with `c` in
+    /// `cells` and `l` in `bins`, while this runs.
+    unsafe fn scatter_block(
+        &self,
+        x: *const f64,
+        x_layout: Layout,
+        dst: SharedMut,
+        layout: Layout,
+        bins: std::ops::Range<usize>,
+        cells: std::ops::Range<usize>,
+    ) {
+        let m = self.bins.len();
+        let (rsa, csa) = self.strides(x_layout);
+        let (rsc, csc) = self.strides(layout);
+        let at = |c: usize, l: usize| dst.ptr().add(c * rsc + l * csc);
+        let ss = &self.sigma_s[cells.clone()];
+        if ss.iter().any(|&v| v != 0.0) {
+            matrixmultiply::dgemm(
+                cells.len(),
+                m,
+                bins.len(),
+                1.0,
+                x.add(cells.start * rsa),
+                rsa as isize,
+                csa as isize,
+                self.scatter.as_ptr().add(bins.start * m),
+                1,
+                m as isize,
+                0.0,
+                at(cells.start, bins.start),
+                rsc as isize,
+                csc as isize,
+            );
+            for l in bins {
+                for (c, &sc) in cells.clone().zip(ss) {
+                    *at(c, l) *= sc;
+                }
+            }
+        } else {
+            for l in bins {
+                for c in cells.clone() {
+                    *at(c, l) = 0.0;
+                }
+            }
+        }
+    }
+
+    /// Copies cell-major `src` (`N·M`) into bin-major `dst` (columns `stride` apart), by
+    /// blocks of cells so that both sides stream.
+    fn cells_to_bins(&self, src: &[f64], dst: &mut [f64]) {
+        let n = self.grid.cell_count();
+        let m = self.bins.len();
+        assert!(src.len() == n * m && dst.len() >= m * self.stride);
+        let base = SharedMut(dst.as_mut_ptr());
+        src.par_chunks(m * TRANSPOSE_BLOCK)
+            .enumerate()
+            .for_each(|(b, rows)| {
+                let c0 = b * TRANSPOSE_BLOCK;
+                for l in 0..m {
+                    for (i, row) in rows.chunks(m).enumerate() {
+                        // SAFETY: inside `dst` (asserted); block b's cells are this task's.
+                        unsafe { *base.ptr().add(l * self.stride + c0 + i) = row[l] };
+                    }
+                }
+            });
+    }
+
+    /// The inverse of [`cells_to_bins`](Self::cells_to_bins).
+    fn bins_to_cells(&self, src: &[f64], dst: &mut [f64]) {
+        let n = self.grid.cell_count();
+        let m = self.bins.len();
+        assert!(dst.len() == n * m && src.len() >= m * self.stride);
+        dst.par_chunks_mut(m * TRANSPOSE_BLOCK)
+            .enumerate()
+            .for_each(|(b, rows)| {
+                let c0 = b * TRANSPOSE_BLOCK;
+                let cells = rows.len() / m;
+                for l in 0..m {
+                    let column = &src[l * self.stride + c0..l * self.stride + c0 + cells];
+                    for (row, &v) in rows.chunks_mut(m).zip(column) {
+                        row[l] = v;
+                    }
                 }
             });
     }
@@ -564,34 +793,49 @@ impl OrdinatesOperator {
     /// `out[c·M + l]` = the cell- and bin-averaged radiance it produces. Returns the power
     /// bookkeeping.
     pub fn transport(&self, density: &[f64], out: &mut [f64]) -> SweepEnergy {
-        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-        let s = &mut *guard;
-        self.transport_with(density, out, &mut s.piece_out, &mut s.layers)
-    }
-
-    fn transport_with(
-        &self,
-        density: &[f64],
-        out: &mut [f64],
-        piece_out: &mut [f64],
-        layers: &mut [LayerBuffers],
-    ) -> SweepEnergy {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        let energies: Vec<SweepEnergy> = piece_out
-            .par_chunks_mut(n)
-            .zip(layers.par_iter_mut())
-            .zip(self.pieces.par_iter())
-            .map(|((po, buf), piece)| self.sweep_piece(piece, density, po, buf))
+        assert!(
+            density.len() == n * m && out.len() == n * m,
+            "transport: vectors must have cells × bins entries"
+        );
+        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
+        let s = &mut *guard;
+        // Bin-major copy for the sweeps.
+        self.cells_to_bins(density, &mut s.density);
+        self.transport_all(out, s, true)
+    }
+
+    /// Sweeps every piece through the bin-major densities in `s.density`, gathers the
+    /// pieces into cell-major `out`; tallies power when `tally`.
+    fn transport_all(&self, out: &mut [f64], s: &mut Scratch, tally: bool) -> SweepEnergy {
+        let m = self.bins.len();
+        let density = &s.density;
+        let energies: Vec<SweepEnergy> = s
+            .piece_out
+            .par_chunks_mut(self.stride)
+            .zip(s.layers.par_iter_mut())
+            .enumerate()
+            .map(|(p, (po, buf))| self.sweep_piece(p, density, po, buf, tally))
             .collect();
-        out.par_chunks_mut(m).enumerate().for_each(|(c, o)| {
-            for (l, ol) in o.iter_mut().enumerate() {
-                *ol = self.bin_pieces[l]
-                    .iter()
-                    .map(|&p| piece_out[p * n + c])
-                    .sum();
-            }
-        });
+        let piece_out = &s.piece_out;
+        let stride = self.stride;
+        // Sum of each bin's pieces, by blocks of cells so that both sides stream.
+        out.par_chunks_mut(m * TRANSPOSE_BLOCK)
+            .enumerate()
+            .for_each(|(b, rows)| {
+                let c0 = b * TRANSPOSE_BLOCK;
+                let cells = rows.len() / m;
+                for l in 0..m {
+                    for (i, row) in rows.chunks_mut(m).enumerate() {
+                        row[l] = 0.0;
+                        for &p in &self.bin_pieces[l] {
+                            row[l] += piece_out[p * stride + c0 + i];
+                        }
+                    }
+                }
+                debug_assert!(cells <= TRANSPOSE_BLOCK);
+            });
         let mut total = SweepEnergy::default();
         for e in &energies {
             total.add(e);
@@ -599,19 +843,24 @@ impl OrdinatesOperator {
         total
     }
 
-    /// One piece's sweep: writes `weight · I_avg` per cell into `out` (length N).
+    /// One piece's sweep through its bin's densities (bin-major `density`): writes
+    /// `weight · I_avg` per cell into `out` (length N). Tallies power only when `tally`.
     fn sweep_piece(
         &self,
-        piece: &Piece,
+        p: usize,
         density: &[f64],
         out: &mut [f64],
         buf: &mut LayerBuffers,
+        tally: bool,
     ) -> SweepEnergy {
+        let piece = &self.pieces[p];
         let [nx, ny, nz] = self.grid.dims;
-        let m = self.bins.len();
+        let n = self.grid.cell_count();
         let h = self.grid.cell_size;
+        let density = &density[piece.bin * self.stride..piece.bin * self.stride + n];
+        let terms = &self.terms[self.piece_class[p] * n..(self.piece_class[p] + 1) * n];
         let [fx, fy, fz] = piece.fractions;
-        let s = piece.projected;
+        let weight = piece.weight;
         let periodic = self.options.periodic_xy;
         // A one-cell-wide periodic axis feeds a cell's own outflow back into it: that
         // self-loop is solved exactly per cell.
@@ -635,42 +884,45 @@ impl OrdinatesOperator {
         let mut energy = SweepEnergy::default();
         // Escape slots: axis a leaves through side 2a + forward.
         let side = |a: usize| 2 * a + usize::from(piece.forward[a]);
-        // Inflow from other cells (x and y neighbours, wrapped ones if periodic) + z.
-        let inflow_of = |outs: &[f64], inz: &[f64], tx: usize, ty: usize| -> f64 {
-            let (i, j) = (at(tx, nx, fwx), at(ty, ny, fwy));
-            let in_x = if tx > 0 {
-                fx * outs[at(tx - 1, nx, fwx) + nx * j]
-            } else if periodic && nx > 1 {
-                fx * outs[at(nx - 1, nx, fwx) + nx * j]
-            } else {
-                0.0
-            };
-            let in_y = if ty > 0 {
-                fy * outs[i + nx * at(ty - 1, ny, fwy)]
-            } else if periodic && ny > 1 {
-                fy * outs[i + nx * at(ny - 1, ny, fwy)]
-            } else {
-                0.0
-            };
-            in_x + in_y + inz[i + nx * j]
-        };
-        buf.inz.fill(0.0);
         buf.out.fill(0.0);
         for tz in 0..nz {
             let base = layer * at(tz, nz, fwz);
+            let dens = &density[base..base + layer];
+            let terms = &terms[base..base + layer];
+            let out = &mut out[base..base + layer];
             if lagged {
+                // Inflow from other cells (x and y neighbours, wrapped ones) + z.
+                let inflow_of = |outs: &[f64], inz: &[f64], tx: usize, ty: usize| -> f64 {
+                    let (i, j) = (at(tx, nx, fwx), at(ty, ny, fwy));
+                    let in_x = if tx > 0 {
+                        fx * outs[at(tx - 1, nx, fwx) + nx * j]
+                    } else if nx > 1 {
+                        fx * outs[at(nx - 1, nx, fwx) + nx * j]
+                    } else {
+                        0.0
+                    };
+                    let in_y = if ty > 0 {
+                        fy * outs[i + nx * at(ty - 1, ny, fwy)]
+                    } else if ny > 1 {
+                        fy * outs[i + nx * at(ny - 1, ny, fwy)]
+                    } else {
+                        0.0
+                    };
+                    in_x + in_y + inz[i + nx * j]
+                };
+                for (zin, &o) in buf.inz.iter_mut().zip(buf.out.iter()) {
+                    *zin = fz * o;
+                }
                 let mut passes = 0;
                 loop {
                     let (mut change, mut scale) = (0.0f64, 0.0f64);
                     for ty in 0..ny {
                         for tx in 0..nx {
                             let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
-                            let c = base + lc;
                             let inflow = inflow_of(&buf.out, &buf.inz, tx, ty);
-                            let src = density[c * m + piece.bin] * h;
-                            let (t, _, src_esc, _) =
-                                piece.cell_terms_at(self.sigma_t[c] * h, self.table_x[c]);
-                            let new = (inflow * t + src * src_esc) / (1.0 - self_loop * t);
+                            let ct = &terms[lc];
+                            let new = (inflow * ct.transmit + dens[lc] * ct.source_out)
+                                / (1.0 - self_loop * ct.transmit);
                             change = change.max((new - buf.out[lc]).abs());
                             scale = scale.max(new.abs());
                             buf.out[lc] = new;
@@ -681,41 +933,62 @@ impl OrdinatesOperator {
                         break;
                     }
                 }
-            }
-            // Downwind pass (the outflows are final already when the layer was iterated).
-            for ty in 0..ny {
-                for tx in 0..nx {
-                    let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
-                    let c = base + lc;
-                    let other = inflow_of(&buf.out, &buf.inz, tx, ty);
-                    let sd = density[c * m + piece.bin];
-                    let src = sd * h;
-                    let (t, esc, src_esc, track) =
-                        piece.cell_terms_at(self.sigma_t[c] * h, self.table_x[c]);
-                    if !lagged {
-                        buf.out[lc] = (other * t + src * src_esc) / (1.0 - self_loop * t);
-                    }
-                    let inflow = other + self_loop * buf.out[lc];
-                    // Cell-average radiance: inflow part + source part (module doc).
-                    out[c] = piece.weight * (inflow / s * esc + sd * h * track);
-                    energy.emitted += src;
-                    energy.extinguished += inflow * (1.0 - t) + src * (1.0 - src_esc);
-                    if !periodic && tx == nx - 1 {
-                        energy.escaped[side(0)] += fx * buf.out[lc];
-                    }
-                    if !periodic && ty == ny - 1 {
-                        energy.escaped[side(1)] += fy * buf.out[lc];
+                for ty in 0..ny {
+                    for tx in 0..nx {
+                        let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
+                        let inflow =
+                            inflow_of(&buf.out, &buf.inz, tx, ty) + self_loop * buf.out[lc];
+                        let ct = &terms[lc];
+                        let sd = dens[lc];
+                        out[lc] = weight * (inflow * ct.inflow_mean + sd * ct.source_mean);
+                        if tally {
+                            energy.emitted += sd * h;
+                            energy.extinguished +=
+                                inflow * (1.0 - ct.transmit) + sd * (h - ct.source_out);
+                        }
                     }
                 }
-            }
-            // z outflow becomes the next layer's z inflow (or escapes).
-            if tz == nz - 1 {
-                energy.escaped[side(2)] += fz * buf.out.iter().sum::<f64>();
             } else {
-                for (zin, &o) in buf.inz.iter_mut().zip(buf.out.iter()) {
-                    *zin = fz * o;
+                // Downwind pass. `buf.out` holds the previous layer's outflows until a cell
+                // is updated: the z inflow is read just before it is overwritten; the
+                // upwind y row and the upwind x cell are already the current layer's.
+                for ty in 0..ny {
+                    let row = nx * at(ty, ny, fwy);
+                    let up_row = (ty > 0).then(|| nx * at(ty - 1, ny, fwy));
+                    let mut up_x = 0.0;
+                    for tx in 0..nx {
+                        let lc = row + at(tx, nx, fwx);
+                        let in_y = up_row.map_or(0.0, |r| fy * buf.out[r + lc - row]);
+                        let other = fx * up_x + in_y + fz * buf.out[lc];
+                        let ct = &terms[lc];
+                        let sd = dens[lc];
+                        let mut o = other * ct.transmit + sd * ct.source_out;
+                        if self_loop != 0.0 {
+                            o /= 1.0 - self_loop * ct.transmit;
+                        }
+                        buf.out[lc] = o;
+                        up_x = o;
+                        let inflow = other + self_loop * o;
+                        // Cell-average radiance: inflow part + source part (module doc).
+                        out[lc] = weight * (inflow * ct.inflow_mean + sd * ct.source_mean);
+                        if tally {
+                            energy.emitted += sd * h;
+                            energy.extinguished +=
+                                inflow * (1.0 - ct.transmit) + sd * (h - ct.source_out);
+                            if !periodic && tx == nx - 1 {
+                                energy.escaped[side(0)] += fx * o;
+                            }
+                            if !periodic && ty == ny - 1 {
+                                energy.escaped[side(1)] += fy * o;
+                            }
+                        }
+                    }
                 }
             }
+        }
+        // z outflow of the last layer escapes.
+        if tally {
+            energy.escaped[side(2)] += fz * buf.out.iter().sum::<f64>();
         }
         // Per-(Ω h²) units to power.
         let unit = piece.solid_angle * h * h;
@@ -778,65 +1051,98 @@ impl TransportOperator for OrdinatesOperator {
 
     /// `y = K x`: scatter `x` once with the phase matrix, transport the result.
     fn apply(&self, x: &[f64], y: &mut [f64]) {
+        let m = self.bins.len();
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;
-        self.scatter_density(x, &mut s.density);
-        self.transport_with(&s.density, y, &mut s.piece_out, &mut s.layers);
+        self.scatter_into(x, &mut s.density, Layout::BinMajor, 0, m);
+        self.transport_all(y, s, false);
     }
 
     /// Block Gauss–Seidel over bins: groups of `gauss_seidel_group` bins in index order; each
     /// group's scattering source uses the bins already updated in this sweep.
+    ///
+    /// Works on bin-major copies of `g` and `source` (copied in and out once per sweep), so
+    /// that each group's update streams through memory; the update of one group and the
+    /// scattering density of the next are one pass over the cells (the density of a cell
+    /// needs only that cell's radiances).
     fn sweep_in_place(&self, g: &mut [f64], source: &[f64], omega: f64) -> bool {
         let n = self.grid.cell_count();
         let m = self.bins.len();
+        let stride = self.stride;
         let group = self.options.gauss_seidel_group.max(1);
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;
-        for start in (0..m).step_by(group) {
-            let end = (start + group).min(m);
-            // Scattering density for the group's bins from the current g.
-            s.density
-                .par_chunks_mut(m)
-                .zip(g.par_chunks(m))
-                .enumerate()
-                .for_each(|(c, (d, xc))| {
-                    let ss = self.sigma_s[c];
-                    for l in start..end {
-                        d[l] = if ss == 0.0 {
-                            0.0
-                        } else {
-                            let row = &self.scatter[l * m..(l + 1) * m];
-                            ss * row.iter().zip(xc).map(|(a, b)| a * b).sum::<f64>()
-                        };
-                    }
-                });
-            let p0 = self.bin_pieces[start][0];
-            let p1 = *self.bin_pieces[end - 1]
+        if s.g_bins.len() != m * stride {
+            s.g_bins = vec![0.0; m * stride];
+            s.source_bins = vec![0.0; m * stride];
+        }
+        self.cells_to_bins(g, &mut s.g_bins);
+        self.cells_to_bins(source, &mut s.source_bins);
+        let groups: Vec<std::ops::Range<usize>> = (0..m)
+            .step_by(group)
+            .map(|start| start..(start + group).min(m))
+            .collect();
+        // Scattering density for the first group's bins from the current g.
+        let g_bins = SharedMut(s.g_bins.as_mut_ptr());
+        let density = SharedMut(s.density.as_mut_ptr());
+        let blocks = n.div_ceil(SCATTER_BLOCK);
+        let block_cells = |b: usize| b * SCATTER_BLOCK..((b + 1) * SCATTER_BLOCK).min(n);
+        let scatter_block = |bins: std::ops::Range<usize>, cells: std::ops::Range<usize>| {
+            // SAFETY: both arrays have m columns of `stride` (≥ n) elements; each block's
+            // cells belong to one task.
+            unsafe {
+                self.scatter_block(
+                    g_bins.ptr(),
+                    Layout::BinMajor,
+                    density,
+                    Layout::BinMajor,
+                    bins,
+                    cells,
+                )
+            }
+        };
+        (0..blocks)
+            .into_par_iter()
+            .for_each(|b| scatter_block(groups[0].clone(), block_cells(b)));
+        for (k, bins) in groups.iter().enumerate() {
+            let p0 = self.bin_pieces[bins.start][0];
+            let p1 = *self.bin_pieces[bins.end - 1]
                 .last()
                 .expect("every bin has a piece")
                 + 1;
-            let density = &s.density;
-            s.piece_out[p0 * n..p1 * n]
-                .par_chunks_mut(n)
+            let density_ref = &s.density;
+            s.piece_out[p0 * stride..p1 * stride]
+                .par_chunks_mut(stride)
                 .zip(s.layers[p0..p1].par_iter_mut())
-                .zip(self.pieces[p0..p1].par_iter())
-                .for_each(|((po, buf), piece)| {
-                    self.sweep_piece(piece, density, po, buf);
+                .enumerate()
+                .for_each(|(i, (po, buf))| {
+                    self.sweep_piece(p0 + i, density_ref, po, buf, false);
                 });
             let piece_out = &s.piece_out;
-            g.par_chunks_mut(m)
-                .zip(source.par_chunks(m))
-                .enumerate()
-                .for_each(|(c, (gc, ec))| {
-                    for l in start..end {
-                        let kg: f64 = self.bin_pieces[l]
-                            .iter()
-                            .map(|&p| piece_out[p * n + c])
-                            .sum();
-                        gc[l] = (1.0 - omega) * gc[l] + omega * (ec[l] + kg);
+            let source_bins = &s.source_bins;
+            let next = groups.get(k + 1).cloned();
+            (0..blocks).into_par_iter().for_each(|b| {
+                let cells = block_cells(b);
+                for l in bins.clone() {
+                    let column = l * stride;
+                    let pieces = &self.bin_pieces[l];
+                    for c in cells.clone() {
+                        let kg: f64 = pieces.iter().map(|&p| piece_out[p * stride + c]).sum();
+                        // SAFETY: inside g_bins (m·stride); these cells are this task's.
+                        unsafe {
+                            let gl = g_bins.ptr().add(column + c);
+                            *gl = (1.0 - omega) * *gl + omega * (source_bins[column + c] + kg);
+                        }
                     }
-                });
+                }
+                if let Some(next) = next.clone() {
+                    // The next group's densities of these cells: this task's alone, and
+                    // nobody reads them now.
+                    scatter_block(next, cells);
+                }
+            });
         }
+        self.bins_to_cells(&s.g_bins, g);
         true
     }
 }

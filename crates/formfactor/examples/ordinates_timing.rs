@@ -1,0 +1,87 @@
+//! Times the two halves of one discrete-ordinates application (scattering with the phase
+//! matrix; the 96-bin transport sweep) and one Gauss–Seidel sweep on the generated cloud.
+//! `cargo run --release -p formfactor --example ordinates_timing -- 64 64 48 [sigma_scale]`
+
+use std::time::Instant;
+
+use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use medium::generators::cloud;
+use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use solver::operator::TransportOperator;
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let dim = |i: usize, d: usize| args.get(i).map_or(d, |v| v.parse().expect("grid size"));
+    let dims = [dim(0, 64), dim(1, 64), dim(2, 48)];
+    let scale: f32 = args.get(3).map_or(1.6, |v| v.parse().expect("σ scale"));
+    let grid = Grid::new(dims, 1.0).unwrap();
+    let channel = ChannelMedium {
+        sigma_t: cloud(dims, 7).iter().map(|d| d * scale).collect(),
+        albedo: CellValues::Uniform(0.99),
+        emission: CellValues::Uniform(0.0),
+    };
+    let op = OrdinatesOperator::from_channel(
+        grid,
+        &channel,
+        PhaseFunction::HenyeyGreenstein { g: 0.85 },
+        DirectionBins::max96(),
+        OrdinatesOptions::default(),
+    )
+    .unwrap();
+    let len = op.len();
+    let x: Vec<f64> = (0..len).map(|i| 1.0 + (i % 7) as f64 * 0.1).collect();
+    let mut d = vec![0.0; len];
+    let mut y = vec![0.0; len];
+    let reps = 3;
+    // Best of `reps` in process CPU seconds (user + system): less sensitive than wall time
+    // to other jobs on a shared machine; with one thread it is the work itself.
+    let best = |f: &mut dyn FnMut()| {
+        (0..reps)
+            .map(|_| {
+                let (t, c) = (Instant::now(), cpu_seconds());
+                f();
+                (cpu_seconds() - c, t.elapsed().as_secs_f64())
+            })
+            .fold((f64::INFINITY, f64::INFINITY), |a, b| {
+                (a.0.min(b.0), a.1.min(b.1))
+            })
+    };
+    if std::env::var("ORDINATES_ONLY_GS").is_ok() {
+        // For a profiler: Gauss–Seidel sweeps only.
+        let mut g = x.clone();
+        for _ in 0..5 {
+            op.sweep_in_place(&mut g, &x, 1.0);
+        }
+        return;
+    }
+    let scatter = best(&mut || op.scatter_density(&x, &mut d));
+    let sweep = best(&mut || {
+        op.transport(&d, &mut y);
+    });
+    let mut g = x.clone();
+    let gs = best(&mut || {
+        op.sweep_in_place(&mut g, &x, 1.0);
+    });
+    let check: f64 = y.iter().sum::<f64>() + g.iter().sum::<f64>();
+    println!(
+        "{dims:?} σ×{scale}: CPU (wall) seconds, best of {reps}: scatter {:.3} ({:.3}), \
+         transport {:.3} ({:.3}), Gauss–Seidel sweep {:.3} ({:.3}); checksum {check:.6e}",
+        scatter.0, scatter.1, sweep.0, sweep.1, gs.0, gs.1
+    );
+}
+
+/// User + system CPU time of this process from /proc/self/stat (Linux; 0 elsewhere).
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |r| r.1);
+    let f: Vec<f64> = rest
+        .split_whitespace()
+        .skip(11)
+        .take(2)
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    f.iter().sum::<f64>() / 100.0
+}
