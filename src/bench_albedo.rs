@@ -88,8 +88,15 @@ impl TransportOperator for AlbedoScaled<'_> {
         self.inner.coarse_aggregates()
     }
 
-    fn coarse_operator(&self, aggregates: &[u32], n_coarse: usize) -> Option<Vec<f64>> {
-        let mut k = self.inner.coarse_operator(aggregates, n_coarse)?;
+    fn coarse_operator(
+        &self,
+        aggregates: &[u32],
+        n_coarse: usize,
+        row_weights: Option<&[f64]>,
+    ) -> Option<Vec<f64>> {
+        let mut k = self
+            .inner
+            .coarse_operator(aggregates, n_coarse, row_weights)?;
         k.iter_mut().for_each(|v| *v *= self.albedo);
         Some(k)
     }

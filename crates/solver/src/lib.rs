@@ -32,7 +32,10 @@ pub use methods::coarse::{
     PROBED_DEFAULT_AGGREGATES,
 };
 pub use operator::{RowAccess, TransportOperator};
-pub use options::{Method, ParseMethodError, Smoother, SolveOptions, DEFAULT_GMRES_RESTART};
+pub use options::{
+    Method, ParseMethodError, Smoother, SolveOptions, DEFAULT_GMRES_RESTART,
+    MAX_TWO_LEVEL_SMOOTHING,
+};
 pub use report::{SolveReport, StopReason};
 pub use solve::{solve, DIVERGENCE_FACTOR, STAGNATION_WINDOW};
 pub use spectral::{predicted_iterations, spectral_radius, SpectralEstimate};

@@ -48,13 +48,21 @@ pub trait TransportOperator: Sync {
         None
     }
 
-    /// The Galerkin coarse operator `Pᵀ K P` for the given aggregates (piecewise-constant
-    /// prolongation `P`), dense and row-major, `n_coarse × n_coarse`: entry `(c, d)` is the sum
-    /// of `K_ij` over `i ∈ c`, `j ∈ d`. Operators that can form it cheaply (e.g. a hierarchy that
-    /// already holds cluster-to-cluster links) override this; by default the solver builds it
-    /// from [`RowAccess::for_each_in_row`] or, failing that, from one `apply` per aggregate.
-    fn coarse_operator(&self, aggregates: &[u32], n_coarse: usize) -> Option<Vec<f64>> {
-        let _ = (aggregates, n_coarse);
+    /// The Galerkin coarse operator `Pᵀ W K P` for the given aggregates (piecewise-constant
+    /// prolongation `P`, `W = diag(row_weights)` or the identity), dense and row-major,
+    /// `n_coarse × n_coarse`: entry `(c, d)` is the sum of `w_i K_ij` over `i ∈ c`, `j ∈ d`.
+    /// Conjugate-gradient preconditioners pass the [`symmetrizer`](Self::symmetrizer) as
+    /// `row_weights`, so the coarse matrix is symmetric. Operators that can form it cheaply
+    /// (e.g. a hierarchy that already holds cluster-to-cluster links) override this; by default
+    /// the solver builds it from [`RowAccess::for_each_in_row`] or, failing that, from one
+    /// `apply` per aggregate.
+    fn coarse_operator(
+        &self,
+        aggregates: &[u32],
+        n_coarse: usize,
+        row_weights: Option<&[f64]>,
+    ) -> Option<Vec<f64>> {
+        let _ = (aggregates, n_coarse, row_weights);
         None
     }
 }

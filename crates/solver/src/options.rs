@@ -35,12 +35,23 @@ pub enum Method {
     /// by the coarse-grid correction: `M⁻¹ = I + P (Pᵀ W (I − K) P)⁻¹ Pᵀ W`, self-adjoint in
     /// the same inner product. Aggregates as for [`CoarseCorrected`](Self::CoarseCorrected).
     CoarseCg,
+    /// Conjugate gradients (as [`ConjugateGradient`](Self::ConjugateGradient)) preconditioned
+    /// by the balancing two-level preconditioner
+    /// `M⁻¹ = (I − Π) S (I − Π) + P (Pᵀ W (I − K) P)⁻¹ Pᵀ W`, where `Π = P (Pᵀ W P)⁻¹ Pᵀ W`
+    /// is the W-orthogonal projection onto piecewise-constant vectors and
+    /// `S = Σ_{j≤smoothing} K^j` smooths the rest. The coarse part is solved exactly on the
+    /// operator's aggregates (a coarse-mesh balance), the rest by the fine iteration; each
+    /// iteration costs `1 + smoothing` applications of `K` and one dense coarse solve.
+    TwoLevelCg { smoothing: usize },
     /// Two-level iteration: a Galerkin coarse-grid correction on aggregates followed by one
     /// sweep of `inner`. With piecewise-constant prolongation and summation restriction the
     /// coarse equations are the energy balance of each aggregate: this is additive
     /// coarse-mesh rebalance, the transport-practice accelerator.
     CoarseCorrected { inner: Smoother },
 }
+
+/// Largest smoothing degree of [`Method::TwoLevelCg`] (each costs an application of `K`).
+pub const MAX_TWO_LEVEL_SMOOTHING: usize = 8;
 
 /// Default restart length for `"gmres"` without a number.
 pub const DEFAULT_GMRES_RESTART: usize = 30;
@@ -95,6 +106,8 @@ impl fmt::Display for Method {
             Method::BiCgStab => write!(f, "bicgstab"),
             Method::ConjugateGradient => write!(f, "cg"),
             Method::CoarseCg => write!(f, "coarse-cg"),
+            Method::TwoLevelCg { smoothing: 0 } => write!(f, "two-level-cg"),
+            Method::TwoLevelCg { smoothing } => write!(f, "two-level-cg:{smoothing}"),
             Method::CoarseCorrected { inner } => write!(f, "coarse-{inner}"),
         }
     }
@@ -102,7 +115,7 @@ impl fmt::Display for Method {
 
 /// A method string that could not be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown solve method {input:?}: {reason} (expected one of jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-cg, coarse-jacobi, coarse-gs, coarse-sor:OMEGA)")]
+#[error("unknown solve method {input:?}: {reason} (expected one of jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-cg, two-level-cg[:SMOOTHING], coarse-jacobi, coarse-gs, coarse-sor:OMEGA)")]
 pub struct ParseMethodError {
     pub input: String,
     pub reason: String,
@@ -162,6 +175,19 @@ impl FromStr for Method {
             "bicgstab" => no_arg(Method::BiCgStab),
             "cg" | "conjugate-gradient" => no_arg(Method::ConjugateGradient),
             "coarse-cg" => no_arg(Method::CoarseCg),
+            "two-level-cg" => {
+                let smoothing = match arg {
+                    None => 0,
+                    Some(t) => t
+                        .parse::<usize>()
+                        .ok()
+                        .filter(|&m| m <= MAX_TWO_LEVEL_SMOOTHING)
+                        .ok_or_else(|| {
+                            err("the two-level smoothing must be an integer from 0 to 8")
+                        })?,
+                };
+                Ok(Method::TwoLevelCg { smoothing })
+            }
             "coarse-jacobi" => no_arg(Method::CoarseCorrected {
                 inner: Smoother::Jacobi,
             }),

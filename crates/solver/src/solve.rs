@@ -6,8 +6,9 @@ use std::time::Instant;
 use crate::control::SolveControl;
 use crate::error::SolveError;
 use crate::methods;
+use crate::methods::krylov::Preconditioner;
 use crate::operator::TransportOperator;
-use crate::options::{Method, Smoother, SolveOptions};
+use crate::options::{Method, Smoother, SolveOptions, MAX_TWO_LEVEL_SMOOTHING};
 use crate::report::{SolveReport, StopReason};
 use crate::vecops::{residual_into, Reducer};
 
@@ -35,7 +36,10 @@ pub fn solve(
     }
     check_options(options)?;
     let method = options.method;
-    if matches!(method, Method::ConjugateGradient | Method::CoarseCg) {
+    if matches!(
+        method,
+        Method::ConjugateGradient | Method::CoarseCg | Method::TwoLevelCg { .. }
+    ) {
         let Some(w) = op.symmetrizer() else {
             return Err(SolveError::Unsupported {
                 method: method.name(),
@@ -68,12 +72,21 @@ pub fn solve(
         Method::BiCgStab => methods::krylov::bicgstab(&mut ctx, &mut g),
         Method::ConjugateGradient => {
             let w = op.symmetrizer().expect("checked above");
-            methods::krylov::cg(&mut ctx, &mut g, w, None)
+            methods::krylov::cg(&mut ctx, &mut g, w, Preconditioner::Identity)
         }
         Method::CoarseCg => {
             let w = op.symmetrizer().expect("checked above");
             let coarse = methods::coarse::CoarseSpace::new(&mut ctx, Some(w))?;
-            methods::krylov::cg(&mut ctx, &mut g, w, Some(coarse))
+            methods::krylov::cg(&mut ctx, &mut g, w, Preconditioner::Coarse(coarse))
+        }
+        Method::TwoLevelCg { smoothing } => {
+            let w = op.symmetrizer().expect("checked above");
+            let coarse = methods::coarse::CoarseSpace::new(&mut ctx, Some(w))?;
+            if !coarse.is_active() {
+                tracing::warn!("two-level-cg: no coarse solve, plain (smoothed) CG");
+            }
+            let pre = Preconditioner::two_level(coarse, smoothing, n);
+            methods::krylov::cg(&mut ctx, &mut g, w, pre)
         }
         Method::CoarseCorrected { inner } => {
             methods::coarse::two_level(&mut ctx, &mut g, inner, method.name())?
@@ -179,6 +192,11 @@ fn check_options(o: &SolveOptions) -> Result<(), SolveError> {
         } if bad_omega(omega) => Err(SolveError::InvalidOptions(format!(
             "SOR relaxation factor must lie in (0, 2), not {omega}"
         ))),
+        Method::TwoLevelCg { smoothing } if smoothing > MAX_TWO_LEVEL_SMOOTHING => {
+            Err(SolveError::InvalidOptions(format!(
+                "two-level smoothing must be at most {MAX_TWO_LEVEL_SMOOTHING}, not {smoothing}"
+            )))
+        }
         Method::Gmres { restart: 0 } => Err(SolveError::InvalidOptions(
             "GMRES restart must be at least 1".into(),
         )),

@@ -11,7 +11,7 @@ use solver::{
     SolveError, SolveOptions, SolveReport, StopReason,
 };
 
-const ALL: [&str; 12] = [
+const ALL: [&str; 14] = [
     "jacobi",
     "gauss-seidel",
     "sor:1.5",
@@ -20,6 +20,8 @@ const ALL: [&str; 12] = [
     "gmres:5",
     "bicgstab",
     "cg",
+    "two-level-cg",
+    "two-level-cg:2",
     "coarse-cg",
     "coarse-gs",
     "coarse-jacobi",
@@ -340,6 +342,8 @@ fn methods_parse_and_print() {
         "jacobi:3",
         "multigrid",
         "coarse-bicgstab",
+        "two-level-cg:x",
+        "two-level-cg:9",
     ] {
         let err = bad.parse::<Method>().unwrap_err();
         assert!(err.to_string().contains("expected one of"), "{bad}: {err}");

@@ -49,6 +49,8 @@ fn all_methods_reach_the_direct_solution_on_reciprocal_systems() {
         Method::Gmres { restart: 10 },
         Method::BiCgStab,
         Method::ConjugateGradient,
+        Method::TwoLevelCg { smoothing: 0 },
+        Method::TwoLevelCg { smoothing: 2 },
         Method::CoarseCorrected {
             inner: Smoother::GaussSeidel,
         },
@@ -70,14 +72,14 @@ fn all_methods_reach_the_direct_solution_on_reciprocal_systems() {
         }
         // Operator-supplied aggregates take the place of the contiguous default.
         let k = k.with_aggregates((0..70).map(|i| (i % 7) as u32).collect());
-        check_method(
-            &k,
-            &e,
-            &exact,
+        for m in [
             Method::CoarseCorrected {
                 inner: Smoother::GaussSeidel,
             },
-        );
+            Method::TwoLevelCg { smoothing: 1 },
+        ] {
+            check_method(&k, &e, &exact, m);
+        }
     }
 }
 
@@ -180,6 +182,8 @@ fn acceleration_pays_on_a_thick_chain_at_albedo_0999() {
         Method::ConjugateGradient,
         Method::Gmres { restart: 50 },
         Method::CoarseCg,
+        Method::TwoLevelCg { smoothing: 0 },
+        Method::TwoLevelCg { smoothing: 1 },
         Method::CoarseCorrected {
             inner: Smoother::GaussSeidel,
         },

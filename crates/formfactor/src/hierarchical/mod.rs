@@ -106,7 +106,16 @@ pub struct HierarchicalOperator {
     near_col: Vec<u32>,
     near_val: Vec<f64>,
     weights: Option<Vec<f64>>,
+    /// Coarse aggregates for the solver's two-level methods: the clusters of level
+    /// [`COARSE_LEVEL`] (blocks of `2^COARSE_LEVEL` cells per edge).
+    aggregates: Vec<u32>,
 }
+
+/// Pyramid level whose clusters are the solver's coarse aggregates: 8×8×8-cell blocks, so the
+/// dense coarse matrix stays small (384 aggregates for 64×64×48) and its LU cheap. (4×4×4
+/// blocks, 3072 aggregates, cost seconds of LU and saved only 3 of 14 CG iterations on
+/// `data/cloud.toml`: see docs/albedo.md.)
+pub const COARSE_LEVEL: usize = 3;
 
 enum Outcome {
     /// `(level, a, b, K)`.
@@ -360,6 +369,7 @@ impl HierarchicalOperator {
             near_col,
             near_val,
             weights: None,
+            aggregates: block_aggregates(grid, COARSE_LEVEL),
         };
 
         // Per-column energy accounting: c_j = near_j + β_j Σ_levels Σ_links K α_sum(other end).
@@ -543,6 +553,65 @@ fn cluster_depth(grid: &Grid, level: &Level, a: usize, b: usize) -> f64 {
     (tau - ends).max(0.0)
 }
 
+/// Cell → index of its `2^level`-cell block (x-fastest over the blocks).
+fn block_aggregates(grid: &Grid, level: usize) -> Vec<u32> {
+    let d = grid.dims;
+    let bd = [0, 1, 2].map(|a| d[a].div_ceil(1 << level));
+    (0..grid.cell_count())
+        .map(|i| {
+            let x = [i % d[0], (i / d[0]) % d[1], i / (d[0] * d[1])];
+            ((x[0] >> level) + bd[0] * ((x[1] >> level) + bd[1] * (x[2] >> level))) as u32
+        })
+        .collect()
+}
+
+/// Per cluster of one level, the sparse list `(aggregate, Σ weight)` over its cells (CSR).
+struct AggregateWeights {
+    ptr: Vec<usize>,
+    entries: Vec<(u32, f64)>,
+}
+
+impl AggregateWeights {
+    fn of_cells(aggs: &[u32], weight: impl Fn(usize) -> f64) -> Self {
+        AggregateWeights {
+            ptr: (0..=aggs.len()).collect(),
+            entries: aggs
+                .iter()
+                .enumerate()
+                .map(|(i, &a)| (a, weight(i)))
+                .collect(),
+        }
+    }
+
+    fn get(&self, c: usize) -> &[(u32, f64)] {
+        &self.entries[self.ptr[c]..self.ptr[c + 1]]
+    }
+
+    /// The next level up: each cluster merges its children's lists.
+    fn parent(&self, level: &Level, fine: &Level) -> Self {
+        let mut ptr = Vec::with_capacity(level.count() + 1);
+        let mut entries = Vec::new();
+        let mut buf: Vec<(u32, f64)> = Vec::new();
+        ptr.push(0);
+        for c in 0..level.count() {
+            buf.clear();
+            for ch in children(level, fine, c) {
+                buf.extend_from_slice(self.get(ch));
+            }
+            buf.sort_unstable_by_key(|e| e.0);
+            let start = entries.len();
+            for &(a, v) in &buf {
+                match entries[start..].last_mut() {
+                    Some((last, acc)) if *last == a => *acc += v,
+                    _ => entries.push((a, v)),
+                }
+            }
+            ptr.push(entries.len());
+        }
+        AggregateWeights { ptr, entries }
+    }
+}
+
 impl TransportOperator for HierarchicalOperator {
     fn len(&self) -> usize {
         self.albedo.len()
@@ -571,5 +640,82 @@ impl TransportOperator for HierarchicalOperator {
 
     fn symmetrizer(&self) -> Option<&[f64]> {
         self.weights.as_deref()
+    }
+
+    fn coarse_aggregates(&self) -> Option<&[u32]> {
+        Some(&self.aggregates)
+    }
+
+    /// `Pᵀ W K P` exactly, from the near entries and the cluster links (no application of
+    /// `K`): a link `A ← B` adds `K_AB (Σ_{i∈A∩c} w_i a_i d_i α_i)(Σ_{j∈B∩d} β_j d_j)` to
+    /// entry `(c, d)`, with the per-cluster sums merged up the pyramid.
+    fn coarse_operator(
+        &self,
+        aggregates: &[u32],
+        n_coarse: usize,
+        row_weights: Option<&[f64]>,
+    ) -> Option<Vec<f64>> {
+        let n = self.len();
+        if aggregates.len() != n
+            || row_weights.is_some_and(|w| w.len() != n)
+            || aggregates.iter().any(|&a| a as usize >= n_coarse)
+        {
+            return None;
+        }
+        let nc = n_coarse;
+        let recv: Vec<f64> = (0..n)
+            .map(|i| row_weights.map_or(1.0, |w| w[i]) * self.albedo[i] * self.scale[i])
+            .collect();
+        let mut receivers = vec![AggregateWeights::of_cells(aggregates, |i| {
+            recv[i] * self.alpha[i]
+        })];
+        let mut sources = vec![AggregateWeights::of_cells(aggregates, |j| {
+            self.beta[j] * self.scale[j]
+        })];
+        for l in 1..self.levels.len() {
+            let (level, fine) = (&self.levels[l], &self.levels[l - 1]);
+            receivers.push(receivers[l - 1].parent(level, fine));
+            sources.push(sources[l - 1].parent(level, fine));
+        }
+        // Work split by receiver cell / cluster into one dense accumulator per task.
+        let tasks = rayon::current_num_threads().max(1);
+        let partial = |t: usize| -> Vec<f64> {
+            let mut kc = vec![0.0; nc * nc];
+            let part = |len: usize| (t * len / tasks)..((t + 1) * len / tasks);
+            for i in part(n) {
+                let row = aggregates[i] as usize * nc;
+                for p in self.near_ptr[i]..self.near_ptr[i + 1] {
+                    let j = self.near_col[p] as usize;
+                    kc[row + aggregates[j] as usize] += recv[i] * self.near_val[p] * self.scale[j];
+                }
+            }
+            for (l, level) in self.levels.iter().enumerate() {
+                for a in part(level.count()) {
+                    let into = receivers[l].get(a);
+                    if into.is_empty() {
+                        continue;
+                    }
+                    for p in level.link_ptr[a]..level.link_ptr[a + 1] {
+                        let k = level.link_k[p] as f64;
+                        let from = sources[l].get(level.link_src[p] as usize);
+                        for &(c, wa) in into {
+                            let row = &mut kc[c as usize * nc..][..nc];
+                            for &(d, wb) in from {
+                                row[d as usize] += k * wa * wb;
+                            }
+                        }
+                    }
+                }
+            }
+            kc
+        };
+        let kc = (0..tasks)
+            .into_par_iter()
+            .map(partial)
+            .reduce_with(|mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            })?;
+        Some(kc)
     }
 }

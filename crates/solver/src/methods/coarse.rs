@@ -62,11 +62,7 @@ fn coarse_k(
     let op = ctx.op;
     let n = aggs.len();
     let w = |i: usize| weights.map_or(1.0, |w| w[i]);
-    if let Some(kc) = weights
-        .is_none()
-        .then(|| op.coarse_operator(aggs, nc))
-        .flatten()
-    {
+    if let Some(kc) = op.coarse_operator(aggs, nc, weights) {
         if kc.len() != nc * nc || kc.iter().any(|v| !v.is_finite()) {
             return Err(SolveError::InvalidOperatorData {
                 what: "coarse operator",
@@ -173,8 +169,11 @@ impl Lu {
 pub(crate) struct CoarseSpace<'a> {
     aggs: std::borrow::Cow<'a, [u32]>,
     lu: Option<Lu>,
+    /// `Pᵀ W P`: the weight of each aggregate (its cell count when `W = I`).
+    weight_sums: Vec<f64>,
     rc: Vec<f64>,
     tmp: Vec<f64>,
+    means: Vec<f64>,
 }
 
 impl<'a> CoarseSpace<'a> {
@@ -195,15 +194,15 @@ impl<'a> CoarseSpace<'a> {
             }
         };
         let nc = check_aggregates(&aggs, n)?;
+        let mut diag = vec![0.0; nc];
+        for (i, &a) in aggs.iter().enumerate() {
+            diag[a as usize] += weights.map_or(1.0, |w| w[i]);
+        }
         let lu = if nc == 0 {
             None
         } else {
             let mut ac = coarse_k(ctx, &aggs, nc, weights)?;
             ac.iter_mut().for_each(|v| *v = -*v);
-            let mut diag = vec![0.0; nc];
-            for (i, &a) in aggs.iter().enumerate() {
-                diag[a as usize] += weights.map_or(1.0, |w| w[i]);
-            }
             // Aggregate weights set the scale against which cancellation is judged.
             let scale = diag.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (c, d) in diag.iter().enumerate() {
@@ -220,9 +219,69 @@ impl<'a> CoarseSpace<'a> {
         Ok(Self {
             aggs,
             lu,
+            weight_sums: diag,
             rc: vec![0.0; nc],
             tmp: vec![0.0; nc],
+            means: vec![0.0; nc],
         })
+    }
+
+    /// Whether the coarse matrix could be factorised (if not, corrections do nothing).
+    pub(crate) fn is_active(&self) -> bool {
+        self.lu.is_some()
+    }
+
+    /// `rc = Pᵀ W r` and, per aggregate, the W-weighted mean of `r` (so `Π r = P means`).
+    fn restrict(&mut self, r: &[f64], weights: Option<&[f64]>) {
+        self.rc.iter_mut().for_each(|v| *v = 0.0);
+        for (i, (&a, &ri)) in self.aggs.iter().zip(r).enumerate() {
+            self.rc[a as usize] += weights.map_or(ri, |w| w[i] * ri);
+        }
+        for ((m, &s), &d) in self.means.iter_mut().zip(&self.rc).zip(&self.weight_sums) {
+            *m = if d > 0.0 { s / d } else { 0.0 };
+        }
+    }
+
+    /// `x ← (I − Π) x`, with `Π = P (Pᵀ W P)⁻¹ Pᵀ W` the W-orthogonal projection onto
+    /// piecewise-constant vectors: subtracts each aggregate's W-weighted mean.
+    pub(crate) fn remove_means(&mut self, x: &mut [f64], weights: Option<&[f64]>) {
+        self.restrict(x, weights);
+        for (xi, &a) in x.iter_mut().zip(self.aggs.iter()) {
+            *xi -= self.means[a as usize];
+        }
+    }
+
+    /// `z = (I − Π) r + P A_c⁻¹ Pᵀ W r`: the balancing two-level preconditioner with the
+    /// identity on the fine part. Unlike `I + P A_c⁻¹ Pᵀ W`, it replaces (rather than adds to)
+    /// the piecewise-constant component of `r`, so coarse modes are not over-corrected.
+    /// `fine`, if given, is used instead of `(I − Π) r` (already projected by the caller).
+    pub(crate) fn balance(
+        &mut self,
+        r: &[f64],
+        weights: Option<&[f64]>,
+        fine: Option<&[f64]>,
+        z: &mut [f64],
+    ) {
+        self.restrict(r, weights);
+        match fine {
+            Some(f) => z.copy_from_slice(f),
+            None => {
+                for ((zi, &ri), &a) in z.iter_mut().zip(r).zip(self.aggs.iter()) {
+                    *zi = ri - self.means[a as usize];
+                }
+            }
+        }
+        let Some(lu) = &self.lu else {
+            // No coarse solve: fall back to the plain residual on the coarse part.
+            for (zi, &a) in z.iter_mut().zip(self.aggs.iter()) {
+                *zi += self.means[a as usize];
+            }
+            return;
+        };
+        lu.solve(&mut self.rc, &mut self.tmp);
+        for (zi, &a) in z.iter_mut().zip(self.aggs.iter()) {
+            *zi += self.rc[a as usize];
+        }
     }
 
     /// `g += P A_c⁻¹ Pᵀ W r`.

@@ -239,23 +239,90 @@ pub(crate) fn bicgstab(ctx: &mut Ctx<'_>, x: &mut [f64]) -> Stop {
     }
 }
 
+/// The preconditioner of [`cg`], self-adjoint and positive in the `W` inner product.
+pub(crate) enum Preconditioner<'a> {
+    /// Plain conjugate gradients.
+    Identity,
+    /// `z = r + P A_c⁻¹ Pᵀ W r` (additive coarse correction).
+    Coarse(CoarseSpace<'a>),
+    /// `z = (I − Π) S_m (I − Π) r + P A_c⁻¹ Pᵀ W r` with `S_m = Σ_{j≤m} K^j` (`m` extra
+    /// applications of `K`): the balancing two-level preconditioner (see
+    /// [`Method::TwoLevelCg`](crate::Method::TwoLevelCg)).
+    TwoLevel {
+        coarse: CoarseSpace<'a>,
+        smoothing: usize,
+        fine: Vec<f64>,
+        power: Vec<f64>,
+        scratch: Vec<f64>,
+    },
+}
+
+impl<'a> Preconditioner<'a> {
+    pub(crate) fn two_level(coarse: CoarseSpace<'a>, smoothing: usize, n: usize) -> Self {
+        let buffer = |used: bool| if used { vec![0.0; n] } else { Vec::new() };
+        Preconditioner::TwoLevel {
+            coarse,
+            smoothing,
+            fine: buffer(smoothing > 0),
+            power: buffer(smoothing > 0),
+            scratch: buffer(smoothing > 0),
+        }
+    }
+
+    /// `z = M⁻¹ r`; returns `false` for the identity (the caller then uses `r` itself).
+    fn apply(&mut self, ctx: &mut Ctx<'_>, w: &[f64], r: &[f64], z: &mut [f64]) -> bool {
+        match self {
+            Preconditioner::Identity => false,
+            Preconditioner::Coarse(c) => {
+                z.copy_from_slice(r);
+                c.correct(r, Some(w), z);
+                true
+            }
+            Preconditioner::TwoLevel {
+                coarse,
+                smoothing,
+                fine,
+                power,
+                scratch,
+            } => {
+                if *smoothing == 0 {
+                    coarse.balance(r, Some(w), None, z);
+                    return true;
+                }
+                // t = (I − Π) r; fine = Σ_{j≤m} K^j t (Horner: fine ← t + K fine); then
+                // (I − Π) fine. K is W-self-adjoint, so the whole map is.
+                power.copy_from_slice(r);
+                coarse.remove_means(power, Some(w));
+                fine.copy_from_slice(power);
+                for _ in 0..*smoothing {
+                    ctx.apply(fine, scratch);
+                    let t: &[f64] = power;
+                    let kf: &[f64] = scratch;
+                    for_each_mut(fine, |i, _| t[i] + kf[i]);
+                }
+                coarse.remove_means(fine, Some(w));
+                coarse.balance(r, Some(w), Some(fine), z);
+                true
+            }
+        }
+    }
+
+    fn is_identity(&self) -> bool {
+        matches!(self, Preconditioner::Identity)
+    }
+}
+
 /// Conjugate gradients for `A = I − K`, self-adjoint in `⟨x, y⟩_w = Σ w_i x_i y_i` because
-/// `diag(w) K` is symmetric. One application per iteration. Non-positive curvature (the
-/// operator is not contractive, so `A` is not positive definite) ends the solve as Stagnated.
-///
-/// With `coarse`, the preconditioner `z = r + P A_c⁻¹ Pᵀ W r` (W-self-adjoint and positive).
-pub(crate) fn cg(
-    ctx: &mut Ctx<'_>,
-    x: &mut [f64],
-    w: &[f64],
-    mut coarse: Option<CoarseSpace<'_>>,
-) -> Stop {
+/// `diag(w) K` is symmetric. One application per iteration, plus the preconditioner's.
+/// Non-positive curvature (the operator is not contractive, so `A` is not positive definite)
+/// ends the solve as Stagnated.
+pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64], mut pre: Preconditioner<'_>) -> Stop {
     let n = x.len();
     let mut r = vec![0.0; n];
-    let mut z = if coarse.is_some() {
-        vec![0.0; n]
-    } else {
+    let mut z = if pre.is_identity() {
         Vec::new()
+    } else {
+        vec![0.0; n]
     };
     let mut p = vec![0.0; n];
     let mut q = vec![0.0; n];
@@ -266,14 +333,8 @@ pub(crate) fn cg(
         if let Some(stop) = restart_check(ctx, rel, &mut first) {
             return stop;
         }
-        let precondition = |r: &[f64], z: &mut Vec<f64>, coarse: &mut Option<CoarseSpace<'_>>| {
-            if let Some(c) = coarse {
-                z.copy_from_slice(r);
-                c.correct(r, Some(w), z);
-            }
-        };
-        precondition(&r, &mut z, &mut coarse);
-        p.copy_from_slice(if coarse.is_some() { &z } else { &r });
+        let preconditioned = pre.apply(ctx, w, &r, &mut z);
+        p.copy_from_slice(if preconditioned { &z } else { &r });
         let mut rz = ctx.red.weighted_dot(w, &r, &p);
         loop {
             apply_a(ctx, &p, &mut q);
@@ -304,9 +365,19 @@ pub(crate) fn cg(
                     }
                 }
             }
-            precondition(&r, &mut z, &mut coarse);
-            let zr: &[f64] = if coarse.is_some() { &z } else { &r };
+            let preconditioned = pre.apply(ctx, w, &r, &mut z);
+            let zr: &[f64] = if preconditioned { &z } else { &r };
             let rz_new = ctx.red.weighted_dot(w, &r, zr);
+            if !(rz_new > 0.0) {
+                tracing::warn!(
+                    rz_new,
+                    "conjugate gradients: preconditioner is not positive"
+                );
+                return Stop {
+                    reason: StopReason::Stagnated,
+                    true_residual: None,
+                };
+            }
             let beta = rz_new / rz;
             rz = rz_new;
             for_each_mut(&mut p, |i, pi| zr[i] + beta * pi);
