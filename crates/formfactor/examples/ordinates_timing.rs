@@ -1,19 +1,24 @@
 //! Times the two halves of one discrete-ordinates application (scattering with the phase
 //! matrix; the 96-bin transport sweep) and one Gauss–Seidel sweep on the generated cloud.
 //! `cargo run --release -p formfactor --example ordinates_timing -- 64 64 48 [sigma_scale]`
+//! (σ scale 4 is the benchmark's dense cloud, `ORDINATES_SIGMA_SCALE=4`; 0.4 its default). With `ORDINATES_SOLVE=1`
+//! it runs the full Gauss–Seidel solve of `benches/ordinates.rs` instead (same cloud, light,
+//! loop and stopping rule), without building the whole workspace.
 
 use std::time::Instant;
 
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use glam::DVec3;
 use medium::generators::cloud;
-use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use medium::light_pass::LightPass;
+use medium::{CellValues, ChannelMedium, Grid, Light, PhaseFunction};
 use solver::operator::TransportOperator;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let dim = |i: usize, d: usize| args.get(i).map_or(d, |v| v.parse().expect("grid size"));
     let dims = [dim(0, 64), dim(1, 64), dim(2, 48)];
-    let scale: f32 = args.get(3).map_or(1.6, |v| v.parse().expect("σ scale"));
+    let scale: f32 = args.get(3).map_or(4.0, |v| v.parse().expect("σ scale"));
     let grid = Grid::new(dims, 1.0).unwrap();
     let channel = ChannelMedium {
         sigma_t: cloud(dims, 7).iter().map(|d| d * scale).collect(),
@@ -46,6 +51,10 @@ fn main() {
                 (a.0.min(b.0), a.1.min(b.1))
             })
     };
+    if std::env::var("ORDINATES_SOLVE").is_ok() {
+        solve(&grid, &channel, &op);
+        return;
+    }
     if std::env::var("ORDINATES_ONLY_GS").is_ok() {
         // For a profiler: Gauss–Seidel sweeps only.
         let mut g = x.clone();
@@ -67,6 +76,50 @@ fn main() {
         "{dims:?} σ×{scale}: CPU (wall) seconds, best of {reps}: scatter {:.3} ({:.3}), \
          transport {:.3} ({:.3}), Gauss–Seidel sweep {:.3} ({:.3}); checksum {check:.6e}",
         scatter.0, scatter.1, sweep.0, sweep.1, gs.0, gs.1
+    );
+}
+
+/// The Gauss–Seidel solve of `benches/ordinates.rs`: one oblique directional light, from
+/// `g = E` until `‖Δg‖ / ‖E‖ < 1e-5`.
+fn solve(grid: &Grid, channel: &ChannelMedium, op: &OrdinatesOperator) {
+    let t0 = Instant::now();
+    let lights = [Light::Directional {
+        direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
+        irradiance: 1.0,
+    }];
+    let pass = LightPass::compute(grid, channel, &lights).unwrap();
+    let external = op.external_density_from_pass(&pass, channel).unwrap();
+    let mut e = vec![0.0; op.len()];
+    op.transport(&external, &mut e);
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let norm_e = norm(&e);
+    let mut g = e.clone();
+    let mut before = g.clone();
+    let (mut iterations, mut change) = (0, f64::INFINITY);
+    while change >= 1e-5 && iterations < 1000 {
+        before.copy_from_slice(&g);
+        op.sweep_in_place(&mut g, &e, 1.0);
+        iterations += 1;
+        let d: f64 = g
+            .iter()
+            .zip(&before)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        change = d / norm_e;
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    let balance = op.energy_balance(&g, &external);
+    let (n, m) = (grid.cell_count(), op.bins().len());
+    let state = 4 * n * m * 8 + op.scratch_bytes();
+    println!(
+        "{:?} Gauss–Seidel to 1e-5: {iterations} iterations, {secs:.1} s ({:.2} s/iteration), \
+         energy imbalance {:.2e}, state {:.0} MB ({:.1} bytes per cell per bin)",
+        grid.dims,
+        secs / iterations as f64,
+        balance.relative_imbalance(),
+        state as f64 / 1e6,
+        state as f64 / (n * m) as f64
     );
 }
 

@@ -221,6 +221,86 @@ fn one_sweep_conserves_energy() {
     }
 }
 
+/// Sweeping through sub-cells keeps the balance per sweep, and the returned cell averages
+/// carry the extinguished power; the refinement option is checked.
+#[test]
+fn refined_sweep_conserves_energy_and_refuses_bad_options() {
+    let mut r = rng(11);
+    let grid = Grid::new([5, 4, 6], 0.7).unwrap();
+    let ch = blob_channel(&grid, 3.0, 0.9);
+    let make = |refinement: usize, periodic_xy: bool| {
+        OrdinatesOperator::from_channel(
+            grid,
+            &ch,
+            PhaseFunction::HenyeyGreenstein { g: 0.5 },
+            DirectionBins::cube(3).unwrap(),
+            OrdinatesOptions {
+                transport_refinement: refinement,
+                periodic_xy,
+                ..Default::default()
+            },
+        )
+    };
+    let op = make(3, false).unwrap();
+    let density: Vec<f64> = (0..op.len()).map(|_| r.random::<f64>()).collect();
+    let mut out = vec![0.0; op.len()];
+    let e = op.transport(&density, &mut out);
+    assert!((e.emitted - e.extinguished - e.escaped_total()).abs() < 1e-10 * e.emitted);
+    let m = op.bins().len();
+    let v = grid.cell_volume();
+    let from_radiance: f64 = (0..grid.cell_count())
+        .map(|c| {
+            op.sigma_t()[c]
+                * v
+                * (0..m)
+                    .map(|l| out[c * m + l] * op.bins().solid_angles()[l])
+                    .sum::<f64>()
+        })
+        .sum();
+    assert!((from_radiance - e.extinguished).abs() < 1e-10 * e.extinguished);
+    for (refinement, periodic) in [(0, false), (5, false), (2, true)] {
+        assert!(
+            matches!(make(refinement, periodic), Err(OrdinatesError::Option(_))),
+            "refinement {refinement}, periodic {periodic}"
+        );
+    }
+    assert!(AssembledOrdinates::from_operator(&make(2, false).unwrap()).is_err());
+}
+
+/// The exact chord-averaged inflow transmission `⟨e^{−τ ℓ}⟩` is at least the mean chord's
+/// `e^{−τ⟨ℓ⟩}` (Jensen), equal for thin cells, and a sweep with it still balances.
+#[test]
+fn exact_transmission_exceeds_the_mean_chord_and_conserves() {
+    let grid = Grid::new([5, 4, 6], 0.7).unwrap();
+    let ch = blob_channel(&grid, 3.0, 0.9);
+    let op = OrdinatesOperator::from_channel(
+        grid,
+        &ch,
+        PhaseFunction::Isotropic,
+        DirectionBins::cube(4).unwrap(),
+        OrdinatesOptions {
+            exact_transmission: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    for piece in op.pieces() {
+        for tau0 in [1e-3, 0.3, 1.0, 3.0, 30.0] {
+            let (t, ..) = piece.cell_terms(tau0);
+            let mean_chord = (-tau0 / piece.projected).exp();
+            assert!(
+                t >= mean_chord * (1.0 - 1e-3),
+                "τ0 {tau0}: {t} < {mean_chord}"
+            );
+            assert!(t <= 1.0 && (tau0 > 0.01 || (t - mean_chord).abs() < 1e-4));
+        }
+    }
+    let density = vec![1.0; op.len()];
+    let mut out = vec![0.0; op.len()];
+    let e = op.transport(&density, &mut out);
+    assert!((e.emitted - e.extinguished - e.escaped_total()).abs() < 1e-10 * e.emitted);
+}
+
 #[test]
 fn empty_grid_transmits_everything_and_extinguishes_nothing() {
     let grid = Grid::new([4, 4, 4], 1.0).unwrap();

@@ -34,6 +34,11 @@ impl AssembledOrdinates {
                 expected: MAX_ASSEMBLED_UNKNOWNS,
             });
         }
+        if op.options().transport_refinement != 1 {
+            return Err(OrdinatesError::Option(
+                "the assembled operator supports transport_refinement = 1 only".into(),
+            ));
+        }
         if op.options().periodic_xy {
             return Err(OrdinatesError::Medium(
                 "the assembled operator supports vacuum sides only".into(),

@@ -35,4 +35,6 @@ pub enum OrdinatesError {
     },
     #[error("invalid medium: {0}")]
     Medium(String),
+    #[error("invalid option: {0}")]
+    Option(String),
 }
