@@ -12,8 +12,19 @@
 //! one ray per cell (`m = 1`) already gives the exact cell average; oblique light converges as
 //! `O(1/m²)` (errors come only from ray tubes straddling cell edges).
 //!
-//! Corner transmittance is exact: one backward ray per corner toward the light. Inside a cell,
-//! [`LightPass::transmittance_at`] continues the corner field with the exact exponential:
+//! A directional light is one sweep through the layers perpendicular to the dominant axis of
+//! its direction. Rays that are whole-cell lateral translates of one another (a family: one
+//! per sub-cell offset on the entry face; one per sub-cell offset and layer on each side face)
+//! cross every layer at the same sub-cell position, so the split of a layer crossing among at
+//! most three cells is computed once per family and layer and applied to whole rows of rays
+//! (vectorised; the exponential only where σt > 0). Families run in parallel.
+//!
+//! Corner optical depth is exact. For a directional light the backward rays from all corners
+//! of a plane cross each layer at the same sub-cell position too, so each plane is a sum of
+//! shared pieces `ℓ σt` over rows of corners; for point and spot lights, one backward ray per
+//! corner. (Interpolating each plane's depths from the previous plane would be cheaper but
+//! blurs shadow edges.) Inside a cell, [`LightPass::transmittance_at`] continues the corner
+//! field with the exact exponential:
 //! `T_L(x) = T(exit point, bilinear on that face's corners) · e^{−σt d}`.
 
 use std::f64::consts::PI;
