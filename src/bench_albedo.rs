@@ -100,6 +100,13 @@ impl TransportOperator for AlbedoScaled<'_> {
         k.iter_mut().for_each(|v| *v *= self.albedo);
         Some(k)
     }
+
+    /// `σs` scales with the albedo; `σt` and the leakage do not.
+    fn diffusion(&self) -> Option<solver::Diffusion> {
+        let mut d = self.inner.diffusion()?;
+        d.sigma_s.iter_mut().for_each(|s| *s *= self.albedo);
+        Some(d)
+    }
 }
 
 impl RowAccess for AlbedoScaled<'_> {

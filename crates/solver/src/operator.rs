@@ -65,6 +65,24 @@ pub trait TransportOperator: Sync {
         let _ = (aggregates, n_coarse, row_weights);
         None
     }
+
+    /// The operator's diffusion approximation (needs geometry), for `dsa-cg`.
+    fn diffusion(&self) -> Option<Diffusion> {
+        None
+    }
+}
+
+/// A diffusion approximation of the transport problem, for diffusion-synthetic acceleration:
+/// per unknown `σt` and `σs` (both 0 for unknowns outside the medium) and the symmetric
+/// leakage matrix `G ≈ −∇·(1/(3σt))∇` with vacuum (Marshak) boundaries, in CSR form over all
+/// unknowns (rows of unknowns outside the medium are empty).
+#[derive(Clone, Debug)]
+pub struct Diffusion {
+    pub sigma_t: Vec<f64>,
+    pub sigma_s: Vec<f64>,
+    pub row_ptr: Vec<usize>,
+    pub col: Vec<u32>,
+    pub val: Vec<f64>,
 }
 
 /// Explicit rows of an operator.

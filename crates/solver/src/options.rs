@@ -43,6 +43,10 @@ pub enum Method {
     /// operator's aggregates (a coarse-mesh balance), the rest by the fine iteration; each
     /// iteration costs `1 + smoothing` applications of `K` and one dense coarse solve.
     TwoLevelCg { smoothing: usize },
+    /// Conjugate gradients preconditioned by diffusion-synthetic acceleration,
+    /// `M⁻¹ = I + σs (σt − σs − ∇·D∇)⁻¹` from the operator's
+    /// [`diffusion`](crate::TransportOperator::diffusion) approximation.
+    DsaCg,
     /// Two-level iteration: a Galerkin coarse-grid correction on aggregates followed by one
     /// sweep of `inner`. With piecewise-constant prolongation and summation restriction the
     /// coarse equations are the energy balance of each aggregate: this is additive
@@ -106,6 +110,7 @@ impl fmt::Display for Method {
             Method::BiCgStab => write!(f, "bicgstab"),
             Method::ConjugateGradient => write!(f, "cg"),
             Method::CoarseCg => write!(f, "coarse-cg"),
+            Method::DsaCg => write!(f, "dsa-cg"),
             Method::TwoLevelCg { smoothing: 0 } => write!(f, "two-level-cg"),
             Method::TwoLevelCg { smoothing } => write!(f, "two-level-cg:{smoothing}"),
             Method::CoarseCorrected { inner } => write!(f, "coarse-{inner}"),
@@ -175,6 +180,7 @@ impl FromStr for Method {
             "bicgstab" => no_arg(Method::BiCgStab),
             "cg" | "conjugate-gradient" => no_arg(Method::ConjugateGradient),
             "coarse-cg" => no_arg(Method::CoarseCg),
+            "dsa-cg" => no_arg(Method::DsaCg),
             "two-level-cg" => {
                 let smoothing = match arg {
                     None => 0,

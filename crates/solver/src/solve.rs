@@ -38,7 +38,7 @@ pub fn solve(
     let method = options.method;
     if matches!(
         method,
-        Method::ConjugateGradient | Method::CoarseCg | Method::TwoLevelCg { .. }
+        Method::ConjugateGradient | Method::CoarseCg | Method::TwoLevelCg { .. } | Method::DsaCg
     ) {
         let Some(w) = op.symmetrizer() else {
             return Err(SolveError::Unsupported {
@@ -78,6 +78,17 @@ pub fn solve(
             let w = op.symmetrizer().expect("checked above");
             let coarse = methods::coarse::CoarseSpace::new(&mut ctx, Some(w))?;
             methods::krylov::cg(&mut ctx, &mut g, w, Preconditioner::Coarse(coarse))
+        }
+        Method::DsaCg => {
+            let w = op.symmetrizer().expect("checked above");
+            let Some(d) = op.diffusion() else {
+                return Err(SolveError::Unsupported {
+                    method: method.name(),
+                    needs: "a diffusion approximation (grid and σt)",
+                });
+            };
+            let pre = Preconditioner::Dsa(Box::new(methods::krylov::Dsa::new(d)));
+            methods::krylov::cg(&mut ctx, &mut g, w, pre)
         }
         Method::TwoLevelCg { smoothing } => {
             let w = op.symmetrizer().expect("checked above");

@@ -282,6 +282,9 @@ fn bad_input_is_refused() {
         let err = solve(&hidden, &e, None, &opts(m.parse().unwrap(), 1e-8, 100), &c).unwrap_err();
         assert!(matches!(err, SolveError::Unsupported { .. }), "{m}: {err}");
     }
+    // Diffusion-synthetic acceleration needs the operator's geometry; a matrix has none.
+    let err = solve(&k, &e, None, &opts(Method::DsaCg, 1e-8, 100), &c).unwrap_err();
+    assert!(err.to_string().contains("diffusion"), "{err}");
     // Broken operator data.
     let k_bad_w = reciprocal(20, 2, 0.9, 1.0).with_symmetrizer(vec![-1.0; 20]);
     assert!(matches!(
@@ -343,6 +346,7 @@ fn methods_parse_and_print() {
         "multigrid",
         "coarse-bicgstab",
         "two-level-cg:x",
+        "dsa-cg:2",
         "two-level-cg:9",
     ] {
         let err = bad.parse::<Method>().unwrap_err();

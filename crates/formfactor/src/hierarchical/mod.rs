@@ -109,6 +109,8 @@ pub struct HierarchicalOperator {
     /// Coarse aggregates for the solver's two-level methods: the clusters of level
     /// [`COARSE_LEVEL`] (blocks of `2^COARSE_LEVEL` cells per edge).
     aggregates: Vec<u32>,
+    /// σt per cell, for the diffusion approximation.
+    sigma_t: Vec<f32>,
 }
 
 /// Pyramid level whose clusters are the solver's coarse aggregates: 8×8×8-cell blocks, so the
@@ -370,6 +372,7 @@ impl HierarchicalOperator {
             near_val,
             weights: None,
             aggregates: block_aggregates(grid, COARSE_LEVEL),
+            sigma_t: sigma_t.to_vec(),
         };
 
         // Per-column energy accounting: c_j = near_j + β_j Σ_levels Σ_links K α_sum(other end).
@@ -644,6 +647,64 @@ impl TransportOperator for HierarchicalOperator {
 
     fn coarse_aggregates(&self) -> Option<&[u32]> {
         Some(&self.aggregates)
+    }
+
+    /// Cell-centred finite volumes: face conductance `2 D_i D_j / ((D_i + D_j) h²)` between
+    /// cells of the medium, Marshak vacuum faces `D / (h (h/2 + 2D))` towards empty cells and
+    /// the grid's edges.
+    fn diffusion(&self) -> Option<solver::Diffusion> {
+        let grid = &self.grid;
+        let h = grid.cell_size;
+        let d = grid.dims;
+        let n = self.len();
+        let coef = |i: usize| 1.0 / (3.0 * self.sigma_t[i] as f64);
+        let stride = [1, d[0], d[0] * d[1]];
+        let mut row_ptr = Vec::with_capacity(n + 1);
+        let mut col = Vec::new();
+        let mut val = Vec::new();
+        row_ptr.push(0);
+        for i in 0..n {
+            if self.sigma_t[i] > 0.0 {
+                let x = [i % d[0], (i / d[0]) % d[1], i / (d[0] * d[1])];
+                let di = coef(i);
+                let mut diag = 0.0;
+                for ax in 0..3 {
+                    for up in [false, true] {
+                        let neighbour = if up {
+                            (x[ax] + 1 < d[ax]).then(|| i + stride[ax])
+                        } else {
+                            (x[ax] > 0).then(|| i - stride[ax])
+                        };
+                        match neighbour.filter(|&j| self.sigma_t[j] > 0.0) {
+                            Some(j) => {
+                                let dj = coef(j);
+                                let c = 2.0 * di * dj / ((di + dj) * h * h);
+                                diag += c;
+                                col.push(j as u32);
+                                val.push(-c);
+                            }
+                            None => diag += di / (h * (0.5 * h + 2.0 * di)),
+                        }
+                    }
+                }
+                col.push(i as u32);
+                val.push(diag);
+            }
+            row_ptr.push(col.len());
+        }
+        let sigma_t: Vec<f64> = self.sigma_t.iter().map(|&s| s as f64).collect();
+        let sigma_s = sigma_t
+            .iter()
+            .zip(&self.albedo)
+            .map(|(s, a)| s * a)
+            .collect();
+        Some(solver::Diffusion {
+            sigma_t,
+            sigma_s,
+            row_ptr,
+            col,
+            val,
+        })
     }
 
     /// `Pᵀ W K P` exactly, from the near entries and the cluster links (no application of

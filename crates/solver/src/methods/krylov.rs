@@ -248,6 +248,8 @@ pub(crate) enum Preconditioner<'a> {
     /// `z = (I − Π) S_m (I − Π) r + P A_c⁻¹ Pᵀ W r` with `S_m = Σ_{j≤m} K^j` (`m` extra
     /// applications of `K`): the balancing two-level preconditioner (see
     /// [`Method::TwoLevelCg`](crate::Method::TwoLevelCg)).
+    /// Diffusion-synthetic acceleration (see [`Dsa`]).
+    Dsa(Box<Dsa>),
     TwoLevel {
         coarse: CoarseSpace<'a>,
         smoothing: usize,
@@ -255,6 +257,120 @@ pub(crate) enum Preconditioner<'a> {
         power: Vec<f64>,
         scratch: Vec<f64>,
     },
+}
+
+/// Diffusion-synthetic acceleration: `z = r + σs ⊙ (diag(σt − σs) + G)⁻¹ r`, the inner
+/// diffusion system solved by Jacobi-preconditioned CG to a tight tolerance (so the map is
+/// linear to rounding).
+pub(crate) struct Dsa {
+    d: crate::operator::Diffusion,
+    diag: Vec<f64>,
+    y: Vec<f64>,
+    res: Vec<f64>,
+    dir: Vec<f64>,
+    md: Vec<f64>,
+    pub inner_iterations: usize,
+}
+
+/// Relative tolerance and iteration cap of the inner diffusion solve.
+const DSA_INNER_TOLERANCE: f64 = 1e-9;
+const DSA_INNER_MAX: usize = 5000;
+
+impl Dsa {
+    pub(crate) fn new(d: crate::operator::Diffusion) -> Self {
+        let n = d.sigma_t.len();
+        let mut diag = vec![1.0; n];
+        for (i, di) in diag.iter_mut().enumerate() {
+            for p in d.row_ptr[i]..d.row_ptr[i + 1] {
+                if d.col[p] as usize == i {
+                    *di = d.val[p] + d.sigma_t[i] - d.sigma_s[i];
+                }
+            }
+        }
+        Dsa {
+            d,
+            diag,
+            y: vec![0.0; n],
+            res: vec![0.0; n],
+            dir: vec![0.0; n],
+            md: vec![0.0; n],
+            inner_iterations: 0,
+        }
+    }
+
+    fn active(&self, i: usize) -> bool {
+        self.d.row_ptr[i + 1] > self.d.row_ptr[i]
+    }
+
+    /// `out = (diag(σt − σs) + G) x` on active rows, 0 elsewhere.
+    fn mul(&self, x: &[f64], out: &mut [f64]) {
+        use rayon::prelude::*;
+        let d = &self.d;
+        out.par_iter_mut().enumerate().for_each(|(i, o)| {
+            let mut s = 0.0;
+            let (a, b) = (d.row_ptr[i], d.row_ptr[i + 1]);
+            if b > a {
+                s = (d.sigma_t[i] - d.sigma_s[i]) * x[i];
+                for p in a..b {
+                    s += d.val[p] * x[d.col[p] as usize];
+                }
+            }
+            *o = s;
+        });
+    }
+
+    #[allow(clippy::needless_range_loop)] // several vectors indexed together
+    fn apply(&mut self, r: &[f64], z: &mut [f64]) {
+        let n = r.len();
+        // Jacobi-preconditioned CG on the active rows, from y = 0.
+        self.y.iter_mut().for_each(|v| *v = 0.0);
+        for i in 0..n {
+            self.res[i] = if self.active(i) { r[i] } else { 0.0 };
+        }
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        let r0 = dot(&self.res, &self.res).sqrt();
+        if r0 > 0.0 {
+            for i in 0..n {
+                self.dir[i] = self.res[i] / self.diag[i];
+            }
+            let mut rz: f64 = (0..n)
+                .map(|i| self.res[i] * self.res[i] / self.diag[i])
+                .sum();
+            for _ in 0..DSA_INNER_MAX {
+                let mut md = std::mem::take(&mut self.md);
+                self.mul(&self.dir, &mut md);
+                self.md = md;
+                let curv = dot(&self.dir, &self.md);
+                if !(curv > 0.0) {
+                    break;
+                }
+                let alpha = rz / curv;
+                for i in 0..n {
+                    self.y[i] += alpha * self.dir[i];
+                    self.res[i] -= alpha * self.md[i];
+                }
+                self.inner_iterations += 1;
+                if dot(&self.res, &self.res).sqrt() <= DSA_INNER_TOLERANCE * r0 {
+                    break;
+                }
+                let rz_new: f64 = (0..n)
+                    .map(|i| self.res[i] * self.res[i] / self.diag[i])
+                    .sum();
+                let beta = rz_new / rz;
+                rz = rz_new;
+                for i in 0..n {
+                    self.dir[i] = self.res[i] / self.diag[i] + beta * self.dir[i];
+                }
+            }
+        }
+        for i in 0..n {
+            z[i] = r[i] + self.d.sigma_s[i] * self.y[i];
+        }
+        tracing::debug!(
+            inner_iterations = self.inner_iterations,
+            "diffusion-synthetic correction"
+        );
+    }
 }
 
 impl<'a> Preconditioner<'a> {
@@ -276,6 +392,10 @@ impl<'a> Preconditioner<'a> {
             Preconditioner::Coarse(c) => {
                 z.copy_from_slice(r);
                 c.correct(r, Some(w), z);
+                true
+            }
+            Preconditioner::Dsa(d) => {
+                d.apply(r, z);
                 true
             }
             Preconditioner::TwoLevel {
