@@ -27,6 +27,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Bench(crate::cli::BenchCommand::Albedo(args))) => {
             crate::bench_albedo::run(&args, cli.quiet)
         }
+        Some(Command::Validate(args)) => crate::commands::validate(&args, cli.quiet),
     }
 }
 

@@ -50,6 +50,33 @@ pub enum Command {
     /// Benchmarks of the solver.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Every method on the sample scenes against a path-traced reference: a Markdown report
+    /// with errors, times, memory and side-by-side images.
+    Validate(ValidateArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ValidateArgs {
+    /// Scene file (TOML), repeatable (default: tests/data/cloud24-isotropic/scene.toml and
+    /// tests/data/cloud24-anisotropic/scene.toml, relative to the working directory).
+    #[arg(long = "scene")]
+    pub scenes: Vec<PathBuf>,
+    /// Methods, comma-separated (single-scatter, zonal, zonal-hierarchical,
+    /// discrete-ordinates, two-pass, path-trace; default: all).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Vec<String>,
+    /// Directory for report.md, report.json and the images.
+    #[arg(long, default_value = "docs/validation")]
+    pub out: PathBuf,
+    /// Few samples (64-spp reference, 4 spp renders, 16-spp path tracing): CI-sized runs.
+    #[arg(long)]
+    pub quick: bool,
+    /// Paths per pixel of the path-traced reference (default 1024, quick 64).
+    #[arg(long)]
+    pub reference_spp: Option<u32>,
+    /// Samples per pixel of renders from a solution (default 16, quick 4).
+    #[arg(long)]
+    pub spp: Option<u32>,
 }
 
 #[derive(Debug, Subcommand)]

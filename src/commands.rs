@@ -283,3 +283,73 @@ pub fn export(args: &ExportArgs) -> Result<()> {
     println!("wrote {}", args.output.display());
     Ok(())
 }
+
+/// `volrad validate`: every method on the sample scenes, written as a report.
+pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
+    use crate::validate::{parse_methods, ValidateMethod, ValidateOptions, ValidateSettings};
+    let methods = if args.methods.is_empty() {
+        ValidateMethod::ALL.to_vec()
+    } else {
+        parse_methods(&args.methods)?
+    };
+    let scenes = if args.scenes.is_empty() {
+        let defaults: Vec<std::path::PathBuf> = crate::validate::DEFAULT_SCENES
+            .iter()
+            .map(std::path::PathBuf::from)
+            .collect();
+        if let Some(missing) = defaults.iter().find(|p| !p.is_file()) {
+            bail!(
+                "default scene {} not found: run from the repository root or give --scene FILE",
+                missing.display()
+            );
+        }
+        defaults
+    } else {
+        args.scenes.clone()
+    };
+    let mut settings = ValidateSettings::new(args.quick);
+    for (name, value) in [("--reference-spp", args.reference_spp), ("--spp", args.spp)] {
+        if value == Some(0) {
+            bail!("{name} must be at least 1");
+        }
+    }
+    if let Some(n) = args.reference_spp {
+        if n < 2 {
+            bail!(
+                "--reference-spp {n}: at least 2 paths per pixel are needed for a standard error"
+            );
+        }
+        settings.reference_spp = n;
+    }
+    if let Some(n) = args.spp {
+        settings.render_spp = n;
+    }
+    let command = std::iter::once("volrad".to_string())
+        .chain(std::env::args().skip(1))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let options = ValidateOptions {
+        scenes,
+        methods,
+        out: args.out.clone(),
+        settings,
+        quiet,
+    };
+    let started = Instant::now();
+    let report = crate::validate::run(&options, &command)?;
+    if !quiet {
+        for scene in &report.scenes {
+            for m in &scene.methods {
+                eprintln!(
+                    "{:<24} {:<20} {:>6.2} % vs path tracer",
+                    scene.name,
+                    m.method.name(),
+                    100.0 * m.vs_path_tracer.relative_rms
+                );
+            }
+        }
+        eprintln!("validated in {:.1} s", started.elapsed().as_secs_f64());
+    }
+    println!("wrote {}", options.out.join("report.md").display());
+    Ok(())
+}

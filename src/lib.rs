@@ -13,3 +13,4 @@ pub mod pipeline;
 pub mod progress;
 pub mod service;
 pub mod solution;
+pub mod validate;

@@ -1,0 +1,1050 @@
+//! `volrad validate`: every method on the sample scenes against a path-traced reference (and,
+//! where the scene directory has them, Mitsuba reference images with their standard error),
+//! written as a Markdown report with side-by-side images and error maps.
+//!
+//! The work is the pipeline's own: [`solve_scene`] + [`render_view`] for the solved methods,
+//! the `montecarlo` path tracer for the reference and the `path-trace` method, and
+//! [`crate::compare::compare`] for every error figure.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use gather::Image;
+use indicatif::{ProgressBar, ProgressStyle};
+use medium::scene::{IterationMethod, SolveMethod};
+use medium::Scene;
+use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions};
+use serde::Serialize;
+
+use crate::compare::{compare, Comparison};
+use crate::pipeline::{render_view, solve_scene, SolveHooks};
+
+/// Pixels count in an error figure when the reference exceeds this fraction of its maximum
+/// (the convention of docs/validation.md).
+pub const MASK_THRESHOLD: f64 = 0.01;
+
+/// Relative error at which the error map saturates (full blue or full red).
+pub const ERROR_MAP_SCALE: f64 = 0.2;
+
+/// Widest panel in the side-by-side images; wider cameras are block-averaged down so that the
+/// committed images stay small.
+const MAX_PANEL_WIDTH: u32 = 256;
+
+/// Seeds of the path-traced reference and of the `path-trace` method: different, so the
+/// method's noise is independent of the reference's.
+const REFERENCE_SEED: u64 = 0x7e57_5eed;
+const METHOD_SEED: u64 = 1;
+
+/// The scenes validated when none is given (paths relative to the repository root).
+pub const DEFAULT_SCENES: [&str; 2] = [
+    "tests/data/cloud24-isotropic/scene.toml",
+    "tests/data/cloud24-anisotropic/scene.toml",
+];
+
+/// A method the report covers: a solve method rendered from its solution, or path tracing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ValidateMethod {
+    SingleScatter,
+    Zonal,
+    ZonalHierarchical,
+    DiscreteOrdinates,
+    TwoPass,
+    PathTrace,
+}
+
+impl ValidateMethod {
+    pub const ALL: [ValidateMethod; 6] = [
+        ValidateMethod::SingleScatter,
+        ValidateMethod::Zonal,
+        ValidateMethod::ZonalHierarchical,
+        ValidateMethod::DiscreteOrdinates,
+        ValidateMethod::TwoPass,
+        ValidateMethod::PathTrace,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ValidateMethod::SingleScatter => "single-scatter",
+            ValidateMethod::Zonal => "zonal",
+            ValidateMethod::ZonalHierarchical => "zonal-hierarchical",
+            ValidateMethod::DiscreteOrdinates => "discrete-ordinates",
+            ValidateMethod::TwoPass => "two-pass",
+            ValidateMethod::PathTrace => "path-trace",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<ValidateMethod> {
+        Self::ALL.into_iter().find(|m| m.name() == name)
+    }
+
+    /// The solve method behind it; `None` for path tracing (no solve).
+    fn solve_method(self) -> Option<SolveMethod> {
+        Some(match self {
+            ValidateMethod::SingleScatter => SolveMethod::SingleScatter,
+            ValidateMethod::Zonal => SolveMethod::Zonal,
+            ValidateMethod::ZonalHierarchical => SolveMethod::ZonalHierarchical,
+            ValidateMethod::DiscreteOrdinates => SolveMethod::DiscreteOrdinates,
+            ValidateMethod::TwoPass => SolveMethod::TwoPass,
+            ValidateMethod::PathTrace => return None,
+        })
+    }
+}
+
+/// Parses `--methods` names, refusing unknown ones by name.
+pub fn parse_methods(names: &[String]) -> Result<Vec<ValidateMethod>> {
+    let mut methods = Vec::new();
+    for raw in names {
+        let name = raw.trim();
+        let Some(m) = ValidateMethod::parse(name) else {
+            let known: Vec<&str> = ValidateMethod::ALL.iter().map(|m| m.name()).collect();
+            bail!(
+                "--methods: unknown method `{name}` (expected one of {})",
+                known.join(", ")
+            );
+        };
+        if !methods.contains(&m) {
+            methods.push(m);
+        }
+    }
+    if methods.is_empty() {
+        bail!("--methods: no method given");
+    }
+    Ok(methods)
+}
+
+/// Samples and sizes of a validation run.
+#[derive(Clone, Debug, Serialize)]
+pub struct ValidateSettings {
+    /// Paths per pixel of the path-traced reference.
+    pub reference_spp: u32,
+    /// Stratified samples per pixel of renders from a solution.
+    pub render_spp: u32,
+    /// Paths per pixel of the `path-trace` method (an independent seed).
+    pub path_trace_spp: u32,
+    pub quick: bool,
+}
+
+impl ValidateSettings {
+    /// Full runs: a 1024-spp reference (its noise is taken out of every error), 16 spp per
+    /// solved render (as the reference tests use). Quick runs are CI-sized.
+    pub fn new(quick: bool) -> ValidateSettings {
+        if quick {
+            ValidateSettings {
+                reference_spp: 64,
+                render_spp: 4,
+                path_trace_spp: 16,
+                quick,
+            }
+        } else {
+            ValidateSettings {
+                reference_spp: 1024,
+                render_spp: 16,
+                path_trace_spp: 64,
+                quick,
+            }
+        }
+    }
+}
+
+/// What to validate and where to write it.
+#[derive(Clone, Debug)]
+pub struct ValidateOptions {
+    pub scenes: Vec<PathBuf>,
+    pub methods: Vec<ValidateMethod>,
+    /// Directory of report.md, report.json and the images.
+    pub out: PathBuf,
+    pub settings: ValidateSettings,
+    pub quiet: bool,
+}
+
+/// One method on one scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodResult {
+    pub method: ValidateMethod,
+    /// Against the path-traced reference, its noise taken out.
+    pub vs_path_tracer: Comparison,
+    /// Against the Mitsuba reference beside the scene, when there is one.
+    pub vs_mitsuba: Option<Comparison>,
+    /// Wall time of the solve (light pass, operator, iterations); `None` for path tracing.
+    pub solve_seconds: Option<f64>,
+    /// Wall time of the render (or of the path tracing).
+    pub render_seconds: f64,
+    /// Peak resident memory during solve + render minus the resident memory before (Linux;
+    /// `None` where the peak cannot be reset or read).
+    pub peak_rss_growth_bytes: Option<u64>,
+    /// Size of the solution file the solve would write (`volrad solve -o`); `None` for path
+    /// tracing.
+    pub solution_file_bytes: Option<u64>,
+    /// Linear iterations of channel 0 and whether they converged (`None` without a linear
+    /// solve).
+    pub iterations: Option<usize>,
+    pub converged: Option<bool>,
+    /// Side-by-side image, relative to the report.
+    pub image: String,
+}
+
+/// The reference of one scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferenceResult {
+    pub spp: u32,
+    pub seconds: f64,
+    /// Mean per-pixel standard error relative to the pixel, over the mask.
+    pub relative_noise: f64,
+    /// The path-traced reference against Mitsuba (checks the reference itself).
+    pub vs_mitsuba: Option<Comparison>,
+    /// The Mitsuba files used, relative to the scene.
+    pub mitsuba_files: Option<(String, String)>,
+}
+
+/// One scene's results.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneResult {
+    pub name: String,
+    pub path: String,
+    pub dims: [usize; 3],
+    pub phase: String,
+    pub camera: String,
+    pub width: u32,
+    pub height: u32,
+    pub reference: ReferenceResult,
+    pub methods: Vec<MethodResult>,
+}
+
+/// Everything a run measured; report.md is its Markdown form, report.json its JSON.
+#[derive(Clone, Debug, Serialize)]
+pub struct ValidationReport {
+    pub volrad_version: String,
+    pub generated_utc: String,
+    pub threads: usize,
+    pub command: String,
+    pub settings: ValidateSettings,
+    pub scenes: Vec<SceneResult>,
+}
+
+/// Runs the validation and writes report.md, report.json and the images into `options.out`.
+pub fn run(options: &ValidateOptions, command: &str) -> Result<ValidationReport> {
+    if options.scenes.is_empty() {
+        bail!("no scene to validate");
+    }
+    // Load every scene first, so a bad one fails before minutes of work.
+    let mut scenes = Vec::new();
+    for path in &options.scenes {
+        if !path.is_file() {
+            bail!("scene file {} not found", path.display());
+        }
+        let scene = Scene::from_file(path)?;
+        if scene.cameras.is_empty() {
+            bail!(
+                "{}: the scene has no camera to validate with",
+                path.display()
+            );
+        }
+        scenes.push((path.clone(), scene));
+    }
+    std::fs::create_dir_all(&options.out)
+        .with_context(|| format!("creating {}", options.out.display()))?;
+
+    let steps = scenes.len() as u64 * (1 + options.methods.len() as u64);
+    let bar = if options.quiet {
+        ProgressBar::hidden()
+    } else {
+        let bar = ProgressBar::new(steps);
+        bar.set_style(
+            ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise}] {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        bar.enable_steady_tick(Duration::from_millis(200));
+        bar
+    };
+    let mut names = Vec::new();
+    let mut results = Vec::new();
+    for (path, scene) in &scenes {
+        let name = unique_name(&scene_name(path), &names);
+        names.push(name.clone());
+        let span = tracing::info_span!("validate", scene = %name);
+        let _enter = span.enter();
+        results.push(validate_scene(options, path, scene, &name, &bar)?);
+    }
+    bar.finish_and_clear();
+
+    let report = ValidationReport {
+        volrad_version: env!("CARGO_PKG_VERSION").to_string(),
+        generated_utc: utc_now(),
+        threads: rayon::current_num_threads(),
+        command: command.to_string(),
+        settings: options.settings.clone(),
+        scenes: results,
+    };
+    write_text(&options.out.join("report.md"), &report.markdown())?;
+    write_text(
+        &options.out.join("report.json"),
+        &serde_json::to_string_pretty(&report)?,
+    )?;
+    write_png(&options.out.join("error-scale.png"), &error_scale_bar())?;
+    Ok(report)
+}
+
+/// Name of a scene in the report and image files: its directory for `scene.toml`, else its
+/// file stem.
+fn scene_name(path: &Path) -> String {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into());
+    let raw = if stem == "scene" {
+        path.canonicalize()
+            .ok()
+            .and_then(|p| {
+                p.parent()
+                    .and_then(|d| d.file_name())
+                    .map(|n| n.to_string_lossy().into_owned())
+            })
+            .unwrap_or(stem)
+    } else {
+        stem
+    };
+    raw.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+fn unique_name(name: &str, taken: &[String]) -> String {
+    if !taken.iter().any(|t| t == name) {
+        return name.to_string();
+    }
+    (2..)
+        .map(|i| format!("{name}-{i}"))
+        .find(|n| !taken.contains(n))
+        .unwrap_or_else(|| name.to_string())
+}
+
+/// Channel 0 of an image as a one-channel image.
+fn channel0(image: &Image) -> Result<Image> {
+    if image.channels == 1 {
+        return Ok(image.clone());
+    }
+    let pixels = image
+        .pixels
+        .chunks_exact(image.channels as usize)
+        .map(|p| p[0])
+        .collect();
+    Ok(Image::new(image.width, image.height, 1, pixels)?)
+}
+
+/// Mitsuba reference files beside the scene: `<camera>.pfm` and `<camera>_stderr.pfm`.
+fn mitsuba_reference(
+    scene_path: &Path,
+    camera: &str,
+) -> Result<Option<(Image, Image, String, String)>> {
+    let dir = scene_path.parent().unwrap_or(Path::new("."));
+    let (mean_name, err_name) = (format!("{camera}.pfm"), format!("{camera}_stderr.pfm"));
+    let (mean_path, err_path) = (dir.join(&mean_name), dir.join(&err_name));
+    if !(mean_path.is_file() && err_path.is_file()) {
+        return Ok(None);
+    }
+    let read = |p: &Path| {
+        gather::read_pfm(p).with_context(|| format!("reading the reference {}", p.display()))
+    };
+    Ok(Some((
+        read(&mean_path)?,
+        read(&err_path)?,
+        mean_name,
+        err_name,
+    )))
+}
+
+fn validate_scene(
+    options: &ValidateOptions,
+    path: &Path,
+    scene: &Scene,
+    name: &str,
+    bar: &ProgressBar,
+) -> Result<SceneResult> {
+    let settings = &options.settings;
+    let spec = &scene.cameras[0];
+    let camera = gather::Camera::from_spec(spec)?;
+    let mitsuba = mitsuba_reference(path, &spec.name)?;
+    if let Some((m, _, file, _)) = &mitsuba {
+        if (m.width, m.height) != (spec.width, spec.height) {
+            bail!(
+                "{}: the reference {file} is {}×{}, camera `{}` {}×{}",
+                path.display(),
+                m.width,
+                m.height,
+                spec.name,
+                spec.width,
+                spec.height
+            );
+        }
+    }
+
+    bar.set_message(format!(
+        "{name}: path-traced reference ({} spp)",
+        settings.reference_spp
+    ));
+    let started = Instant::now();
+    let traced = path_trace_with_error(
+        &scene.medium,
+        0,
+        &scene.lights,
+        scene.background,
+        &camera,
+        &PathTraceOptions {
+            spp: settings.reference_spp,
+            seed: REFERENCE_SEED,
+            ..PathTraceOptions::default()
+        },
+    )?;
+    let reference_seconds = started.elapsed().as_secs_f64();
+    let reference = Image::new(traced.mean.width, traced.mean.height, 1, traced.mean.pixels)?;
+    let reference_err = Image::new(
+        traced.std_error.width,
+        traced.std_error.height,
+        1,
+        traced.std_error.pixels,
+    )?;
+    tracing::info!(
+        seconds = reference_seconds,
+        spp = settings.reference_spp,
+        "path-traced reference"
+    );
+    bar.inc(1);
+    let against_mitsuba = |img: &Image| -> Result<Option<Comparison>> {
+        mitsuba
+            .as_ref()
+            .map(|(m, s, file, _)| {
+                compare(img, m, Some(s), MASK_THRESHOLD, 1)
+                    .map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
+            })
+            .transpose()
+    };
+    let reference_result = ReferenceResult {
+        spp: settings.reference_spp,
+        seconds: reference_seconds,
+        relative_noise: relative_noise(&reference, &reference_err),
+        vs_mitsuba: mitsuba
+            .as_ref()
+            .map(|(m, s, file, _)| {
+                // Both images are noisy here: take out both standard errors.
+                let both = combined_error(s, &reference_err)?;
+                compare(&reference, m, Some(&both), MASK_THRESHOLD, 1)
+                    .map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
+            })
+            .transpose()?,
+        mitsuba_files: mitsuba.as_ref().map(|(_, _, a, b)| (a.clone(), b.clone())),
+    };
+
+    let mut methods = Vec::new();
+    for &method in &options.methods {
+        bar.set_message(format!("{name}: {}", method.name()));
+        let span = tracing::info_span!("method", method = method.name());
+        let _enter = span.enter();
+        let baseline = reset_peak_rss();
+        let run = run_method(scene, spec, &camera, method, settings, bar)?;
+        let peak_rss_growth_bytes = baseline.and_then(|b| peak_rss().map(|p| p.saturating_sub(b)));
+        let vs_path_tracer = compare(
+            &run.image,
+            &reference,
+            Some(&reference_err),
+            MASK_THRESHOLD,
+            1,
+        )
+        .map_err(|e| anyhow::anyhow!("{name}, {}: {e}", method.name()))?;
+        let image_name = format!("{name}_{}.png", method.name());
+        let composite = side_by_side(&reference, &channel0(&run.image)?)?;
+        write_png(&options.out.join(&image_name), &composite)?;
+        tracing::info!(
+            relative_rms = vs_path_tracer.relative_rms,
+            mean = vs_path_tracer.mean_ratio_error,
+            solve_seconds = run.solve_seconds,
+            render_seconds = run.render_seconds,
+            "compared with the path-traced reference"
+        );
+        methods.push(MethodResult {
+            method,
+            vs_path_tracer,
+            vs_mitsuba: against_mitsuba(&run.image)?,
+            solve_seconds: run.solve_seconds,
+            render_seconds: run.render_seconds,
+            peak_rss_growth_bytes,
+            solution_file_bytes: run.solution_file_bytes,
+            iterations: run.iterations,
+            converged: run.converged,
+            image: image_name,
+        });
+        bar.inc(1);
+    }
+    Ok(SceneResult {
+        name: name.to_string(),
+        path: path.display().to_string(),
+        dims: scene.medium.grid.dims,
+        phase: format!("{:?}", scene.medium.phase),
+        camera: spec.name.clone(),
+        width: spec.width,
+        height: spec.height,
+        reference: reference_result,
+        methods,
+    })
+}
+
+struct MethodRun {
+    image: Image,
+    solve_seconds: Option<f64>,
+    render_seconds: f64,
+    solution_file_bytes: Option<u64>,
+    iterations: Option<usize>,
+    converged: Option<bool>,
+}
+
+fn run_method(
+    scene: &Scene,
+    spec: &medium::scene::CameraSpec,
+    camera: &gather::Camera,
+    method: ValidateMethod,
+    settings: &ValidateSettings,
+    bar: &ProgressBar,
+) -> Result<MethodRun> {
+    let Some(solve_method) = method.solve_method() else {
+        let started = Instant::now();
+        let traced = path_trace_with_error(
+            &scene.medium,
+            0,
+            &scene.lights,
+            scene.background,
+            camera,
+            &PathTraceOptions {
+                spp: settings.path_trace_spp,
+                seed: METHOD_SEED,
+                ..PathTraceOptions::default()
+            },
+        )?;
+        return Ok(MethodRun {
+            image: Image::new(traced.mean.width, traced.mean.height, 1, traced.mean.pixels)?,
+            solve_seconds: None,
+            render_seconds: started.elapsed().as_secs_f64(),
+            solution_file_bytes: None,
+            iterations: None,
+            converged: None,
+        });
+    };
+    // The scene's [solve] settings with the method replaced (and its default iteration).
+    let mut solve = scene.solve.clone();
+    if solve.method != solve_method {
+        solve.method = solve_method;
+        solve.iteration = IterationMethod::default_for(solve_method);
+    }
+    let progress_bar = bar.clone();
+    let label = format!("{}: {}", scene_label(scene), method.name());
+    let control = Arc::new(solver::SolveControl::new().with_progress(
+        move |iteration, residual| {
+            progress_bar.set_message(format!(
+                "{label}: iteration {iteration}, relative residual {residual:.2e}"
+            ));
+        },
+    ));
+    crate::progress::cancel_on_ctrl_c(control.clone());
+    let hooks = SolveHooks { control };
+    let started = Instant::now();
+    let solution = solve_scene(scene, &solve, &hooks)?;
+    let solve_seconds = started.elapsed().as_secs_f64();
+    let report = solution.channels[0].report.as_ref();
+    if let Some(r) = report {
+        if r.cancelled {
+            bail!("solve cancelled after {} iterations", r.iterations);
+        }
+        if !r.converged {
+            tracing::warn!(
+                iterations = r.iterations,
+                residual = r.final_residual,
+                "solve did not converge"
+            );
+        }
+    }
+    let started = Instant::now();
+    let image = render_view(&solution, spec, Some(settings.render_spp))?;
+    let render_seconds = started.elapsed().as_secs_f64();
+    Ok(MethodRun {
+        image,
+        solve_seconds: Some(solve_seconds),
+        render_seconds,
+        solution_file_bytes: Some(solution.to_bytes().len() as u64),
+        iterations: report.map(|r| r.iterations),
+        converged: report.map(|r| r.converged),
+    })
+}
+
+fn scene_label(scene: &Scene) -> String {
+    match &scene.origin {
+        medium::scene::SceneOrigin::File(p) => p
+            .parent()
+            .and_then(|d| d.file_name())
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| p.display().to_string()),
+        medium::scene::SceneOrigin::BuiltIn(n) => n.to_string(),
+    }
+}
+
+/// `sqrt(a² + b²)` per pixel: the standard error of the difference of two independent images.
+fn combined_error(a: &Image, b: &Image) -> Result<Image> {
+    if (a.width, a.height) != (b.width, b.height) {
+        bail!("standard-error images differ in size");
+    }
+    let pixels = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .map(|(x, y)| x.hypot(*y))
+        .collect();
+    Ok(Image::new(a.width, a.height, 1, pixels)?)
+}
+
+/// Mean of `stderr / reference` over the mask: how noisy the reference is per pixel.
+fn relative_noise(reference: &Image, stderr: &Image) -> f64 {
+    let max = reference.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (&r, &s) in reference.pixels.iter().zip(&stderr.pixels) {
+        if r as f64 > MASK_THRESHOLD * max && r > 0.0 {
+            sum += s as f64 / r as f64;
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        sum / n as f64
+    }
+}
+
+// ---- Memory -----------------------------------------------------------------------------
+
+/// Resets the process's peak resident set (Linux: `5` to /proc/self/clear_refs) and returns
+/// the resident set now; `None` where that is not possible.
+fn reset_peak_rss() -> Option<u64> {
+    // Freed memory the allocator keeps would be reused without showing in the peak: give it
+    // back first, so the baseline is the memory actually in use.
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free heap pages; it has no preconditions.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+    std::fs::write("/proc/self/clear_refs", "5").ok()?;
+    status_kib("VmRSS:").map(|k| k * 1024)
+}
+
+/// Peak resident set since the last reset, in bytes.
+fn peak_rss() -> Option<u64> {
+    status_kib("VmHWM:").map(|k| k * 1024)
+}
+
+fn status_kib(key: &str) -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    status
+        .lines()
+        .find(|l| l.starts_with(key))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
+// ---- Images -----------------------------------------------------------------------------
+
+/// An 8-bit RGB picture.
+struct Rgb {
+    width: u32,
+    height: u32,
+    data: Vec<u8>,
+}
+
+impl Rgb {
+    fn filled(width: u32, height: u32, value: u8) -> Rgb {
+        Rgb {
+            width,
+            height,
+            data: vec![value; (width * height * 3) as usize],
+        }
+    }
+
+    fn put(&mut self, x: u32, y: u32, rgb: [u8; 3]) {
+        let i = ((y * self.width + x) * 3) as usize;
+        self.data[i..i + 3].copy_from_slice(&rgb);
+    }
+}
+
+/// Averages `factor × factor` blocks of a one-channel image (edges that do not fill a block
+/// are dropped).
+fn downscale(image: &Image, factor: u32) -> Result<Image> {
+    if factor <= 1 {
+        return Ok(image.clone());
+    }
+    let (w, h) = (image.width / factor, image.height / factor);
+    let mut pixels = Vec::with_capacity((w * h) as usize);
+    for by in 0..h {
+        for bx in 0..w {
+            let mut s = 0.0f64;
+            for y in by * factor..(by + 1) * factor {
+                for x in bx * factor..(bx + 1) * factor {
+                    s += image.get(x, y, 0) as f64;
+                }
+            }
+            pixels.push((s / (factor * factor) as f64) as f32);
+        }
+    }
+    Ok(Image::new(w.max(1), h.max(1), 1, pixels)?)
+}
+
+fn tone(value: f32, exposure: f64) -> u8 {
+    let l = if value.is_finite() {
+        (value as f64).max(0.0)
+    } else {
+        0.0
+    };
+    (gather::image_io::srgb_encode(1.0 - (-exposure * l).exp()) * 255.0 + 0.5).clamp(0.0, 255.0)
+        as u8
+}
+
+/// Diverging false colour of a relative error: blue (−scale) – white (0) – red (+scale).
+fn error_colour(relative: f64) -> [u8; 3] {
+    let t = (relative / ERROR_MAP_SCALE).clamp(-1.0, 1.0);
+    let fade = ((1.0 - t.abs()) * 255.0 + 0.5) as u8;
+    if t < 0.0 {
+        [fade, fade, 255]
+    } else {
+        [255, fade, fade]
+    }
+}
+
+/// Grey of pixels outside the error mask.
+const MASKED: [u8; 3] = [48, 48, 48];
+const GAP: u32 = 4;
+
+/// Side of the pixel blocks the error map averages over: per-pixel errors would show mostly
+/// the reference's noise, block means show the method's systematic error.
+pub const ERROR_MAP_BLOCK: u32 = 4;
+
+/// Exposure of the panels: the reference's maximum maps to `1 − e^−1` (63 %, sRGB 82 % white).
+fn panel_exposure(reference: &Image) -> f64 {
+    let max = reference.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
+    if max > 0.0 {
+        1.0 / max
+    } else {
+        1.0
+    }
+}
+
+/// reference | method | relative error `(x − r)/r` of `ERROR_MAP_BLOCK`² block means (blocks
+/// whose reference is below the mask threshold grey). Both radiance panels share one exposure.
+fn side_by_side(reference: &Image, method: &Image) -> Result<Rgb> {
+    let factor = reference.width.div_ceil(MAX_PANEL_WIDTH).max(1);
+    let r = downscale(reference, factor)?;
+    let x = downscale(method, factor)?;
+    let exposure = panel_exposure(&r);
+    let (w, h) = (r.width, r.height);
+    let mut out = Rgb::filled(3 * w + 2 * GAP, h, 255);
+    for y in 0..h {
+        for i in 0..w {
+            out.put(i, y, [tone(r.get(i, y, 0), exposure); 3]);
+            out.put(w + GAP + i, y, [tone(x.get(i, y, 0), exposure); 3]);
+            out.put(2 * (w + GAP) + i, y, MASKED);
+        }
+    }
+    let block = ERROR_MAP_BLOCK.min(w).min(h).max(1);
+    let (rb, xb) = (downscale(&r, block)?, downscale(&x, block)?);
+    let max = rb.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
+    for by in 0..rb.height {
+        for bx in 0..rb.width {
+            let (rv, xv) = (rb.get(bx, by, 0) as f64, xb.get(bx, by, 0) as f64);
+            if !(rv > MASK_THRESHOLD * max && rv > 0.0) {
+                continue;
+            }
+            let colour = error_colour((xv - rv) / rv);
+            for y in by * block..(by + 1) * block {
+                for i in bx * block..(bx + 1) * block {
+                    out.put(2 * (w + GAP) + i, y, colour);
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The error map's colour scale, −scale on the left to +scale on the right.
+fn error_scale_bar() -> Rgb {
+    let (w, h) = (256, 12);
+    let mut out = Rgb::filled(w, h, 0);
+    for x in 0..w {
+        let rel = ERROR_MAP_SCALE * (2.0 * (x as f64 + 0.5) / w as f64 - 1.0);
+        for y in 0..h {
+            out.put(x, y, error_colour(rel));
+        }
+    }
+    out
+}
+
+fn write_png(path: &Path, picture: &Rgb) -> Result<()> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    let mut bytes = Vec::new();
+    PngEncoder::new_with_quality(&mut bytes, CompressionType::Best, FilterType::Adaptive)
+        .write_image(
+            &picture.data,
+            picture.width,
+            picture.height,
+            image::ExtendedColorType::Rgb8,
+        )
+        .with_context(|| format!("encoding {}", path.display()))?;
+    crate::solution::write_atomic(path, &bytes)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+fn write_text(path: &Path, text: &str) -> Result<()> {
+    crate::solution::write_atomic(path, text.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+// ---- Report -----------------------------------------------------------------------------
+
+fn percent(x: f64) -> String {
+    format!("{:.1} %", 100.0 * x)
+}
+
+fn signed_percent(x: f64) -> String {
+    format!("{:+.1} %", 100.0 * x)
+}
+
+fn mib(bytes: Option<u64>) -> String {
+    bytes.map_or("—".into(), |b| {
+        format!("{:.1}", b as f64 / (1024.0 * 1024.0))
+    })
+}
+
+impl ValidationReport {
+    /// The report as Markdown: one table and one image per method and scene.
+    pub fn markdown(&self) -> String {
+        let s = &self.settings;
+        let mut md = String::new();
+        let _ = writeln!(md, "# Validation report (generated)\n");
+        let _ = writeln!(
+            md,
+            "Generated by `{}` — volrad {}, {}, {} threads. Do not edit: rerun the command. \
+             What the figures mean and the hand-checked history are in [../validation.md](../validation.md).\n",
+            self.command, self.volrad_version, self.generated_utc, self.threads
+        );
+        let _ = writeln!(
+            md,
+            "- **Reference:** volrad's own path tracer (`render --method path-trace`: exact \
+             per-cell free paths, next-event estimation, unlimited depth), {} paths per pixel. \
+             Where the scene directory holds Mitsuba 3 images (`<camera>.pfm` with \
+             `<camera>_stderr.pfm`), every image is also compared with those.",
+            s.reference_spp
+        );
+        let _ = writeln!(
+            md,
+            "- **Error:** relative RMS over the pixels above {:.0} % of the reference maximum, \
+             with the reference's own noise (its per-pixel standard error) taken out: \
+             `sqrt(max(0, Σ[(x−r)² − s²]) / Σ r²)` (`src/compare.rs`); channel 0. **Mean:** \
+             relative difference of the image means over the same pixels. The method's own \
+             noise (path tracing, two-pass photons) counts as error.",
+            100.0 * MASK_THRESHOLD
+        );
+        let _ = writeln!(
+            md,
+            "- **Methods:** each solve uses the scene's `[solve]` settings with the method \
+             replaced (and that method's default iteration), then renders {} stratified \
+             samples per pixel from the solution (first bounce exact, higher orders from the \
+             solution). `path-trace` is the path tracer at {} paths per pixel with an \
+             independent seed. The zonal methods treat higher orders as isotropic, so on an \
+             anisotropic scene they show that approximation's error.",
+            s.render_spp, s.path_trace_spp
+        );
+        let _ = writeln!(
+            md,
+            "- **Time:** wall time of the solve (light pass, operator build, iterations) and of \
+             the render, on this machine with {} threads (noisy if other work was running). \
+             **Peak RSS:** growth of the process's peak resident memory during solve + render \
+             over the resident memory before (Linux `/proc/self/status` VmHWM after a reset; \
+             — where unavailable). **Solution:** size of the file `volrad solve -o` would write.",
+            self.threads
+        );
+        let _ = writeln!(
+            md,
+            "- **Images:** reference | method | relative error `(x − r)/r` of {1}×{1}-pixel \
+             block means (blocks average the reference's noise down), blue −{0:.0} % to white 0 \
+             to red +{0:.0} % ![scale](error-scale.png); grey: below the mask. Both radiance \
+             panels share one exposure, the reference's maximum at 82 % white.\n",
+            100.0 * ERROR_MAP_SCALE,
+            ERROR_MAP_BLOCK
+        );
+        if s.quick {
+            let _ = writeln!(
+                md,
+                "**Quick run:** few samples; the figures are dominated by noise.\n"
+            );
+        }
+        for scene in &self.scenes {
+            let r = &scene.reference;
+            let _ = writeln!(md, "## {}\n", scene.name);
+            let _ = writeln!(
+                md,
+                "`{}`: {}×{}×{} cells, phase {}, camera `{}` {}×{}. Reference: {} spp in {:.1} s, \
+                 mean per-pixel noise {}.",
+                scene.path,
+                scene.dims[0],
+                scene.dims[1],
+                scene.dims[2],
+                scene.phase,
+                scene.camera,
+                scene.width,
+                scene.height,
+                r.spp,
+                r.seconds,
+                percent(r.relative_noise)
+            );
+            match (&r.vs_mitsuba, &r.mitsuba_files) {
+                (Some(c), Some((mean, err))) => {
+                    let _ = writeln!(
+                        md,
+                        "The path-traced reference against Mitsuba (`{mean}`, `{err}`; both images' \
+                         noise taken out): relative RMS {} (raw {}), mean {}.\n",
+                        percent(c.relative_rms),
+                        percent(c.relative_rms_raw),
+                        signed_percent(c.mean_ratio_error)
+                    );
+                }
+                _ => {
+                    let _ = writeln!(md, "No Mitsuba reference beside this scene.\n");
+                }
+            }
+            let has_mitsuba = r.vs_mitsuba.is_some();
+            let _ = write!(md, "| method | rel. RMS vs path tracer | mean |");
+            if has_mitsuba {
+                let _ = write!(md, " rel. RMS vs Mitsuba | mean |");
+            }
+            let _ = writeln!(
+                md,
+                " solve s | render s | peak RSS growth MiB | solution MiB | iterations |"
+            );
+            let _ = write!(md, "|---|---|---|");
+            if has_mitsuba {
+                let _ = write!(md, "---|---|");
+            }
+            let _ = writeln!(md, "---|---|---|---|---|");
+            for m in &scene.methods {
+                let _ = write!(
+                    md,
+                    "| {} | {} | {} |",
+                    m.method.name(),
+                    percent(m.vs_path_tracer.relative_rms),
+                    signed_percent(m.vs_path_tracer.mean_ratio_error)
+                );
+                if has_mitsuba {
+                    match &m.vs_mitsuba {
+                        Some(c) => {
+                            let _ = write!(
+                                md,
+                                " {} | {} |",
+                                percent(c.relative_rms),
+                                signed_percent(c.mean_ratio_error)
+                            );
+                        }
+                        None => {
+                            let _ = write!(md, " — | — |");
+                        }
+                    }
+                }
+                let iterations = match (m.iterations, m.converged) {
+                    (Some(n), Some(true)) => n.to_string(),
+                    (Some(n), Some(false)) => format!("{n} (not converged)"),
+                    _ => "—".into(),
+                };
+                let _ = writeln!(
+                    md,
+                    " {} | {:.2} | {} | {} | {} |",
+                    m.solve_seconds.map_or("—".into(), |t| format!("{t:.2}")),
+                    m.render_seconds,
+                    mib(m.peak_rss_growth_bytes),
+                    mib(m.solution_file_bytes),
+                    iterations
+                );
+            }
+            let _ = writeln!(md);
+            for m in &scene.methods {
+                let _ = writeln!(
+                    md,
+                    "**{}** — reference | method | error\n\n![{} {}]({})\n",
+                    m.method.name(),
+                    scene.name,
+                    m.method.name(),
+                    m.image
+                );
+            }
+        }
+        md
+    }
+}
+
+/// The current UTC time as `YYYY-MM-DD HH:MM UTC`.
+fn utc_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let (days, rest) = (secs / 86_400, secs % 86_400);
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02} {:02}:{:02} UTC",
+        rest / 3600,
+        (rest % 3600) / 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_names_round_trip_and_unknown_ones_are_named() {
+        for m in ValidateMethod::ALL {
+            assert_eq!(ValidateMethod::parse(m.name()), Some(m));
+        }
+        let err = parse_methods(&["zonal".into(), "monte-carlo".into()]).unwrap_err();
+        assert!(err.to_string().contains("`monte-carlo`"), "{err}");
+        let ok = parse_methods(&["zonal".into(), " two-pass".into(), "zonal".into()]).unwrap();
+        assert_eq!(ok, vec![ValidateMethod::Zonal, ValidateMethod::TwoPass]);
+    }
+
+    #[test]
+    fn error_colours_are_signed_and_saturate() {
+        assert_eq!(error_colour(0.0), [255, 255, 255]);
+        assert_eq!(error_colour(-1.0), [0, 0, 255]);
+        assert_eq!(error_colour(ERROR_MAP_SCALE), [255, 0, 0]);
+        let half = error_colour(0.5 * ERROR_MAP_SCALE);
+        assert!(half[0] == 255 && half[1] > 100 && half[1] < 150);
+    }
+
+    #[test]
+    fn downscale_averages_blocks() {
+        let img = Image::new(4, 2, 1, vec![0.0, 2.0, 4.0, 4.0, 2.0, 0.0, 4.0, 4.0]).unwrap();
+        let d = downscale(&img, 2).unwrap();
+        assert_eq!((d.width, d.height), (2, 1));
+        assert_eq!(d.pixels, vec![1.0, 4.0]);
+    }
+}
