@@ -1,5 +1,7 @@
 //! Render speed: the generated 64×64×48 cloud (Max's cloud, seed 7) at 512×384, 1 sample per
-//! pixel, emission + absorption (the particle model, emission = σt), exact per-cell segments.
+//! pixel, exact per-cell segments: emission + absorption (the particle model, emission = σt),
+//! and the scattering renders of `data/cloud.toml` (first bounce from the light pass, alone
+//! and with a stored per-cell multiple-scattering source as a zonal solution supplies it).
 //! Run with `cargo bench --bench render`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -59,5 +61,46 @@ fn bench_render(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_render);
+/// The scattering renders of `data/cloud.toml`'s front camera. The higher-order source is
+/// the zonal first-pass source `E` standing in for a solved `g − E`: a render's cost does not
+/// depend on the values it reads.
+fn bench_scattering_render(c: &mut Criterion) {
+    use gather::single_scatter::{SingleScatter, SingleScatterOptions};
+    use medium::light_pass::LightPass;
+    use medium::scene::Scene;
+
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scene = Scene::from_file(&root.join("data/cloud.toml")).unwrap();
+    let medium = &scene.medium;
+    let pass = LightPass::compute(&medium.grid, &medium.channels[0], &scene.lights).unwrap();
+    let spec = scene.camera("front").unwrap();
+    let cam = Camera::from_spec(spec).unwrap();
+    let opts = RenderOptions {
+        model: OpticalModel::Scattering,
+        spp: 1,
+        background: scene.background,
+        ..RenderOptions::default()
+    };
+    let first = SingleScatter::new(medium, 0, &pass, SingleScatterOptions::default()).unwrap();
+    let higher: Vec<f32> = pass
+        .zonal_source(&medium.channels[0])
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    let solution = (
+        SingleScatter::new(medium, 0, &pass, SingleScatterOptions::default()).unwrap(),
+        volrad::pipeline::CellSource::new(&higher),
+    );
+    let mut group = c.benchmark_group("render");
+    group.sample_size(20);
+    group.bench_function("cloud_toml_512x384_single_scatter", |b| {
+        b.iter(|| render(medium, 0, &cam, &opts, &first).unwrap())
+    });
+    group.bench_function("cloud_toml_512x384_zonal_solution", |b| {
+        b.iter(|| render(medium, 0, &cam, &opts, &solution).unwrap())
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_render, bench_scattering_render);
 criterion_main!(benches);

@@ -67,6 +67,92 @@ pub struct SingleScatterOptions {
     pub nodes: usize,
     /// Gradient shading strength (Max eq. 11); `None` for none. Needs the medium's `data`.
     pub gradient_strength: Option<f64>,
+    /// How `T_L` of a directional light varies inside a cell (point and spot lights always
+    /// use [`LightDepth::ExitFace`]).
+    pub light_depth: LightDepth,
+}
+
+/// [`LightDepth::Auto`] takes the trilinear model when its cell means of `T_L` match the
+/// light pass's exact ones to this (extinction-weighted relative L1) error. Measured:
+/// `data/cloud.toml` 0.97 % (its images 0.11 % RMS from the exit-face model), a 12×10×8
+/// cloud 4.0 % and the same with σt·h up to 4, 22 % (both left to the exit-face model).
+pub const TRILINEAR_CELL_MEAN_TOLERANCE: f64 = 0.02;
+
+/// How far the trilinear corner model's cell means of `T_L` stray from the light pass's exact
+/// cell averages (`cell_irradiance / E`) for directional light `l`: `Σ σt |T̄_model − T̄| /
+/// Σ σt T̄` over the cells that extinguish. The model's mean is 2×2×2-point Gauss–Legendre.
+/// Point and spot lights always use the exit-face model, so they count as 0.
+fn trilinear_model_error(pass: &LightPass, l: usize) -> f64 {
+    let field = &pass.fields[l];
+    let Light::Directional { irradiance, .. } = field.light else {
+        return 0.0;
+    };
+    if irradiance <= 0.0 {
+        return 0.0;
+    }
+    let grid = &pass.grid;
+    let sy = grid.dims[0] + 1;
+    let sz = sy * (grid.dims[1] + 1);
+    let nodes = [0.5 - 0.5 / 3f64.sqrt(), 0.5 + 0.5 / 3f64.sqrt()];
+    let (mut err, mut total) = (0.0f64, 0.0f64);
+    for (cell, &sigma) in pass.sigma_t.iter().enumerate() {
+        if sigma <= 0.0 {
+            continue;
+        }
+        let [i, j, k] = grid.coords(cell);
+        let c = grid.corner_index(i, j, k);
+        let d = |o: usize| field.corner_optical_depth[c + o] as f64;
+        let v = [
+            d(0),
+            d(1),
+            d(sy),
+            d(sy + 1),
+            d(sz),
+            d(sz + 1),
+            d(sz + sy),
+            d(sz + sy + 1),
+        ];
+        let mut mean = 0.0;
+        for fz in nodes {
+            for fy in nodes {
+                for fx in nodes {
+                    let x0 = v[0] + fx * (v[1] - v[0]);
+                    let x1 = v[2] + fx * (v[3] - v[2]);
+                    let x2 = v[4] + fx * (v[5] - v[4]);
+                    let x3 = v[6] + fx * (v[7] - v[6]);
+                    let y0 = x0 + fy * (x1 - x0);
+                    let y1 = x2 + fy * (x3 - x2);
+                    mean += (-(y0 + fz * (y1 - y0))).exp();
+                }
+            }
+        }
+        let exact = field.cell_irradiance[cell] as f64 / irradiance;
+        err += sigma as f64 * (0.125 * mean - exact).abs();
+        total += sigma as f64 * exact;
+    }
+    if total > 0.0 {
+        err / total
+    } else {
+        0.0
+    }
+}
+
+/// The in-cell model of a directional light's optical depth, for `nearest` renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LightDepth {
+    /// [`LightDepth::CornerTrilinear`] when its cell means of `T_L` reproduce the light
+    /// pass's exact cell averages (within [`TRILINEAR_CELL_MEAN_TOLERANCE`]), else
+    /// [`LightDepth::ExitFace`]. Smooth, finely resolved media (`data/cloud.toml`: images
+    /// 0.11 % RMS from the exit-face model) pass; coarse grids and white-noise densities,
+    /// where `ln T_L` is far from linear inside a cell (3–5 % image error), do not.
+    Auto,
+    /// Trilinear in the light pass's corner depths, linear along each view segment: one
+    /// closed form per segment (the fast default).
+    CornerTrilinear,
+    /// Bilinear on the face where the ray toward the light leaves the cell plus the exact
+    /// in-cell attenuation, split where that face changes and integrated by Gauss–Legendre:
+    /// about four times the work, for cells too thick for the trilinear model.
+    ExitFace,
 }
 
 impl Default for SingleScatterOptions {
@@ -75,6 +161,7 @@ impl Default for SingleScatterOptions {
             shadows: true,
             nodes: 3,
             gradient_strength: None,
+            light_depth: LightDepth::Auto,
         }
     }
 }
@@ -178,6 +265,22 @@ impl<'a> SingleScatter<'a> {
         } else {
             max_irradiance * per_irradiance
         };
+        let mut options = options;
+        if options.light_depth == LightDepth::Auto {
+            let worst = (0..pass.fields.len())
+                .map(|l| trilinear_model_error(pass, l))
+                .fold(0.0, f64::max);
+            options.light_depth = if worst <= TRILINEAR_CELL_MEAN_TOLERANCE {
+                LightDepth::CornerTrilinear
+            } else {
+                LightDepth::ExitFace
+            };
+            tracing::debug!(
+                trilinear_cell_mean_error = worst,
+                chosen = ?options.light_depth,
+                "first-bounce light depth model"
+            );
+        }
         Ok(SingleScatter {
             pass,
             sigma_t: &ch.sigma_t,
@@ -250,7 +353,66 @@ fn exponential_quadrature(
     0.5 * big_w * sum
 }
 
+/// `∫_0^len e^{−λ s} ds = (1 − e^{−λ len})/λ` for `λ` of either sign (a view ray running
+/// toward the light sees `T_L` grow), by its series where `|λ len|` is tiny.
+#[inline]
+fn exponential_weight(lambda: f64, len: f64) -> f64 {
+    let x = lambda * len;
+    if x.abs() < 1e-6 {
+        len * (1.0 - 0.5 * x)
+    } else {
+        -(-x).exp_m1() / lambda
+    }
+}
+
 impl SingleScatter<'_> {
+    /// The light's optical depth `−ln T_L` at two points of `cell`, trilinear in the light
+    /// pass's corner field. Trilinear is continuous across cell faces (no seams between
+    /// cells in an image) and exact wherever the depth is linear, as in a homogeneous slab.
+    #[inline]
+    fn corner_depth_pair(&self, l: usize, cell: usize, a: DVec3, b: DVec3) -> (f64, f64) {
+        let grid = &self.pass.grid;
+        let [i, j, k] = grid.coords(cell);
+        let sy = grid.dims[0] + 1;
+        let sz = sy * (grid.dims[1] + 1);
+        let c = grid.corner_index(i, j, k);
+        let d = &self.pass.fields[l].corner_optical_depth;
+        let v = |o: usize| d[c + o] as f64;
+        let (d000, d100, d010, d110) = (v(0), v(1), v(sy), v(sy + 1));
+        let (d001, d101, d011, d111) = (v(sz), v(sz + 1), v(sz + sy), v(sz + sy + 1));
+        let lo = grid.cell_min(cell);
+        let inv_h = 1.0 / grid.cell_size;
+        let trilinear = |p: DVec3| {
+            let f = ((p - lo) * inv_h).clamp(DVec3::ZERO, DVec3::ONE);
+            let x00 = d000 + f.x * (d100 - d000);
+            let x10 = d010 + f.x * (d110 - d010);
+            let x01 = d001 + f.x * (d101 - d001);
+            let x11 = d011 + f.x * (d111 - d011);
+            let y0 = x00 + f.y * (x10 - x00);
+            let y1 = x01 + f.y * (x11 - x01);
+            y0 + f.z * (y1 - y0)
+        };
+        (trilinear(a), trilinear(b))
+    }
+
+    /// `∫_{t0}^{t1} e^{−σt (t−t0)} T_L(ray(t)) dt` for directional light `l` over a whole
+    /// cell segment, with `ln T_L` taken linear along the segment between its trilinear
+    /// end values: one closed form, no quadrature.
+    #[inline]
+    fn directional_segment(
+        &self,
+        l: usize,
+        cell: usize,
+        ray: &Ray,
+        t0: f64,
+        t1: f64,
+        sigma_t: f64,
+    ) -> f64 {
+        let len = t1 - t0;
+        let (da, db) = self.corner_depth_pair(l, cell, ray.at(t0), ray.at(t1));
+        (-da).exp() * exponential_weight(sigma_t + (db - da) / len, len)
+    }
+
     /// `∫_a^b e^{−σt (t−a)} T_L(ray(t)) dt` for a directional light over a piece with one exit
     /// face. There `ln T_L` is exactly quadratic in `t` (linear in-cell attenuation plus the
     /// face's bilinear optical depth at an exit point moving linearly), so three evaluations
@@ -357,6 +519,20 @@ impl InScattering for SingleScatter<'_> {
         }
         let mut total = 0.0;
         for l in 0..self.pass.fields.len() {
+            if let Light::Directional {
+                direction,
+                irradiance,
+            } = self.pass.fields[l].light
+            {
+                if self.options.shadows
+                    && self.options.gradient_strength.is_none()
+                    && self.options.light_depth == LightDepth::CornerTrilinear
+                {
+                    let q = sigma_s * self.phase.eval(direction.dot(-ray.direction)) * irradiance;
+                    total += q * self.directional_segment(l, cell, ray, t0, t1, sigma_t);
+                    continue;
+                }
+            }
             if !self.options.shadows {
                 total += self.piece(l, cell, ray, t0, t1, sigma_t, sigma_s, 0.0);
                 continue;

@@ -261,3 +261,90 @@ fn gradient_shading_follows_the_data_gradient() {
     };
     assert!(SingleScatter::new(&plain, 0, &pass, opts).is_err());
 }
+
+/// The fast trilinear model of `T_L` against the exit-face model on Max's procedural cloud
+/// with thin cells (σt·h ≤ 0.6, like `data/cloud.toml`): finely resolved, `Auto` takes the
+/// trilinear model and its image is within 1 % RMS of the exit-face one; coarse (cloud
+/// features a cell or two wide), `Auto` never gives an image further than that, and thick
+/// cells get the exit-face model.
+#[test]
+fn auto_light_depth_stays_within_one_percent_of_exit_face() {
+    use gather::single_scatter::LightDepth;
+    use gather::{render, Camera};
+    let lights = [Light::Directional {
+        direction: DVec3::new(0.35, -0.5, -0.79).normalize(),
+        irradiance: 1.0,
+    }];
+    let cloud = |dims: [usize; 3], peak: f32| -> Medium {
+        let sigma_t: Vec<f32> = medium::generators::cloud(dims, 3)
+            .iter()
+            .map(|d| d * peak)
+            .collect();
+        Medium::new(
+            Grid::new(dims, 1.0).unwrap(),
+            vec![ChannelMedium {
+                sigma_t,
+                albedo: CellValues::Uniform(0.9),
+                emission: CellValues::Uniform(0.0),
+            }],
+            PhaseFunction::HenyeyGreenstein { g: 0.6 },
+            Interpolation::Nearest,
+            None,
+        )
+        .unwrap()
+    };
+    let image = |medium: &Medium, pass: &LightPass, light_depth: LightDepth| {
+        let centre = medium.grid.extent() * 0.5;
+        let size = medium.grid.extent().length();
+        let camera = Camera::perspective(
+            centre + DVec3::new(-0.5, -0.7, 0.5) * size,
+            centre,
+            DVec3::Z,
+            45.0,
+            64,
+            48,
+        )
+        .unwrap();
+        let ss = SingleScatter::new(
+            medium,
+            0,
+            pass,
+            SingleScatterOptions {
+                light_depth,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        render(medium, 0, &camera, &options(), &ss).unwrap().pixels
+    };
+    let rms = |a: &[f32], b: &[f32]| {
+        let (mut err2, mut ref2) = (0.0f64, 0.0f64);
+        for (&x, &r) in a.iter().zip(b) {
+            err2 += ((x - r) as f64).powi(2);
+            ref2 += (r as f64).powi(2);
+        }
+        assert!(ref2 > 0.0, "the cloud must be lit");
+        (err2 / ref2).sqrt()
+    };
+    let check = |dims: [usize; 3], peak: f32| -> bool {
+        let medium = cloud(dims, peak);
+        let pass = LightPass::compute(&medium.grid, &medium.channels[0], &lights).unwrap();
+        let exact = image(&medium, &pass, LightDepth::ExitFace);
+        let fast = image(&medium, &pass, LightDepth::CornerTrilinear);
+        let auto = image(&medium, &pass, LightDepth::Auto);
+        let took_trilinear = auto == fast;
+        assert!(took_trilinear || auto == exact, "Auto is one of the two");
+        let error = rms(&auto, &exact);
+        assert!(error < 1e-2, "{dims:?}: Auto is {error} RMS from exit-face");
+        took_trilinear
+    };
+    assert!(
+        check([48, 40, 32], 0.6),
+        "a fine thin cloud takes the fast model"
+    );
+    check([12, 10, 8], 0.6);
+    assert!(
+        !check([12, 10, 8], 4.0),
+        "thick cells take the exit-face model"
+    );
+}
