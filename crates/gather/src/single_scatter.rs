@@ -17,6 +17,7 @@ use glam::DVec3;
 use medium::light_pass::LightPass;
 use medium::traversal::Ray;
 use medium::{Light, Medium, PhaseFunction};
+use rayon::prelude::*;
 
 use crate::scattering::InScattering;
 use crate::GatherError;
@@ -94,42 +95,46 @@ fn trilinear_model_error(pass: &LightPass, l: usize) -> f64 {
     let sy = grid.dims[0] + 1;
     let sz = sy * (grid.dims[1] + 1);
     let nodes = [0.5 - 0.5 / 3f64.sqrt(), 0.5 + 0.5 / 3f64.sqrt()];
-    let (mut err, mut total) = (0.0f64, 0.0f64);
-    for (cell, &sigma) in pass.sigma_t.iter().enumerate() {
-        if sigma <= 0.0 {
-            continue;
-        }
-        let [i, j, k] = grid.coords(cell);
-        let c = grid.corner_index(i, j, k);
-        let d = |o: usize| field.corner_optical_depth[c + o] as f64;
-        let v = [
-            d(0),
-            d(1),
-            d(sy),
-            d(sy + 1),
-            d(sz),
-            d(sz + 1),
-            d(sz + sy),
-            d(sz + sy + 1),
-        ];
-        let mut mean = 0.0;
-        for fz in nodes {
-            for fy in nodes {
-                for fx in nodes {
-                    let x0 = v[0] + fx * (v[1] - v[0]);
-                    let x1 = v[2] + fx * (v[3] - v[2]);
-                    let x2 = v[4] + fx * (v[5] - v[4]);
-                    let x3 = v[6] + fx * (v[7] - v[6]);
-                    let y0 = x0 + fy * (x1 - x0);
-                    let y1 = x2 + fy * (x3 - x2);
-                    mean += (-(y0 + fz * (y1 - y0))).exp();
+    let (err, total) = pass
+        .sigma_t
+        .par_iter()
+        .enumerate()
+        .filter(|(_, &sigma)| sigma > 0.0)
+        .map(|(cell, &sigma)| {
+            let [i, j, k] = grid.coords(cell);
+            let c = grid.corner_index(i, j, k);
+            let d = |o: usize| field.corner_optical_depth[c + o] as f64;
+            let v = [
+                d(0),
+                d(1),
+                d(sy),
+                d(sy + 1),
+                d(sz),
+                d(sz + 1),
+                d(sz + sy),
+                d(sz + sy + 1),
+            ];
+            let mut mean = 0.0;
+            for fz in nodes {
+                for fy in nodes {
+                    for fx in nodes {
+                        let x0 = v[0] + fx * (v[1] - v[0]);
+                        let x1 = v[2] + fx * (v[3] - v[2]);
+                        let x2 = v[4] + fx * (v[5] - v[4]);
+                        let x3 = v[6] + fx * (v[7] - v[6]);
+                        let y0 = x0 + fy * (x1 - x0);
+                        let y1 = x2 + fy * (x3 - x2);
+                        mean += (-(y0 + fz * (y1 - y0))).exp();
+                    }
                 }
             }
-        }
-        let exact = field.cell_irradiance[cell] as f64 / irradiance;
-        err += sigma as f64 * (0.125 * mean - exact).abs();
-        total += sigma as f64 * exact;
-    }
+            let exact = field.cell_irradiance[cell] as f64 / irradiance;
+            (
+                sigma as f64 * (0.125 * mean - exact).abs(),
+                sigma as f64 * exact,
+            )
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
     if total > 0.0 {
         err / total
     } else {
@@ -380,7 +385,8 @@ impl SingleScatter<'_> {
         let v = |o: usize| d[c + o] as f64;
         let (d000, d100, d010, d110) = (v(0), v(1), v(sy), v(sy + 1));
         let (d001, d101, d011, d111) = (v(sz), v(sz + 1), v(sz + sy), v(sz + sy + 1));
-        let lo = grid.cell_min(cell);
+        // From the coordinates already at hand: `cell_min` would divide again.
+        let lo = DVec3::new(i as f64, j as f64, k as f64) * grid.cell_size;
         let inv_h = 1.0 / grid.cell_size;
         let trilinear = |p: DVec3| {
             let f = ((p - lo) * inv_h).clamp(DVec3::ZERO, DVec3::ONE);
