@@ -145,6 +145,10 @@ pub struct RenderArgs {
     /// OUT names a directory, or a file stem to which _000, _001, ... are appended.
     #[arg(long)]
     pub orbit: Option<u32>,
+    /// Separate absorption for rendering (Blasi & Wuethrich §4.3): σt times S along the view
+    /// rays only; the solved light stays as it was (a thinner or denser look, same lighting).
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    pub extinction_scale: Option<f32>,
 }
 
 /// A camera given on the command line; overrides parts of the scene's camera.

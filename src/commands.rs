@@ -11,7 +11,7 @@ use medium::Scene;
 
 use crate::app::{choose_camera, load_scene, orbit_cameras, view_outputs};
 use crate::cli::{ExportArgs, ExportField, RenderArgs, RenderMethod, SolveArgs};
-use crate::pipeline::{render_view, solve_scene, SolveHooks};
+use crate::pipeline::{render_view, render_view_scaled, solve_scene, SolveHooks};
 use crate::progress::SolveProgress;
 use crate::solution::Solution;
 
@@ -71,6 +71,9 @@ pub fn solve_with_progress(
 }
 
 pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
+    if args.method == RenderMethod::PathTrace && args.extinction_scale.is_some() {
+        bail!("--extinction-scale changes a render from a solution; the path tracer has none");
+    }
     if args.method == RenderMethod::PathTrace {
         return render_path_traced(args);
     }
@@ -113,7 +116,7 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
     let exposure = args.exposure.unwrap_or(solution.render.exposure);
     for (view, out) in views.iter().zip(&outputs) {
         let started = Instant::now();
-        let image = render_view(&solution, view, args.spp)?;
+        let image = render_view_scaled(&solution, view, args.spp, args.extinction_scale)?;
         image
             .save(out, exposure)
             .with_context(|| format!("writing {}", out.display()))?;

@@ -118,6 +118,27 @@ impl InScattering for CellSource<'_> {
 
 /// Renders one view of a solution.
 pub fn render_view(solution: &Solution, camera: &CameraSpec, spp: Option<u32>) -> Result<Image> {
+    render_view_scaled(solution, camera, spp, None)
+}
+
+/// Renders one view of a solution, with σt along the view rays multiplied by
+/// `extinction_scale` when given (Blasi & Wuethrich §4.3's separate render-time absorption;
+/// the solved sources and the first bounce keep the solved medium).
+pub fn render_view_scaled(
+    solution: &Solution,
+    camera: &CameraSpec,
+    spp: Option<u32>,
+    extinction_scale: Option<f32>,
+) -> Result<Image> {
+    let scaled;
+    let view_medium = match extinction_scale {
+        None => &solution.medium,
+        Some(scale) => {
+            scaled = montecarlo::with_extinction_scale(&solution.medium, scale)
+                .map_err(|e| anyhow::anyhow!("--extinction-scale: {e}"))?;
+            &scaled
+        }
+    };
     let camera = Camera::from_spec(camera)?;
     let options = RenderOptions {
         model: solution.render.model,
@@ -132,10 +153,5 @@ pub fn render_view(solution: &Solution, camera: &CameraSpec, spp: Option<u32>) -
         .map(|(c, ch)| crate::methods::channel_scattering(solution, c, ch, options.model))
         .collect::<Result<Vec<Box<dyn InScattering + '_>>>>()?;
     let refs: Vec<&dyn InScattering> = sources.iter().map(|b| b.as_ref()).collect();
-    Ok(gather::render_image(
-        &solution.medium,
-        &camera,
-        &options,
-        &refs,
-    )?)
+    Ok(gather::render_image(view_medium, &camera, &options, &refs)?)
 }

@@ -319,3 +319,73 @@ fn path_traced_render_agrees_with_the_zonal_solution() {
         "zonal {z} vs path traced {t}"
     );
 }
+
+/// Blasi & Wuethrich's separate render-time absorption: `--extinction-scale 1` is the plain
+/// render bit for bit; a thinner view medium lets more of the same solved light through
+/// (every pixel at least as bright, the image brighter); 0 leaves only the background (none
+/// here); a negative scale and the path tracer are refused by name.
+#[test]
+fn render_time_extinction_scale_thins_the_view_medium_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path(), "zonal", r#"{ kind = "isotropic" }"#);
+    let sol = dir.path().join("s.volrad");
+    let out = volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let render = |scale: Option<&str>, name: &str| {
+        let path = dir.path().join(name);
+        let mut args = vec!["-q", "render", "--solution", s(&sol), "-o", s(&path)];
+        if let Some(scale) = scale {
+            args.extend(["--extinction-scale", scale]);
+        }
+        let o = volrad(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        (
+            std::fs::read(&path).unwrap(),
+            gather::read_pfm(&path).unwrap(),
+        )
+    };
+    let (plain_bytes, plain) = render(None, "plain.pfm");
+    let (one_bytes, _) = render(Some("1"), "one.pfm");
+    assert_eq!(plain_bytes, one_bytes, "scale 1 must be the plain render");
+    let (_, thin) = render(Some("0.5"), "thin.pfm");
+    assert!(thin
+        .pixels
+        .iter()
+        .zip(&plain.pixels)
+        .all(|(&t, &p)| t >= p * (1.0 - 1e-6)));
+    let (sum_thin, sum_plain): (f64, f64) = (
+        thin.pixels.iter().map(|&v| v as f64).sum(),
+        plain.pixels.iter().map(|&v| v as f64).sum(),
+    );
+    assert!(sum_thin > 1.05 * sum_plain, "{sum_thin} vs {sum_plain}");
+    let (_, empty) = render(Some("0"), "empty.pfm");
+    assert!(empty.pixels.iter().all(|&v| v == 0.0));
+
+    let bad = dir.path().join("bad.pfm");
+    let o = volrad(&[
+        "-q",
+        "render",
+        "--solution",
+        s(&sol),
+        "-o",
+        s(&bad),
+        "--extinction-scale",
+        "-1",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("extinction"), "{}", stderr(&o));
+    assert!(!bad.exists(), "no image for a refused render");
+    let o = volrad(&[
+        "-q",
+        "render",
+        s(&scene),
+        "--method",
+        "path-trace",
+        "-o",
+        s(&bad),
+        "--extinction-scale",
+        "0.5",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--extinction-scale"), "{}", stderr(&o));
+}
