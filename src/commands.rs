@@ -71,10 +71,10 @@ pub fn solve_with_progress(
 }
 
 pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
-    if args.method == RenderMethod::PathTrace && args.extinction_scale.is_some() {
-        bail!("--extinction-scale changes a render from a solution; the path tracer has none");
-    }
     if args.method == RenderMethod::PathTrace {
+        if args.extinction_scale.is_some() {
+            bail!("--extinction-scale changes a render from a solution; the path tracer has none");
+        }
         return render_path_traced(args);
     }
     let solution = match (&args.solution, &args.scene) {
@@ -311,10 +311,8 @@ pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
         args.scenes.clone()
     };
     let mut settings = ValidateSettings::new(args.quick);
-    for (name, value) in [("--reference-spp", args.reference_spp), ("--spp", args.spp)] {
-        if value == Some(0) {
-            bail!("{name} must be at least 1");
-        }
+    if args.spp == Some(0) {
+        bail!("--spp must be at least 1");
     }
     if let Some(n) = args.reference_spp {
         if n < 2 {

@@ -12,6 +12,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use gather::image_io::tone_map;
 use gather::Image;
 use indicatif::{ProgressBar, ProgressStyle};
 use medium::scene::{IterationMethod, SolveMethod};
@@ -703,16 +704,6 @@ fn downscale(image: &Image, factor: u32) -> Result<Image> {
     Ok(Image::new(w.max(1), h.max(1), 1, pixels)?)
 }
 
-fn tone(value: f32, exposure: f64) -> u8 {
-    let l = if value.is_finite() {
-        (value as f64).max(0.0)
-    } else {
-        0.0
-    };
-    (gather::image_io::srgb_encode(1.0 - (-exposure * l).exp()) * 255.0 + 0.5).clamp(0.0, 255.0)
-        as u8
-}
-
 /// Diverging false colour of a relative error: blue (−scale) – white (0) – red (+scale).
 fn error_colour(relative: f64) -> [u8; 3] {
     let t = (relative / ERROR_MAP_SCALE).clamp(-1.0, 1.0);
@@ -753,8 +744,8 @@ fn side_by_side(reference: &Image, method: &Image) -> Result<Rgb> {
     let mut out = Rgb::filled(3 * w + 2 * GAP, h, 255);
     for y in 0..h {
         for i in 0..w {
-            out.put(i, y, [tone(r.get(i, y, 0), exposure); 3]);
-            out.put(w + GAP + i, y, [tone(x.get(i, y, 0), exposure); 3]);
+            out.put(i, y, [tone_map(r.get(i, y, 0), exposure); 3]);
+            out.put(w + GAP + i, y, [tone_map(x.get(i, y, 0), exposure); 3]);
             out.put(2 * (w + GAP) + i, y, MASKED);
         }
     }

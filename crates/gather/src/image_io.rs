@@ -132,20 +132,9 @@ impl Image {
         Ok(())
     }
 
-    /// 8-bit display values: `1 − exp(−exposure · L)`, sRGB-encoded.
+    /// 8-bit display values of every pixel, by [`tone_map`].
     pub fn tone_mapped(&self, exposure: f64) -> Vec<u8> {
-        self.pixels
-            .iter()
-            .map(|&l| {
-                let l = if l.is_finite() {
-                    (l as f64).max(0.0)
-                } else {
-                    0.0
-                };
-                let v = srgb_encode(1.0 - (-exposure * l).exp());
-                (v * 255.0 + 0.5).clamp(0.0, 255.0) as u8
-            })
-            .collect()
+        self.pixels.iter().map(|&l| tone_map(l, exposure)).collect()
     }
 
     fn write_png(&self, target: &Path, tmp: &Path, exposure: f64) -> Result<(), GatherError> {
@@ -185,6 +174,17 @@ impl Image {
             message: e.to_string(),
         })
     }
+}
+
+/// 8-bit display value of radiance `l`: `1 − exp(−exposure · L)`, sRGB-encoded (non-finite
+/// and negative values show as black).
+pub fn tone_map(l: f32, exposure: f64) -> u8 {
+    let l = if l.is_finite() {
+        (l as f64).max(0.0)
+    } else {
+        0.0
+    };
+    (srgb_encode(1.0 - (-exposure * l).exp()) * 255.0 + 0.5).clamp(0.0, 255.0) as u8
 }
 
 /// The sRGB transfer curve for a linear value in [0, 1].

@@ -74,10 +74,59 @@ pub struct SingleScatterOptions {
 }
 
 /// [`LightDepth::Auto`] takes the trilinear model when its cell means of `T_L` match the
-/// light pass's exact ones to this (extinction-weighted relative L1) error. Measured:
-/// `data/cloud.toml` 0.97 % (its images 0.11 % RMS from the exit-face model), a 12×10×8
-/// cloud 4.0 % and the same with σt·h up to 4, 22 % (both left to the exit-face model).
+/// light pass's exact ones to this (extinction-weighted relative L1) error. The error and the
+/// model chosen are logged at debug level (`RUST_LOG=gather=debug volrad render ...`).
 pub const TRILINEAR_CELL_MEAN_TOLERANCE: f64 = 0.02;
+
+/// A cell's eight corner optical depths toward one light, for trilinear interpolation.
+/// Trilinear is continuous across cell faces (no seams between cells in an image) and exact
+/// wherever the depth is linear, as in a homogeneous slab.
+struct CellCornerDepths {
+    /// The cell's lower corner in world space.
+    lo: DVec3,
+    /// `d[i + 2j + 4k]` at corner offset `(i, j, k)`.
+    d: [f64; 8],
+}
+
+impl CellCornerDepths {
+    #[inline]
+    fn load(pass: &LightPass, l: usize, cell: usize) -> Self {
+        let grid = &pass.grid;
+        let [i, j, k] = grid.coords(cell);
+        let sy = grid.dims[0] + 1;
+        let sz = sy * (grid.dims[1] + 1);
+        let c = grid.corner_index(i, j, k);
+        let v = |o: usize| pass.fields[l].corner_optical_depth[c + o] as f64;
+        CellCornerDepths {
+            // From the coordinates already at hand: `cell_min` would divide again.
+            lo: DVec3::new(i as f64, j as f64, k as f64) * grid.cell_size,
+            d: [
+                v(0),
+                v(1),
+                v(sy),
+                v(sy + 1),
+                v(sz),
+                v(sz + 1),
+                v(sz + sy),
+                v(sz + sy + 1),
+            ],
+        }
+    }
+
+    /// The depth at fractional position `f` in the cell (clamped to it).
+    #[inline]
+    fn at(&self, f: DVec3) -> f64 {
+        let f = f.clamp(DVec3::ZERO, DVec3::ONE);
+        let d = &self.d;
+        let x00 = d[0] + f.x * (d[1] - d[0]);
+        let x10 = d[2] + f.x * (d[3] - d[2]);
+        let x01 = d[4] + f.x * (d[5] - d[4]);
+        let x11 = d[6] + f.x * (d[7] - d[6]);
+        let y0 = x00 + f.y * (x10 - x00);
+        let y1 = x01 + f.y * (x11 - x01);
+        y0 + f.z * (y1 - y0)
+    }
+}
 
 /// How far the trilinear corner model's cell means of `T_L` stray from the light pass's exact
 /// cell averages (`cell_irradiance / E`) for directional light `l`: `Σ σt |T̄_model − T̄| /
@@ -91,9 +140,6 @@ fn trilinear_model_error(pass: &LightPass, l: usize) -> f64 {
     if irradiance <= 0.0 {
         return 0.0;
     }
-    let grid = &pass.grid;
-    let sy = grid.dims[0] + 1;
-    let sz = sy * (grid.dims[1] + 1);
     let nodes = [0.5 - 0.5 / 3f64.sqrt(), 0.5 + 0.5 / 3f64.sqrt()];
     let (err, total) = pass
         .sigma_t
@@ -101,30 +147,12 @@ fn trilinear_model_error(pass: &LightPass, l: usize) -> f64 {
         .enumerate()
         .filter(|(_, &sigma)| sigma > 0.0)
         .map(|(cell, &sigma)| {
-            let [i, j, k] = grid.coords(cell);
-            let c = grid.corner_index(i, j, k);
-            let d = |o: usize| field.corner_optical_depth[c + o] as f64;
-            let v = [
-                d(0),
-                d(1),
-                d(sy),
-                d(sy + 1),
-                d(sz),
-                d(sz + 1),
-                d(sz + sy),
-                d(sz + sy + 1),
-            ];
+            let depths = CellCornerDepths::load(pass, l, cell);
             let mut mean = 0.0;
             for fz in nodes {
                 for fy in nodes {
                     for fx in nodes {
-                        let x0 = v[0] + fx * (v[1] - v[0]);
-                        let x1 = v[2] + fx * (v[3] - v[2]);
-                        let x2 = v[4] + fx * (v[5] - v[4]);
-                        let x3 = v[6] + fx * (v[7] - v[6]);
-                        let y0 = x0 + fy * (x1 - x0);
-                        let y1 = x2 + fy * (x3 - x2);
-                        mean += (-(y0 + fz * (y1 - y0))).exp();
+                        mean += (-depths.at(DVec3::new(fx, fy, fz))).exp();
                     }
                 }
             }
@@ -147,12 +175,12 @@ fn trilinear_model_error(pass: &LightPass, l: usize) -> f64 {
 pub enum LightDepth {
     /// [`LightDepth::CornerTrilinear`] when its cell means of `T_L` reproduce the light
     /// pass's exact cell averages (within [`TRILINEAR_CELL_MEAN_TOLERANCE`]), else
-    /// [`LightDepth::ExitFace`]. Smooth, finely resolved media (`data/cloud.toml`: images
-    /// 0.11 % RMS from the exit-face model) pass; coarse grids and white-noise densities,
-    /// where `ln T_L` is far from linear inside a cell (3–5 % image error), do not.
+    /// [`LightDepth::ExitFace`]: smooth, finely resolved media pass; coarse grids and
+    /// white-noise densities, where `ln T_L` is far from linear inside a cell, do not. The
+    /// test `auto_light_depth_stays_within_one_percent_of_exit_face` bounds the image error.
     Auto,
     /// Trilinear in the light pass's corner depths, linear along each view segment: one
-    /// closed form per segment (the fast default).
+    /// closed form per segment.
     CornerTrilinear,
     /// Bilinear on the face where the ray toward the light leaves the cell plus the exact
     /// in-cell attenuation, split where that face changes and integrated by Gauss–Legendre:
@@ -371,36 +399,6 @@ fn exponential_weight(lambda: f64, len: f64) -> f64 {
 }
 
 impl SingleScatter<'_> {
-    /// The light's optical depth `−ln T_L` at two points of `cell`, trilinear in the light
-    /// pass's corner field. Trilinear is continuous across cell faces (no seams between
-    /// cells in an image) and exact wherever the depth is linear, as in a homogeneous slab.
-    #[inline]
-    fn corner_depth_pair(&self, l: usize, cell: usize, a: DVec3, b: DVec3) -> (f64, f64) {
-        let grid = &self.pass.grid;
-        let [i, j, k] = grid.coords(cell);
-        let sy = grid.dims[0] + 1;
-        let sz = sy * (grid.dims[1] + 1);
-        let c = grid.corner_index(i, j, k);
-        let d = &self.pass.fields[l].corner_optical_depth;
-        let v = |o: usize| d[c + o] as f64;
-        let (d000, d100, d010, d110) = (v(0), v(1), v(sy), v(sy + 1));
-        let (d001, d101, d011, d111) = (v(sz), v(sz + 1), v(sz + sy), v(sz + sy + 1));
-        // From the coordinates already at hand: `cell_min` would divide again.
-        let lo = DVec3::new(i as f64, j as f64, k as f64) * grid.cell_size;
-        let inv_h = 1.0 / grid.cell_size;
-        let trilinear = |p: DVec3| {
-            let f = ((p - lo) * inv_h).clamp(DVec3::ZERO, DVec3::ONE);
-            let x00 = d000 + f.x * (d100 - d000);
-            let x10 = d010 + f.x * (d110 - d010);
-            let x01 = d001 + f.x * (d101 - d001);
-            let x11 = d011 + f.x * (d111 - d011);
-            let y0 = x00 + f.y * (x10 - x00);
-            let y1 = x01 + f.y * (x11 - x01);
-            y0 + f.z * (y1 - y0)
-        };
-        (trilinear(a), trilinear(b))
-    }
-
     /// `∫_{t0}^{t1} e^{−σt (t−t0)} T_L(ray(t)) dt` for directional light `l` over a whole
     /// cell segment, with `ln T_L` taken linear along the segment between its trilinear
     /// end values: one closed form, no quadrature.
@@ -415,7 +413,13 @@ impl SingleScatter<'_> {
         sigma_t: f64,
     ) -> f64 {
         let len = t1 - t0;
-        let (da, db) = self.corner_depth_pair(l, cell, ray.at(t0), ray.at(t1));
+        let depths = CellCornerDepths::load(self.pass, l, cell);
+        let lo = depths.lo;
+        let inv_h = 1.0 / self.pass.grid.cell_size;
+        let (da, db) = (
+            depths.at((ray.at(t0) - lo) * inv_h),
+            depths.at((ray.at(t1) - lo) * inv_h),
+        );
         (-da).exp() * exponential_weight(sigma_t + (db - da) / len, len)
     }
 
