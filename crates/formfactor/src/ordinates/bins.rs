@@ -182,3 +182,43 @@ impl DirectionBins {
         face * self.n * self.n + cell(d[ua]) * self.n + cell(d[va])
     }
 }
+
+/// Bilinear interpolation weights between the bin centres of the face that `w` (non-zero)
+/// points through, for `n` divisions per face side: `(bin, weight)` pairs summing to 1.
+/// The centres are taken at the squares' midpoints in face coordinates (the true
+/// solid-angle-weighted centres are within a fraction of a bin); between a face's outer
+/// centres and its edges, linear extrapolation from the two outer centres.
+#[inline]
+pub fn face_bilinear(n: usize, w: DVec3) -> [(usize, f64); 4] {
+    let a = w.abs();
+    let axis = if a.x >= a.y && a.x >= a.z {
+        0
+    } else if a.y >= a.z {
+        1
+    } else {
+        2
+    };
+    let face = 2 * axis + usize::from(w[axis] < 0.0);
+    let (_, _, ua, va) = FaceRect::frame(face);
+    let inv = 1.0 / a[axis];
+    let base = face * n * n;
+    if n == 1 {
+        return [(base, 1.0), (base, 0.0), (base, 0.0), (base, 0.0)];
+    }
+    // Continuous coordinates with centres at integers; beyond the outer centres (near a
+    // face edge) the outer pair extrapolates linearly rather than holding the edge value.
+    let s = (w[ua] * inv + 1.0) * 0.5 * n as f64 - 0.5;
+    let t = (w[va] * inv + 1.0) * 0.5 * n as f64 - 0.5;
+    let (i0, j0) = (
+        (s.floor().max(0.0) as usize).min(n - 2),
+        (t.floor().max(0.0) as usize).min(n - 2),
+    );
+    let (i1, j1) = (i0 + 1, j0 + 1);
+    let (fs, ft) = (s - i0 as f64, t - j0 as f64);
+    [
+        (base + i0 * n + j0, (1.0 - fs) * (1.0 - ft)),
+        (base + i0 * n + j1, (1.0 - fs) * ft),
+        (base + i1 * n + j0, fs * (1.0 - ft)),
+        (base + i1 * n + j1, fs * ft),
+    ]
+}
