@@ -167,3 +167,83 @@ fn dsa_cg_at_albedo_one_converges_or_says_it_did_not() {
     // The cloud leaks at its edges, so a = 1 still has a solution: it must be found.
     assert!(r.converged, "{r:?}");
 }
+
+#[test]
+fn dsa_cg_on_a_thin_cloud_matches_cg_and_jacobi_in_far_fewer_iterations() {
+    // The sample cloud's regime: optically thin cells (σt·h ≤ 0.6), albedo 0.999, where the
+    // light escapes at the edges and diffusion is only a rough model of transport.
+    let op = small_cloud_operator([20, 20, 16], 0.6, 0.999);
+    let e: Vec<f64> = (0..op.len()).map(|i| 1.0 + (i % 3) as f64).collect();
+    let (g_j, jacobi) = solve_with(&op, &e, "jacobi", 1e-9);
+    let (g_c, cg) = solve_with(&op, &e, "cg", 1e-9);
+    let (g_d, dsa) = solve_with(&op, &e, "dsa-cg", 1e-9);
+    for r in [&jacobi, &cg, &dsa] {
+        assert!(r.converged, "{r:?}");
+    }
+    let rel = |a: &[f64], b: &[f64]| {
+        let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+        (num / b.iter().map(|y| y * y).sum::<f64>()).sqrt()
+    };
+    assert!(rel(&g_d, &g_j) < 1e-6, "{}", rel(&g_d, &g_j));
+    assert!(rel(&g_d, &g_c) < 1e-6, "{}", rel(&g_d, &g_c));
+    eprintln!(
+        "jacobi {}, cg {}, dsa-cg {}",
+        jacobi.iterations, cg.iterations, dsa.iterations
+    );
+    assert!(
+        5 * dsa.iterations <= jacobi.iterations && dsa.iterations < cg.iterations,
+        "dsa-cg {} vs cg {} and jacobi {}",
+        dsa.iterations,
+        cg.iterations,
+        jacobi.iterations
+    );
+}
+
+#[test]
+fn multigrid_v_cycles_reduce_the_clouds_diffusion_residual() {
+    // The hierarchical operator's own diffusion matrix: harmonic-mean faces between cells of
+    // very different σt, vacuum faces towards empty cells, albedo 0.999 (almost no absorption).
+    let op = small_cloud_operator([24, 24, 20], 0.6, 0.999);
+    let d = op
+        .diffusion()
+        .expect("the hierarchical operator has a diffusion approximation");
+    let n = op.len();
+    let mut mg = solver::DiffusionMultigrid::new(&d).unwrap();
+    let levels = mg.level_sizes();
+    assert!(levels.len() >= 2, "{levels:?}");
+    let r: Vec<f64> = (0..n)
+        .map(|i| {
+            if d.row_ptr[i + 1] > d.row_ptr[i] {
+                ((i * 13) % 7) as f64 - 3.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let residual = |y: &[f64]| -> f64 {
+        (0..n)
+            .map(|i| {
+                let mut ay = (d.sigma_t[i] - d.sigma_s[i]) * y[i];
+                for p in d.row_ptr[i]..d.row_ptr[i + 1] {
+                    ay += d.val[p] * y[d.col[p] as usize];
+                }
+                (r[i] - ay).powi(2)
+            })
+            .sum::<f64>()
+            .sqrt()
+    };
+    let r0 = residual(&vec![0.0; n]);
+    let mut y = vec![0.0; n];
+    for cycles in [1, 2, 4] {
+        mg.solve(&r, &mut y, cycles);
+        let factor = (residual(&y) / r0).powf(1.0 / cycles as f64);
+        eprintln!("levels {levels:?}: {cycles} V-cycles, {factor:.3} per cycle");
+        assert!(factor < 0.45, "{cycles} V-cycles: {factor} per cycle");
+    }
+    let iterations = mg.solve_pcg(&r, &mut y, 1e-8, 100);
+    assert!(residual(&y) <= 1e-8 * r0 * 1.0001, "{}", residual(&y) / r0);
+    assert!(
+        iterations <= 30,
+        "multigrid PCG needed {iterations} iterations"
+    );
+}

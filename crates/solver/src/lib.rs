@@ -31,6 +31,7 @@ pub use methods::coarse::{
     contiguous_aggregates, DEFAULT_AGGREGATE_SIZE, MAX_DEFAULT_AGGREGATES,
     PROBED_DEFAULT_AGGREGATES,
 };
+pub use methods::multigrid::DiffusionMultigrid;
 pub use operator::{Diffusion, RowAccess, TransportOperator};
 pub use options::{
     Method, ParseMethodError, Smoother, SolveOptions, DEFAULT_GMRES_RESTART,

@@ -87,7 +87,7 @@ pub fn solve(
                     needs: "a diffusion approximation (grid and σt)",
                 });
             };
-            let pre = Preconditioner::Dsa(Box::new(methods::krylov::Dsa::new(d)));
+            let pre = Preconditioner::Dsa(Box::new(methods::krylov::Dsa::new(d)?));
             methods::krylov::cg(&mut ctx, &mut g, w, pre)
         }
         Method::TwoLevelCg { smoothing } => {

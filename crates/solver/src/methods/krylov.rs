@@ -2,6 +2,7 @@
 //! operator's symmetrizing inner product.
 
 use crate::methods::coarse::CoarseSpace;
+use crate::methods::multigrid::DiffusionMultigrid;
 use crate::report::StopReason;
 use crate::solve::{Ctx, Stop};
 use crate::vecops::for_each_mut;
@@ -259,117 +260,45 @@ pub(crate) enum Preconditioner<'a> {
     },
 }
 
-/// Diffusion-synthetic acceleration: `z = r + σs ⊙ (diag(σt − σs) + G)⁻¹ r`, the inner
-/// diffusion system solved by Jacobi-preconditioned CG to a tight tolerance (so the map is
-/// linear to rounding).
+/// Diffusion-synthetic acceleration: `z = r + σs ⊙ y` with `(diag(σt − σs) + G) y = r`
+/// solved only loosely (relative residual [`DSA_INNER_TOLERANCE`]) by multigrid-preconditioned
+/// CG: DSA has to remove the slow, smooth error modes, not to solve diffusion exactly. A loose
+/// inner solve is not a fixed linear map, so [`cg`] runs as flexible CG with it.
 pub(crate) struct Dsa {
-    d: crate::operator::Diffusion,
-    diag: Vec<f64>,
+    multigrid: DiffusionMultigrid,
+    sigma_s: Vec<f64>,
     y: Vec<f64>,
-    res: Vec<f64>,
-    dir: Vec<f64>,
-    md: Vec<f64>,
     pub inner_iterations: usize,
 }
 
-/// Relative tolerance and iteration cap of the inner diffusion solve.
-const DSA_INNER_TOLERANCE: f64 = 1e-9;
-const DSA_INNER_MAX: usize = 5000;
+/// Relative residual of the inner diffusion solve, and its iteration cap.
+pub(crate) const DSA_INNER_TOLERANCE: f64 = 1e-2;
+const DSA_INNER_MAX: usize = 100;
 
 impl Dsa {
-    pub(crate) fn new(d: crate::operator::Diffusion) -> Self {
+    pub(crate) fn new(d: crate::operator::Diffusion) -> Result<Self, crate::SolveError> {
+        let multigrid = DiffusionMultigrid::new(&d)?;
         let n = d.sigma_t.len();
-        let mut diag = vec![1.0; n];
-        for (i, di) in diag.iter_mut().enumerate() {
-            for p in d.row_ptr[i]..d.row_ptr[i + 1] {
-                if d.col[p] as usize == i {
-                    *di = d.val[p] + d.sigma_t[i] - d.sigma_s[i];
-                }
-            }
-        }
-        Dsa {
-            d,
-            diag,
+        Ok(Dsa {
+            multigrid,
+            sigma_s: d.sigma_s,
             y: vec![0.0; n],
-            res: vec![0.0; n],
-            dir: vec![0.0; n],
-            md: vec![0.0; n],
             inner_iterations: 0,
-        }
+        })
     }
 
-    fn active(&self, i: usize) -> bool {
-        self.d.row_ptr[i + 1] > self.d.row_ptr[i]
-    }
-
-    /// `out = (diag(σt − σs) + G) x` on active rows, 0 elsewhere.
-    fn mul(&self, x: &[f64], out: &mut [f64]) {
-        use rayon::prelude::*;
-        let d = &self.d;
-        out.par_iter_mut().enumerate().for_each(|(i, o)| {
-            let mut s = 0.0;
-            let (a, b) = (d.row_ptr[i], d.row_ptr[i + 1]);
-            if b > a {
-                s = (d.sigma_t[i] - d.sigma_s[i]) * x[i];
-                for p in a..b {
-                    s += d.val[p] * x[d.col[p] as usize];
-                }
-            }
-            *o = s;
-        });
-    }
-
-    #[allow(clippy::needless_range_loop)] // several vectors indexed together
     fn apply(&mut self, r: &[f64], z: &mut [f64]) {
-        let n = r.len();
-        // Jacobi-preconditioned CG on the active rows, from y = 0.
-        self.y.iter_mut().for_each(|v| *v = 0.0);
-        for i in 0..n {
-            self.res[i] = if self.active(i) { r[i] } else { 0.0 };
-        }
-        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
-        let r0 = dot(&self.res, &self.res).sqrt();
-        if r0 > 0.0 {
-            for i in 0..n {
-                self.dir[i] = self.res[i] / self.diag[i];
-            }
-            let mut rz: f64 = (0..n)
-                .map(|i| self.res[i] * self.res[i] / self.diag[i])
-                .sum();
-            for _ in 0..DSA_INNER_MAX {
-                let mut md = std::mem::take(&mut self.md);
-                self.mul(&self.dir, &mut md);
-                self.md = md;
-                let curv = dot(&self.dir, &self.md);
-                if !(curv > 0.0) {
-                    break;
-                }
-                let alpha = rz / curv;
-                for i in 0..n {
-                    self.y[i] += alpha * self.dir[i];
-                    self.res[i] -= alpha * self.md[i];
-                }
-                self.inner_iterations += 1;
-                if dot(&self.res, &self.res).sqrt() <= DSA_INNER_TOLERANCE * r0 {
-                    break;
-                }
-                let rz_new: f64 = (0..n)
-                    .map(|i| self.res[i] * self.res[i] / self.diag[i])
-                    .sum();
-                let beta = rz_new / rz;
-                rz = rz_new;
-                for i in 0..n {
-                    self.dir[i] = self.res[i] / self.diag[i] + beta * self.dir[i];
-                }
-            }
-        }
-        for i in 0..n {
-            z[i] = r[i] + self.d.sigma_s[i] * self.y[i];
-        }
+        let it = self
+            .multigrid
+            .solve_pcg(r, &mut self.y, DSA_INNER_TOLERANCE, DSA_INNER_MAX);
+        self.inner_iterations += it;
         tracing::debug!(
-            inner_iterations = self.inner_iterations,
+            inner_iterations = it,
+            total = self.inner_iterations,
             "diffusion-synthetic correction"
         );
+        let (y, sigma_s) = (&self.y, &self.sigma_s);
+        for_each_mut(z, |i, _| r[i] + sigma_s[i] * y[i]);
     }
 }
 
@@ -430,6 +359,11 @@ impl<'a> Preconditioner<'a> {
     fn is_identity(&self) -> bool {
         matches!(self, Preconditioner::Identity)
     }
+
+    /// Whether `M⁻¹` varies from one application to the next (an inexact inner solve).
+    fn is_flexible(&self) -> bool {
+        matches!(self, Preconditioner::Dsa(_))
+    }
 }
 
 /// Conjugate gradients for `A = I − K`, self-adjoint in `⟨x, y⟩_w = Σ w_i x_i y_i` because
@@ -446,6 +380,9 @@ pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64], mut pre: Precondit
     };
     let mut p = vec![0.0; n];
     let mut q = vec![0.0; n];
+    // Flexible CG (Polak–Ribière β) for a preconditioner that is not a fixed linear map.
+    let flexible = pre.is_flexible();
+    let mut z_old = if flexible { vec![0.0; n] } else { Vec::new() };
     let mut k = 0;
     let mut first = true;
     loop {
@@ -485,9 +422,18 @@ pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64], mut pre: Precondit
                     }
                 }
             }
+            if flexible {
+                z_old.copy_from_slice(&z);
+            }
             let preconditioned = pre.apply(ctx, w, &r, &mut z);
             let zr: &[f64] = if preconditioned { &z } else { &r };
             let rz_new = ctx.red.weighted_dot(w, &r, zr);
+            // ⟨r_new, z_new − z_old⟩ / ⟨r_old, z_old⟩; equal to rz_new / rz for a fixed map.
+            let beta_numerator = if flexible {
+                rz_new - ctx.red.weighted_dot(w, &r, &z_old)
+            } else {
+                rz_new
+            };
             if !(rz_new > 0.0) {
                 tracing::warn!(
                     rz_new,
@@ -498,7 +444,7 @@ pub(crate) fn cg(ctx: &mut Ctx<'_>, x: &mut [f64], w: &[f64], mut pre: Precondit
                     true_residual: None,
                 };
             }
-            let beta = rz_new / rz;
+            let beta = beta_numerator / rz;
             rz = rz_new;
             for_each_mut(&mut p, |i, pi| zr[i] + beta * pi);
         }

@@ -2,4 +2,5 @@
 
 pub(crate) mod coarse;
 pub(crate) mod krylov;
+pub(crate) mod multigrid;
 pub(crate) mod stationary;
