@@ -8,11 +8,10 @@ use anyhow::{bail, Context, Result};
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
-use gather::InScattering;
+use gather::{InScattering, RayCarry, ViewSegment};
 use glam::DVec3;
 use medium::light_pass::LightPass;
 use medium::scene::{IterationMethod, OpticalModel, SolveMethod, SolveSettings, ITERATION_NAMES};
-use medium::traversal::Ray;
 use medium::Scene;
 use serde::Serialize;
 use solver::{Method, Smoother, SolveOptions, SolveReport, TransportOperator};
@@ -274,8 +273,8 @@ impl<'a> BinnedSource<'a> {
 
 impl InScattering for BinnedSource<'_> {
     #[inline]
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        self.lookup(cell, -ray.direction) * gather::segment_weight(sigma_t, t1 - t0)
+    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
+        self.lookup(seg.cell, -seg.ray.direction) * seg.weight
     }
     #[inline]
     fn at(&self, _x: DVec3, cell: usize, w: DVec3) -> f64 {
@@ -306,7 +305,9 @@ pub fn channel_scattering<'a>(
         shadows,
         ..SingleScatterOptions::default()
     };
-    let first = SingleScatter::new(&solution.medium, c, &ch.light_pass, options)?;
+    let depth = ch.render_cache.light_depth(&ch.light_pass)?;
+    let first =
+        SingleScatter::with_depth_model(&solution.medium, c, &ch.light_pass, options, depth)?;
     if !shadows {
         return Ok(Box::new(first));
     }

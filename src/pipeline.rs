@@ -4,11 +4,10 @@
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use gather::{Camera, Image, InScattering, RenderOptions};
+use gather::{Camera, Image, InScattering, RayCarry, RenderOptions, ViewSegment};
 use glam::DVec3;
 use medium::light_pass::LightPass;
 use medium::scene::{CameraSpec, SceneOrigin, SolveMethod, SolveSettings};
-use medium::traversal::Ray;
 use medium::Scene;
 
 use crate::solution::{ChannelSolution, ScatteredField, Solution};
@@ -70,6 +69,7 @@ pub fn solve_scene(
             light_pass,
             scattered,
             report,
+            render_cache: Default::default(),
         });
     }
     Ok(Solution {
@@ -101,8 +101,8 @@ impl<'a> CellSource<'a> {
 
 impl InScattering for CellSource<'_> {
     #[inline]
-    fn segment(&self, cell: usize, _ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        self.values[cell] as f64 * gather::segment_weight(sigma_t, t1 - t0)
+    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
+        self.values[seg.cell] as f64 * seg.weight
     }
     #[inline]
     fn at(&self, _x: DVec3, cell: usize, _w: DVec3) -> f64 {

@@ -7,6 +7,7 @@ pub mod container;
 
 use std::path::Path;
 
+use gather::light_depth::{LightDepth, LightDepthModel};
 use medium::light_pass::{LightEnergy, LightField, LightPass};
 use medium::scene::{CameraSpec, RenderSettings, SolveMethod};
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
@@ -52,6 +53,42 @@ pub struct ChannelSolution {
     pub light_pass: LightPass,
     pub scattered: ScatteredField,
     pub report: Option<solver::SolveReport>,
+    /// Built from the light pass on first render, shared by every later one; not stored.
+    pub render_cache: RenderCache,
+}
+
+/// What renders derive from a channel's light pass and can share: the first bounce's
+/// light-depth model ([`LightDepthModel`], whose automatic choice and refined light passes
+/// cost more than a render). Not part of the file; equal to any other cache.
+#[derive(Clone, Default)]
+pub struct RenderCache {
+    light_depth: std::sync::OnceLock<LightDepthModel>,
+}
+
+impl RenderCache {
+    /// The automatic light-depth model of `pass` (the same `pass` on every call).
+    pub fn light_depth(&self, pass: &LightPass) -> Result<&LightDepthModel, gather::GatherError> {
+        if let Some(model) = self.light_depth.get() {
+            return Ok(model);
+        }
+        let model = LightDepthModel::build(pass, LightDepth::Auto)?;
+        // Two renders may race to build it; both results are the same, one is kept.
+        Ok(self.light_depth.get_or_init(|| model))
+    }
+}
+
+impl PartialEq for RenderCache {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for RenderCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RenderCache")
+            .field("light_depth", &self.light_depth.get())
+            .finish()
+    }
 }
 
 /// A solved scene, as written by `volrad solve` and read by `volrad render --solution`.
@@ -291,6 +328,7 @@ impl Solution {
                 },
                 scattered,
                 report: cm.report,
+                render_cache: RenderCache::default(),
             });
             medium_channels.push(ChannelMedium {
                 sigma_t,

@@ -15,6 +15,7 @@ pub mod camera;
 mod empty_space;
 pub mod error;
 pub mod image_io;
+pub mod light_depth;
 pub mod render;
 pub mod scattering;
 pub mod single_scatter;
@@ -23,4 +24,6 @@ pub use camera::{Camera, CameraProjection};
 pub use error::GatherError;
 pub use image_io::{read_pfm, Image, ImageFormat};
 pub use render::{render, render_image, ImageChannel, RayIntegrator, RenderOptions};
-pub use scattering::{segment_weight, InScattering, ScatteringSum, UniformSource};
+pub use scattering::{
+    segment_weight, InScattering, RayCarry, ScatteringSum, UniformSource, ViewSegment,
+};

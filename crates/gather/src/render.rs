@@ -24,7 +24,7 @@ use rayon::prelude::*;
 
 use crate::empty_space::EmptySpace;
 use crate::image_io::Image;
-use crate::scattering::InScattering;
+use crate::scattering::{weight_and_attenuation, InScattering, RayCarry, ViewSegment};
 use crate::{Camera, GatherError};
 
 /// Side of the square image tiles rendered as one parallel task.
@@ -244,6 +244,7 @@ impl<'a> RayIntegrator<'a> {
         let mut transmittance = 1.0f64;
         let mut radiance = 0.0f64;
         let mut t_start = t_in;
+        let mut carry = RayCarry::default();
         'restart: loop {
             for seg in self.grid.traverse(ray, t_start, t_out) {
                 // Deep in empty space: jump to where the ray leaves the known-empty cube and
@@ -274,15 +275,13 @@ impl<'a> RayIntegrator<'a> {
                 if (sigma == 0.0 && emission == 0.0) || len <= 0.0 {
                     continue;
                 }
-                let (weight, attenuation) = weight_and_attenuation(sigma, len);
-                let mut q = emission * weight;
+                let view = ViewSegment::new(ray, &seg, sigma);
+                let mut q = emission * view.weight;
                 if self.use_scattering {
-                    q += self
-                        .scattering
-                        .segment(seg.cell, ray, seg.t_enter, seg.t_exit, sigma);
+                    q += self.scattering.segment(&view, &mut carry);
                 }
                 radiance += transmittance * q;
-                transmittance *= attenuation;
+                transmittance *= view.attenuation;
                 if self.can_stop(transmittance, radiance, seg.t_exit, t_out) {
                     return radiance;
                 }
@@ -337,24 +336,6 @@ impl<'a> RayIntegrator<'a> {
         }
         radiance + transmittance * self.background
     }
-}
-
-/// `((1 − e^{−τ})/σt, e^{−τ})` with `τ = σt Δs`, from one `exp`: the source weight of a
-/// segment and its attenuation. Below τ = 1e-3 the weight comes from its series (four terms,
-/// relative error < τ⁴/120 ≈ 1e-14) to avoid cancellation in `1 − e^{−τ}`.
-#[inline]
-fn weight_and_attenuation(sigma: f64, length: f64) -> (f64, f64) {
-    let tau = sigma * length;
-    if tau <= 0.0 {
-        return (length, 1.0);
-    }
-    let attenuation = (-tau).exp();
-    let weight = if tau > 1e-3 {
-        (1.0 - attenuation) / sigma
-    } else {
-        length * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0))))
-    };
-    (weight, attenuation)
 }
 
 /// `max e/σt` over the cells that emit; infinite if one emits with σt = 0.

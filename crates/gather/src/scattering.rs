@@ -8,7 +8,118 @@
 //! to hand to phase functions (`cosθ = ω·ω'` with both directions of light flow).
 
 use glam::DVec3;
-use medium::traversal::Ray;
+use medium::traversal::{Ray, Segment};
+
+/// The part of a view ray inside one cell, as the renderer hands it to the sources, with the
+/// segment's constant-source weight and attenuation already computed (one `exp` shared by
+/// every source).
+#[derive(Clone, Copy, Debug)]
+pub struct ViewSegment<'r> {
+    pub ray: &'r Ray,
+    pub cell: usize,
+    /// The cell's `[i, j, k]`.
+    pub coords: [usize; 3],
+    pub t0: f64,
+    pub t1: f64,
+    /// σt of the cell as the view ray sees it.
+    pub sigma_t: f64,
+    /// `∫_{t0}^{t1} e^{−σt (t−t0)} dt = (1 − e^{−σt Δs})/σt`.
+    pub weight: f64,
+    /// `e^{−σt Δs}`.
+    pub attenuation: f64,
+}
+
+impl<'r> ViewSegment<'r> {
+    /// A segment with its weight and attenuation computed here (the renderer computes them
+    /// once for emission and every source).
+    #[inline]
+    pub fn new(ray: &'r Ray, segment: &Segment, sigma_t: f64) -> Self {
+        let (t0, t1) = (segment.t_enter, segment.t_exit);
+        let (weight, attenuation) = weight_and_attenuation(sigma_t, t1 - t0);
+        ViewSegment {
+            ray,
+            cell: segment.cell,
+            coords: segment.coords,
+            t0,
+            t1,
+            sigma_t,
+            weight,
+            attenuation,
+        }
+    }
+
+    #[inline]
+    pub fn length(&self) -> f64 {
+        self.t1 - self.t0
+    }
+}
+
+/// `((1 − e^{−τ})/σt, e^{−τ})` with `τ = σt Δs`, from one `exp`: the source weight of a
+/// segment and its attenuation. Below τ = 1e-3 the weight comes from its series (four terms,
+/// relative error < τ⁴/120 ≈ 1e-14) to avoid cancellation in `1 − e^{−τ}`.
+#[inline]
+pub fn weight_and_attenuation(sigma: f64, length: f64) -> (f64, f64) {
+    let tau = sigma * length;
+    if tau <= 0.0 {
+        return (length, 1.0);
+    }
+    let attenuation = (-tau).exp();
+    let weight = if tau > 1e-3 {
+        (1.0 - attenuation) / sigma
+    } else {
+        length * (1.0 - tau * (0.5 - tau * (1.0 / 6.0 - tau * (1.0 / 24.0))))
+    };
+    (weight, attenuation)
+}
+
+/// Per-ray scratch that one source may use to pass values from a segment to the next
+/// (the first bounce keeps the light's transmittance at the segment's end, so the next
+/// segment, which starts there, need not recompute it). The renderer starts each ray with
+/// [`RayCarry::default`]. Sources that share a ray claim it by address, so two sources never
+/// read each other's values.
+#[derive(Clone, Copy, Debug)]
+pub struct RayCarry {
+    owner: usize,
+    /// Where the values were taken (NaN: nowhere yet).
+    pub t: f64,
+    pub values: [f64; RayCarry::SLOTS],
+}
+
+impl Default for RayCarry {
+    fn default() -> Self {
+        RayCarry {
+            owner: 0,
+            t: f64::NAN,
+            values: [0.0; RayCarry::SLOTS],
+        }
+    }
+}
+
+impl RayCarry {
+    pub const SLOTS: usize = 12;
+
+    /// Claims the carry for `owner` (any address unique to the source): true if it already
+    /// held `owner`'s values from an earlier segment of this ray; false if it was empty or
+    /// another source's, in which case it is now `owner`'s and `t` is NaN. A source that does
+    /// not win the claim (because another claimed first) simply recomputes.
+    #[inline]
+    pub fn claim(&mut self, owner: usize) -> bool {
+        if self.owner == owner {
+            return true;
+        }
+        if self.owner == 0 {
+            self.owner = owner;
+            self.t = f64::NAN;
+        }
+        false
+    }
+
+    /// True when `owner` holds the carry (after [`RayCarry::claim`]).
+    #[inline]
+    pub fn held_by(&self, owner: usize) -> bool {
+        self.owner == owner
+    }
+}
 
 /// Scattered radiance per unit length, `Q_s(x, ω)`, for one colour channel.
 ///
@@ -17,9 +128,10 @@ use medium::traversal::Ray;
 /// space wholesale.
 pub trait InScattering: Sync {
     /// `∫_{t0}^{t1} e^{−σt (t−t0)} Q_s(ray(t), −ray.direction) dt` for the part of the ray
-    /// inside `cell` (σt constant there). The renderer multiplies by the transmittance from
+    /// inside one cell (σt constant there). The renderer multiplies by the transmittance from
     /// the eye to `t0`. Used by `nearest` renders, which integrate each cell exactly.
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64;
+    /// `carry` lives for one ray: a source may keep what the next segment can reuse there.
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64;
 
     /// `Q_s` at point `x` (inside `cell`) for light flowing in direction `view_flow_dir`
     /// (`= −ray.direction`). Used by `trilinear` renders, which march in fixed steps.
@@ -41,7 +153,7 @@ pub trait InScattering: Sync {
 /// No scattered light (emission/absorption models, or a medium with albedo 0).
 impl InScattering for () {
     #[inline]
-    fn segment(&self, _: usize, _: &Ray, _: f64, _: f64, _: f64) -> f64 {
+    fn segment(&self, _: &ViewSegment, _: &mut RayCarry) -> f64 {
         0.0
     }
     #[inline]
@@ -59,9 +171,8 @@ impl InScattering for () {
 /// `None` is no scattered light.
 impl<S: InScattering> InScattering for Option<S> {
     #[inline]
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        self.as_ref()
-            .map_or(0.0, |s| s.segment(cell, ray, t0, t1, sigma_t))
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        self.as_ref().map_or(0.0, |s| s.segment(seg, carry))
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
@@ -80,8 +191,8 @@ impl<S: InScattering> InScattering for Option<S> {
 
 impl<S: InScattering + ?Sized> InScattering for &S {
     #[inline]
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        (**self).segment(cell, ray, t0, t1, sigma_t)
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        (**self).segment(seg, carry)
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
@@ -97,8 +208,8 @@ impl<S: InScattering + ?Sized> InScattering for &S {
 
 impl<S: InScattering + ?Sized> InScattering for Box<S> {
     #[inline]
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        (**self).segment(cell, ray, t0, t1, sigma_t)
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        (**self).segment(seg, carry)
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
@@ -126,11 +237,8 @@ impl<'a> ScatteringSum<'a> {
 
 impl InScattering for ScatteringSum<'_> {
     #[inline]
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        self.parts
-            .iter()
-            .map(|s| s.segment(cell, ray, t0, t1, sigma_t))
-            .sum()
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        self.parts.iter().map(|s| s.segment(seg, carry)).sum()
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
@@ -147,8 +255,8 @@ impl InScattering for ScatteringSum<'_> {
 /// A pair of sources adds up, without the `dyn` indirection of [`ScatteringSum`].
 impl<A: InScattering, B: InScattering> InScattering for (A, B) {
     #[inline]
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        self.0.segment(cell, ray, t0, t1, sigma_t) + self.1.segment(cell, ray, t0, t1, sigma_t)
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        self.0.segment(seg, carry) + self.1.segment(seg, carry)
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
@@ -183,8 +291,8 @@ pub struct UniformSource(pub f64);
 
 impl InScattering for UniformSource {
     #[inline]
-    fn segment(&self, _: usize, _: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        self.0 * segment_weight(sigma_t, t1 - t0)
+    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
+        self.0 * seg.weight
     }
     #[inline]
     fn at(&self, _: DVec3, _: usize, _: DVec3) -> f64 {

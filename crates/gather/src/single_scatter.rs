@@ -2,12 +2,15 @@
 //! `Q1(x, ω) = σs(x) Σ_l p(ω_l·ω) E_l T_l(x)`, with the medium's true phase function, the
 //! light's flow direction `ω_l` and the view flow direction `ω = −ray.direction`.
 //!
-//! Along a view segment inside one cell the renderer needs `∫ e^{−σt (t−t0)} Q1 dt`. Inside a
-//! cell `T_l` is the exit-face value times `e^{−σt d(x)}`, so the integrand is close to one
-//! exponential `e^{−λ (t−t0)}` with `λ = σt (1 + ∂d/∂t)`. The integral is taken by
-//! Gauss–Legendre in the variable `u = (1 − e^{−λ(t−t0)})/λ`, which absorbs that
-//! exponential exactly: a thick cell is then integrated as accurately as a thin one. Without
-//! shadows ("Utah", `T_L ≡ 1`) `λ = σt`.
+//! Along a view segment inside one cell the renderer needs `∫ e^{−σt (t−t0)} Q1 dt`. For a
+//! directional light with shadows this is one closed form per piece of a trilinear depth
+//! lattice ([`crate::light_depth`]; the phase factor `p(ω_l·ω) E_l` and the light at the
+//! segment's end ride along the ray in the [`RayCarry`]). Otherwise (point and spot lights,
+//! "Utah", gradient shading, or [`LightDepth::ExitFace`]) `T_l` inside a cell is the exit-face
+//! value times `e^{−σt d(x)}`, so the integrand is close to one exponential `e^{−λ (t−t0)}`
+//! with `λ = σt (1 + ∂d/∂t)`; the integral is taken by Gauss–Legendre in the variable
+//! `u = (1 − e^{−λ(t−t0)})/λ`, which absorbs that exponential exactly: a thick cell is then
+//! integrated as accurately as a thin one. Without shadows ("Utah", `T_L ≡ 1`) `λ = σt`.
 //!
 //! Optional gradient shading (Max eq. 11) adds `strength · max(∇f·ω′, 0) · E_l T_l` per light,
 //! `ω′` the direction toward the light and `∇f` the central-difference gradient of the
@@ -17,9 +20,12 @@ use glam::DVec3;
 use medium::light_pass::LightPass;
 use medium::traversal::Ray;
 use medium::{Light, Medium, PhaseFunction};
-use rayon::prelude::*;
 
-use crate::scattering::InScattering;
+use std::borrow::Cow;
+
+use crate::light_depth::LightAt;
+pub use crate::light_depth::{LightDepth, LightDepthModel, TRILINEAR_CELL_MEAN_TOLERANCE};
+use crate::scattering::{InScattering, RayCarry, ViewSegment};
 use crate::GatherError;
 
 /// Gauss–Legendre nodes and weights on `[−1, 1]`, for 1 to 6 nodes (tabulated digits).
@@ -73,121 +79,6 @@ pub struct SingleScatterOptions {
     pub light_depth: LightDepth,
 }
 
-/// [`LightDepth::Auto`] takes the trilinear model when its cell means of `T_L` match the
-/// light pass's exact ones to this (extinction-weighted relative L1) error. The error and the
-/// model chosen are logged at debug level (`RUST_LOG=gather=debug volrad render ...`).
-pub const TRILINEAR_CELL_MEAN_TOLERANCE: f64 = 0.02;
-
-/// A cell's eight corner optical depths toward one light, for trilinear interpolation.
-/// Trilinear is continuous across cell faces (no seams between cells in an image) and exact
-/// wherever the depth is linear, as in a homogeneous slab.
-struct CellCornerDepths {
-    /// The cell's lower corner in world space.
-    lo: DVec3,
-    /// `d[i + 2j + 4k]` at corner offset `(i, j, k)`.
-    d: [f64; 8],
-}
-
-impl CellCornerDepths {
-    #[inline]
-    fn load(pass: &LightPass, l: usize, cell: usize) -> Self {
-        let grid = &pass.grid;
-        let [i, j, k] = grid.coords(cell);
-        let sy = grid.dims[0] + 1;
-        let sz = sy * (grid.dims[1] + 1);
-        let c = grid.corner_index(i, j, k);
-        let v = |o: usize| pass.fields[l].corner_optical_depth[c + o] as f64;
-        CellCornerDepths {
-            // From the coordinates already at hand: `cell_min` would divide again.
-            lo: DVec3::new(i as f64, j as f64, k as f64) * grid.cell_size,
-            d: [
-                v(0),
-                v(1),
-                v(sy),
-                v(sy + 1),
-                v(sz),
-                v(sz + 1),
-                v(sz + sy),
-                v(sz + sy + 1),
-            ],
-        }
-    }
-
-    /// The depth at fractional position `f` in the cell (clamped to it).
-    #[inline]
-    fn at(&self, f: DVec3) -> f64 {
-        let f = f.clamp(DVec3::ZERO, DVec3::ONE);
-        let d = &self.d;
-        let x00 = d[0] + f.x * (d[1] - d[0]);
-        let x10 = d[2] + f.x * (d[3] - d[2]);
-        let x01 = d[4] + f.x * (d[5] - d[4]);
-        let x11 = d[6] + f.x * (d[7] - d[6]);
-        let y0 = x00 + f.y * (x10 - x00);
-        let y1 = x01 + f.y * (x11 - x01);
-        y0 + f.z * (y1 - y0)
-    }
-}
-
-/// How far the trilinear corner model's cell means of `T_L` stray from the light pass's exact
-/// cell averages (`cell_irradiance / E`) for directional light `l`: `Σ σt |T̄_model − T̄| /
-/// Σ σt T̄` over the cells that extinguish. The model's mean is 2×2×2-point Gauss–Legendre.
-/// Point and spot lights always use the exit-face model, so they count as 0.
-fn trilinear_model_error(pass: &LightPass, l: usize) -> f64 {
-    let field = &pass.fields[l];
-    let Light::Directional { irradiance, .. } = field.light else {
-        return 0.0;
-    };
-    if irradiance <= 0.0 {
-        return 0.0;
-    }
-    let nodes = [0.5 - 0.5 / 3f64.sqrt(), 0.5 + 0.5 / 3f64.sqrt()];
-    let (err, total) = pass
-        .sigma_t
-        .par_iter()
-        .enumerate()
-        .filter(|(_, &sigma)| sigma > 0.0)
-        .map(|(cell, &sigma)| {
-            let depths = CellCornerDepths::load(pass, l, cell);
-            let mut mean = 0.0;
-            for fz in nodes {
-                for fy in nodes {
-                    for fx in nodes {
-                        mean += (-depths.at(DVec3::new(fx, fy, fz))).exp();
-                    }
-                }
-            }
-            let exact = field.cell_irradiance[cell] as f64 / irradiance;
-            (
-                sigma as f64 * (0.125 * mean - exact).abs(),
-                sigma as f64 * exact,
-            )
-        })
-        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-    if total > 0.0 {
-        err / total
-    } else {
-        0.0
-    }
-}
-
-/// The in-cell model of a directional light's optical depth, for `nearest` renders.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LightDepth {
-    /// [`LightDepth::CornerTrilinear`] when its cell means of `T_L` reproduce the light
-    /// pass's exact cell averages (within [`TRILINEAR_CELL_MEAN_TOLERANCE`]), else
-    /// [`LightDepth::ExitFace`]: smooth, finely resolved media pass; coarse grids and
-    /// white-noise densities, where `ln T_L` is far from linear inside a cell, do not. The
-    /// test `auto_light_depth_stays_within_one_percent_of_exit_face` bounds the image error.
-    Auto,
-    /// Trilinear in the light pass's corner depths, linear along each view segment: one
-    /// closed form per segment.
-    CornerTrilinear,
-    /// Bilinear on the face where the ray toward the light leaves the cell plus the exact
-    /// in-cell attenuation, split where that face changes and integrated by Gauss–Legendre:
-    /// about four times the work, for cells too thick for the trilinear model.
-    ExitFace,
-}
-
 impl Default for SingleScatterOptions {
     fn default() -> Self {
         SingleScatterOptions {
@@ -206,6 +97,10 @@ pub struct SingleScatter<'a> {
     albedo: &'a medium::CellValues,
     phase: PhaseFunction,
     options: SingleScatterOptions,
+    /// How each light's depth varies inside a cell (built here, or shared by the caller).
+    depth: Cow<'a, LightDepthModel>,
+    /// Shadowed, no gradient shading: lattice lights take the closed-form segment.
+    lattice_path: bool,
     /// Per-cell `∇f` of the data (gradient shading only).
     gradient: Vec<DVec3>,
     max_source: f64,
@@ -244,12 +139,41 @@ fn data_gradient(grid: &medium::Grid, data: &[f32]) -> Vec<DVec3> {
 }
 
 impl<'a> SingleScatter<'a> {
-    /// `pass` must be the light pass of `medium.channels[channel]`.
+    /// `pass` must be the light pass of `medium.channels[channel]`. Builds the light-depth
+    /// model that `options.light_depth` asks for (see [`SingleScatter::with_depth_model`] to
+    /// share one across renders).
     pub fn new(
         medium: &'a Medium,
         channel: usize,
         pass: &'a LightPass,
         options: SingleScatterOptions,
+    ) -> Result<Self, GatherError> {
+        let depth = if options.shadows {
+            LightDepthModel::build(pass, options.light_depth)?
+        } else {
+            LightDepthModel::build(pass, LightDepth::ExitFace)?
+        };
+        Self::build(medium, channel, pass, options, Cow::Owned(depth))
+    }
+
+    /// As [`SingleScatter::new`] with a light-depth model built once for `pass` (by
+    /// [`LightDepthModel::build`]); `options.light_depth` is not consulted.
+    pub fn with_depth_model(
+        medium: &'a Medium,
+        channel: usize,
+        pass: &'a LightPass,
+        options: SingleScatterOptions,
+        depth: &'a LightDepthModel,
+    ) -> Result<Self, GatherError> {
+        Self::build(medium, channel, pass, options, Cow::Borrowed(depth))
+    }
+
+    fn build(
+        medium: &'a Medium,
+        channel: usize,
+        pass: &'a LightPass,
+        options: SingleScatterOptions,
+        depth: Cow<'a, LightDepthModel>,
     ) -> Result<Self, GatherError> {
         let ch = medium.channels.get(channel).ok_or_else(|| {
             GatherError::Render(format!(
@@ -298,28 +222,14 @@ impl<'a> SingleScatter<'a> {
         } else {
             max_irradiance * per_irradiance
         };
-        let mut options = options;
-        if options.light_depth == LightDepth::Auto {
-            let worst = (0..pass.fields.len())
-                .map(|l| trilinear_model_error(pass, l))
-                .fold(0.0, f64::max);
-            options.light_depth = if worst <= TRILINEAR_CELL_MEAN_TOLERANCE {
-                LightDepth::CornerTrilinear
-            } else {
-                LightDepth::ExitFace
-            };
-            tracing::debug!(
-                trilinear_cell_mean_error = worst,
-                chosen = ?options.light_depth,
-                "first-bounce light depth model"
-            );
-        }
         Ok(SingleScatter {
             pass,
             sigma_t: &ch.sigma_t,
             albedo: &ch.albedo,
             phase: medium.phase,
             options,
+            lattice_path: options.shadows && options.gradient_strength.is_none(),
+            depth,
             gradient,
             max_source,
         })
@@ -347,6 +257,19 @@ impl<'a> SingleScatter<'a> {
             q += strength * self.gradient[cell].dot(-flow).max(0.0);
         }
         q * e
+    }
+
+    /// `p(ω_l·ω) E_l` for directional light `l` and the view flow `ω = −ray.direction`: the
+    /// same all along a ray.
+    #[inline]
+    fn directional_factor(&self, l: usize, ray: &Ray) -> f64 {
+        match self.pass.fields[l].light {
+            Light::Directional {
+                direction,
+                irradiance,
+            } => self.phase.eval(direction.dot(-ray.direction)) * irradiance,
+            _ => 0.0,
+        }
     }
 
     /// The mean rate at which `−ln T_L` grows along the view ray over `[a, b]` (a piece with one
@@ -386,43 +309,7 @@ fn exponential_quadrature(
     0.5 * big_w * sum
 }
 
-/// `∫_0^len e^{−λ s} ds = (1 − e^{−λ len})/λ` for `λ` of either sign (a view ray running
-/// toward the light sees `T_L` grow), by its series where `|λ len|` is tiny.
-#[inline]
-fn exponential_weight(lambda: f64, len: f64) -> f64 {
-    let x = lambda * len;
-    if x.abs() < 1e-6 {
-        len * (1.0 - 0.5 * x)
-    } else {
-        -(-x).exp_m1() / lambda
-    }
-}
-
 impl SingleScatter<'_> {
-    /// `∫_{t0}^{t1} e^{−σt (t−t0)} T_L(ray(t)) dt` for directional light `l` over a whole
-    /// cell segment, with `ln T_L` taken linear along the segment between its trilinear
-    /// end values: one closed form, no quadrature.
-    #[inline]
-    fn directional_segment(
-        &self,
-        l: usize,
-        cell: usize,
-        ray: &Ray,
-        t0: f64,
-        t1: f64,
-        sigma_t: f64,
-    ) -> f64 {
-        let len = t1 - t0;
-        let depths = CellCornerDepths::load(self.pass, l, cell);
-        let lo = depths.lo;
-        let inv_h = 1.0 / self.pass.grid.cell_size;
-        let (da, db) = (
-            depths.at((ray.at(t0) - lo) * inv_h),
-            depths.at((ray.at(t1) - lo) * inv_h),
-        );
-        (-da).exp() * exponential_weight(sigma_t + (db - da) / len, len)
-    }
-
     /// `∫_a^b e^{−σt (t−a)} T_L(ray(t)) dt` for a directional light over a piece with one exit
     /// face. There `ln T_L` is exactly quadratic in `t` (linear in-cell attenuation plus the
     /// face's bilinear optical depth at an exit point moving linearly), so three evaluations
@@ -518,8 +405,14 @@ impl SingleScatter<'_> {
     }
 }
 
+/// Lights whose depth, transmittance and phase factor ride along a ray in the [`RayCarry`]:
+/// slots `3l`, `3l + 1` hold `d` and `T_L` at the carry's `t`, slot `3l + 2` the per-ray
+/// `p(ω_l·ω) E_l`.
+const CARRIED_LIGHTS: usize = RayCarry::SLOTS / 3;
+
 impl InScattering for SingleScatter<'_> {
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        let (cell, ray, t0, t1, sigma_t) = (seg.cell, seg.ray, seg.t0, seg.t1, seg.sigma_t);
         if t1 <= t0 {
             return 0.0;
         }
@@ -527,21 +420,39 @@ impl InScattering for SingleScatter<'_> {
         if sigma_s == 0.0 && self.options.gradient_strength.is_none() {
             return 0.0;
         }
+        let owner = self as *const Self as usize;
+        // `held`: values from an earlier segment of this ray are ours; `holds`: we may write.
+        let held = carry.claim(owner);
+        let holds = carry.held_by(owner);
+        let continues = held && carry.t == t0;
         let mut total = 0.0;
         for l in 0..self.pass.fields.len() {
-            if let Light::Directional {
-                direction,
-                irradiance,
-            } = self.pass.fields[l].light
-            {
-                if self.options.shadows
-                    && self.options.gradient_strength.is_none()
-                    && self.options.light_depth == LightDepth::CornerTrilinear
-                {
-                    let q = sigma_s * self.phase.eval(direction.dot(-ray.direction)) * irradiance;
-                    total += q * self.directional_segment(l, cell, ray, t0, t1, sigma_t);
-                    continue;
+            if let (Light::Directional { .. }, Some(lattice), true) = (
+                self.pass.fields[l].light,
+                self.depth.lattice(l),
+                self.lattice_path,
+            ) {
+                let carried = holds && l < CARRIED_LIGHTS;
+                let factor = if carried && held {
+                    carry.values[3 * l + 2]
+                } else {
+                    let f = self.directional_factor(l, ray);
+                    if carried {
+                        carry.values[3 * l + 2] = f;
+                    }
+                    f
+                };
+                let start = (continues && carried).then(|| LightAt {
+                    depth: carry.values[3 * l],
+                    transmittance: carry.values[3 * l + 1],
+                });
+                let (integral, end) = lattice.segment(seg, start);
+                if carried {
+                    carry.values[3 * l] = end.depth;
+                    carry.values[3 * l + 1] = end.transmittance;
                 }
+                total += sigma_s * factor * integral;
+                continue;
             }
             if !self.options.shadows {
                 total += self.piece(l, cell, ray, t0, t1, sigma_t, sigma_s, 0.0);
@@ -567,14 +478,12 @@ impl InScattering for SingleScatter<'_> {
                     if b > a {
                         let weight = (-sigma_t * (a - t0)).exp();
                         let part = match self.pass.fields[l].light {
-                            Light::Directional {
-                                direction,
-                                irradiance,
-                            } if self.options.gradient_strength.is_none() => {
-                                let q = sigma_s
-                                    * self.phase.eval(direction.dot(-ray.direction))
-                                    * irradiance;
-                                q * self.directional_piece(l, cell, ray, a, b, sigma_t)
+                            Light::Directional { .. }
+                                if self.options.gradient_strength.is_none() =>
+                            {
+                                sigma_s
+                                    * self.directional_factor(l, ray)
+                                    * self.directional_piece(l, cell, ray, a, b, sigma_t)
                             }
                             _ => {
                                 let rate = self.log_transmittance_rate(l, cell, ray, a, b);
@@ -586,6 +495,9 @@ impl InScattering for SingleScatter<'_> {
                     }
                 }
             }
+        }
+        if holds {
+            carry.t = t1;
         }
         total
     }

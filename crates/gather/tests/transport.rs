@@ -3,8 +3,8 @@
 //! plugged-in scattering and per-pixel averaging.
 
 use gather::{
-    render, render_image, Camera, InScattering, RayIntegrator, RenderOptions, ScatteringSum,
-    UniformSource,
+    render, render_image, Camera, InScattering, RayCarry, RayIntegrator, RenderOptions,
+    ScatteringSum, UniformSource, ViewSegment,
 };
 use glam::DVec3;
 use medium::scene::OpticalModel;
@@ -403,9 +403,9 @@ fn early_termination_stays_within_its_tolerance() {
 struct FlowsUp;
 
 impl InScattering for FlowsUp {
-    fn segment(&self, _: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        if -ray.direction.z > 0.5 {
-            gather::segment_weight(sigma_t, t1 - t0)
+    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
+        if -seg.ray.direction.z > 0.5 {
+            seg.weight
         } else {
             0.0
         }
@@ -761,10 +761,10 @@ struct Counting {
 }
 
 impl InScattering for Counting {
-    fn segment(&self, _: usize, _: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
+    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
         self.calls
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        self.q * gather::segment_weight(sigma_t, t1 - t0)
+        self.q * seg.weight
     }
     fn at(&self, _: DVec3, _: usize, _: DVec3) -> f64 {
         self.q

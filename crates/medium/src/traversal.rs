@@ -36,6 +36,8 @@ impl Ray {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Segment {
     pub cell: usize,
+    /// The cell's `[i, j, k]` (what `Grid::coords(cell)` would divide out again).
+    pub coords: [usize; 3],
     pub t_enter: f64,
     pub t_exit: f64,
 }
@@ -172,6 +174,7 @@ impl Iterator for GridTraversal {
         let [nx, ny, _] = self.dims;
         let seg = Segment {
             cell: (self.cell[0] + nx * (self.cell[1] + ny * self.cell[2])) as usize,
+            coords: self.cell.map(|c| c as usize),
             t_enter: self.t,
             t_exit: t_exit.max(self.t),
         };

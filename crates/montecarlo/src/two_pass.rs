@@ -39,7 +39,7 @@
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use gather::{segment_weight, InScattering};
+use gather::{InScattering, RayCarry, ViewSegment};
 use glam::DVec3;
 use medium::phase::rotate_about;
 use medium::traversal::Ray;
@@ -553,8 +553,8 @@ impl TwoPassSolution {
 
 impl InScattering for TwoPassSolution {
     #[inline]
-    fn segment(&self, cell: usize, ray: &Ray, t0: f64, t1: f64, sigma_t: f64) -> f64 {
-        self.source(cell, -ray.direction) * segment_weight(sigma_t, t1 - t0)
+    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
+        self.source(seg.cell, -seg.ray.direction) * seg.weight
     }
 
     #[inline]

@@ -1,0 +1,438 @@
+//! The first bounce's model of a directional light's optical depth `d = −ln T_L` inside a cell,
+//! chosen once per light pass.
+//!
+//! The fast model is trilinear interpolation of depths on a lattice of corners: the light
+//! pass's own cell corners (refinement 1), or the corners of `r × r × r` sub-cells, whose depths
+//! come from an exact light pass over the same medium split into sub-cells (refinement `r`).
+//! Along a view segment inside one (sub-)cell the depth is then taken as linear between its
+//! trilinear end values, so `∫ e^{−σt s} T_L ds` is one closed form per piece, and the
+//! transmittance at the end of a segment is where the next one starts: a single `exp` per
+//! piece.
+//!
+//! Trilinear depth is exact where `d` is linear (a homogeneous slab) and good where the cell is
+//! optically thin toward the light; in thick cells `d` has kinks (the face the light enters
+//! through changes), which sub-cells resolve. [`LightDepth::Auto`] takes the coarsest lattice
+//! whose cell means of `T_L` reproduce the light pass's exact cell averages to
+//! [`TRILINEAR_CELL_MEAN_TOLERANCE`], and falls back to the exit-face model (bilinear on the
+//! exit face plus exact in-cell attenuation, by quadrature) when none does.
+
+use std::fmt;
+
+use glam::DVec3;
+use medium::light_pass::LightPass;
+use medium::{CellValues, ChannelMedium, Grid, Light};
+use rayon::prelude::*;
+
+use crate::scattering::ViewSegment;
+use crate::GatherError;
+
+/// [`LightDepth::Auto`] takes a trilinear lattice when its cell means of `T_L` match the
+/// light pass's exact ones to this (extinction-weighted relative L1) error. The error and the
+/// model chosen are logged at debug level (`RUST_LOG=gather=debug volrad render ...`).
+pub const TRILINEAR_CELL_MEAN_TOLERANCE: f64 = 0.012;
+
+/// Finest sub-cell lattice [`LightDepth::Auto`] tries (and [`LightDepth::Refined`] accepts).
+pub const MAX_REFINEMENT: usize = 4;
+
+/// [`LightDepth::Auto`] does not refine past this many sub-cells (about 100 MB of transient
+/// light pass); larger grids that need it keep the exit-face model.
+const AUTO_SUBCELL_BUDGET: usize = 8 << 20;
+
+/// The in-cell model of a directional light's optical depth, for `nearest` renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LightDepth {
+    /// The coarsest trilinear lattice (refinement 1, 2, … [`MAX_REFINEMENT`]) whose cell
+    /// means of `T_L` reproduce the light pass's exact cell averages within
+    /// [`TRILINEAR_CELL_MEAN_TOLERANCE`], else [`LightDepth::ExitFace`]. Smooth, finely
+    /// resolved media take refinement 1; coarse grids of thick cells need sub-cells. The test
+    /// `auto_light_depth_stays_within_one_percent_of_exit_face` bounds the image error.
+    Auto,
+    /// Trilinear in the light pass's corner depths (refinement 1).
+    CornerTrilinear,
+    /// Trilinear on `r³` sub-cells per cell (`2 ≤ r ≤` [`MAX_REFINEMENT`]), their corner
+    /// depths from an exact light pass over the split grid.
+    Refined(usize),
+    /// Bilinear on the face where the ray toward the light leaves the cell plus the exact
+    /// in-cell attenuation, split where that face changes and integrated by Gauss–Legendre:
+    /// several times the work of a lattice.
+    ExitFace,
+}
+
+/// A directional light's optical depth at the corners of a lattice `refine` times finer than
+/// the grid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthLattice {
+    refine: usize,
+    /// Sub-cell side and its inverse.
+    sub_size: f64,
+    inv_sub_size: f64,
+    /// Corner strides in y and z (x is 1).
+    stride_y: usize,
+    stride_z: usize,
+    depth: Vec<f32>,
+}
+
+impl DepthLattice {
+    /// The lattice of light `l` of `pass` at refinement `refine`: the pass's own corners for
+    /// 1, else an exact light pass over the grid split into `refine³` sub-cells per cell.
+    pub fn build(pass: &LightPass, l: usize, refine: usize) -> Result<Self, GatherError> {
+        if !(1..=MAX_REFINEMENT).contains(&refine) {
+            return Err(GatherError::Render(format!(
+                "light-depth refinement {refine} (1 to {MAX_REFINEMENT} supported)"
+            )));
+        }
+        let grid = pass.grid;
+        let depth = if refine == 1 {
+            pass.fields[l].corner_optical_depth.clone()
+        } else {
+            let fine = Grid::new(
+                grid.dims.map(|n| n * refine),
+                grid.cell_size / refine as f64,
+            )
+            .map_err(|e| GatherError::Render(format!("refined light grid: {e}")))?;
+            let [fx, fy, fz] = fine.dims;
+            let mut sigma_t = vec![0.0f32; fx * fy * fz];
+            sigma_t
+                .par_chunks_mut(fx * fy)
+                .enumerate()
+                .for_each(|(k, layer)| {
+                    for j in 0..fy {
+                        for i in 0..fx {
+                            let coarse = grid.index(i / refine, j / refine, k / refine);
+                            layer[i + fx * j] = pass.sigma_t[coarse];
+                        }
+                    }
+                });
+            let channel = ChannelMedium {
+                sigma_t,
+                albedo: CellValues::Uniform(0.0),
+                emission: CellValues::Uniform(0.0),
+            };
+            let light = pass.fields[l].light;
+            let mut fine_pass = LightPass::compute(&fine, &channel, &[light])
+                .map_err(|e| GatherError::Render(format!("refined light pass: {e}")))?;
+            std::mem::take(&mut fine_pass.fields[0].corner_optical_depth)
+        };
+        let stride_y = grid.dims[0] * refine + 1;
+        Ok(DepthLattice {
+            refine,
+            sub_size: grid.cell_size / refine as f64,
+            inv_sub_size: refine as f64 / grid.cell_size,
+            stride_y,
+            stride_z: stride_y * (grid.dims[1] * refine + 1),
+            depth,
+        })
+    }
+
+    pub fn refinement(&self) -> usize {
+        self.refine
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.depth.len() * std::mem::size_of::<f32>()
+    }
+
+    /// The eight corner depths of sub-cell `sub` (lattice coordinates).
+    #[inline]
+    fn corners(&self, sub: [usize; 3]) -> SubCellDepths {
+        let c = sub[0] + self.stride_y * sub[1] + self.stride_z * sub[2];
+        let (sy, sz) = (self.stride_y, self.stride_z);
+        // One bounds check for the eight loads.
+        let block = &self.depth[c..=c + sz + sy + 1];
+        let v = |o: usize| block[o] as f64;
+        SubCellDepths {
+            lo: DVec3::new(sub[0] as f64, sub[1] as f64, sub[2] as f64) * self.sub_size,
+            inv_size: self.inv_sub_size,
+            d: [
+                v(0),
+                v(1),
+                v(sy),
+                v(sy + 1),
+                v(sz),
+                v(sz + 1),
+                v(sz + sy),
+                v(sz + sy + 1),
+            ],
+        }
+    }
+
+    /// The trilinear depth at world point `x` inside the grid cell `coords` (what
+    /// [`DepthLattice::segment`] interpolates between sub-cell face crossings).
+    pub fn depth_at(&self, x: DVec3, coords: [usize; 3]) -> f64 {
+        let r = self.refine;
+        let h = self.sub_size * r as f64;
+        let lo = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * h;
+        let f = (x - lo) * self.inv_sub_size;
+        let at = |q: usize| coords[q] * r + (f[q].max(0.0) as usize).min(r - 1);
+        self.corners([at(0), at(1), at(2)]).at(x)
+    }
+
+    /// Extinction-weighted relative L1 error of this lattice's cell means of `T_L` against the
+    /// light pass's exact cell averages (`cell_irradiance / E`), over the cells that
+    /// extinguish. Each sub-cell's mean is 2×2×2-point Gauss–Legendre.
+    pub fn cell_mean_error(&self, pass: &LightPass, l: usize) -> f64 {
+        let field = &pass.fields[l];
+        let Light::Directional { irradiance, .. } = field.light else {
+            return 0.0;
+        };
+        if irradiance <= 0.0 {
+            return 0.0;
+        }
+        let r = self.refine;
+        let nodes = [0.5 - 0.5 / 3f64.sqrt(), 0.5 + 0.5 / 3f64.sqrt()];
+        let inv_samples = 1.0 / (8 * r * r * r) as f64;
+        let (err, total) = pass
+            .sigma_t
+            .par_iter()
+            .enumerate()
+            .filter(|(_, &sigma)| sigma > 0.0)
+            .map(|(cell, &sigma)| {
+                let [i, j, k] = pass.grid.coords(cell);
+                let mut mean = 0.0;
+                for sk in 0..r {
+                    for sj in 0..r {
+                        for si in 0..r {
+                            let depths = self.corners([i * r + si, j * r + sj, k * r + sk]);
+                            for fz in nodes {
+                                for fy in nodes {
+                                    for fx in nodes {
+                                        mean += (-depths.at_fraction(DVec3::new(fx, fy, fz))).exp();
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                let exact = field.cell_irradiance[cell] as f64 / irradiance;
+                (
+                    sigma as f64 * (mean * inv_samples - exact).abs(),
+                    sigma as f64 * exact,
+                )
+            })
+            .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        if total > 0.0 {
+            err / total
+        } else {
+            0.0
+        }
+    }
+
+    /// `∫_{t0}^{t1} e^{−σt (t−t0)} T_L(ray(t)) dt` over a view segment (inside one cell of
+    /// the grid), and the light at `t1`. `start` is the light at `t0` when the caller knows
+    /// it (the previous segment ended there: the lattice is continuous across faces). The
+    /// segment is split where it crosses sub-cell faces; on each piece `σt s + d` is linear, so
+    /// the piece integrates in closed form from its end values `F = e^{−σt (t−t0)} T_L`.
+    #[inline]
+    pub fn segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+        let (ray, coords) = (seg.ray, seg.coords);
+        let r = self.refine;
+        let h = self.sub_size * r as f64;
+        let lo = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * h;
+        // Sub-cell face crossings inside (t0, t1), sorted.
+        let mut breaks = [0.0f64; 3 * (MAX_REFINEMENT - 1) + 1];
+        let mut count = 0;
+        if r > 1 {
+            for a in 0..3 {
+                let d = ray.direction[a];
+                if d == 0.0 {
+                    continue;
+                }
+                let inv = 1.0 / d;
+                for m in 1..r {
+                    let t = (lo[a] + m as f64 * self.sub_size - ray.origin[a]) * inv;
+                    if t > seg.t0 && t < seg.t1 {
+                        // Insertion keeps the few breaks sorted.
+                        let mut p = count;
+                        while p > 0 && breaks[p - 1] > t {
+                            breaks[p] = breaks[p - 1];
+                            p -= 1;
+                        }
+                        breaks[p] = t;
+                        count += 1;
+                    }
+                }
+            }
+        }
+        breaks[count] = seg.t1;
+        let sigma = seg.sigma_t;
+        let inv_sub = self.inv_sub_size;
+        let mut a = seg.t0;
+        let (mut d_a, mut f_a) = match start {
+            Some(light) => (light.depth, light.transmittance),
+            None => (f64::NAN, f64::NAN),
+        };
+        let mut total = 0.0;
+        let mut end = LightAt {
+            depth: 0.0,
+            transmittance: 1.0,
+        };
+        for (p, &b) in breaks[..=count].iter().enumerate() {
+            let len = b - a;
+            let sub = if r == 1 {
+                coords
+            } else {
+                let mid = (ray.at(0.5 * (a + b)) - lo) * inv_sub;
+                let at = |q: usize| coords[q] * r + (mid[q].max(0.0) as usize).min(r - 1);
+                [at(0), at(1), at(2)]
+            };
+            let depths = self.corners(sub);
+            if p == 0 && start.is_none() {
+                d_a = depths.at(ray.at(a));
+                f_a = (-d_a).exp();
+            }
+            let d_b = depths.at(ray.at(b));
+            let f_b = if p == count {
+                end = LightAt {
+                    depth: d_b,
+                    transmittance: (-d_b).exp(),
+                };
+                seg.attenuation * end.transmittance
+            } else {
+                (-(sigma * (b - seg.t0) + d_b)).exp()
+            };
+            if len > 0.0 {
+                total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
+            }
+            f_a = f_b;
+            d_a = d_b;
+            a = b;
+        }
+        (total, end)
+    }
+}
+
+/// A light's optical depth toward a point of a view ray and its transmittance `e^{−depth}`,
+/// carried from one segment to the next.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightAt {
+    pub depth: f64,
+    pub transmittance: f64,
+}
+
+/// `∫_0^L e^{−D(s)} ds` for `D` linear from `D_a` to `D_b = D_a + x`, given `f_a = e^{−D_a}`
+/// and `f_b = e^{−D_b}`: `(f_a − f_b) L / x`, or its series where `|x|` is small (relative
+/// error below 1e-13).
+#[inline]
+fn piece_integral(f_a: f64, f_b: f64, x: f64, len: f64) -> f64 {
+    if x.abs() > 1e-3 {
+        (f_a - f_b) * len / x
+    } else {
+        f_a * len * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))))
+    }
+}
+
+/// A (sub-)cell's eight corner depths, for trilinear interpolation. Trilinear is continuous
+/// across faces (no seams between cells in an image) and exact wherever the depth is linear.
+struct SubCellDepths {
+    /// The sub-cell's lower corner in world space.
+    lo: DVec3,
+    inv_size: f64,
+    /// `d[i + 2j + 4k]` at corner offset `(i, j, k)`.
+    d: [f64; 8],
+}
+
+impl SubCellDepths {
+    /// The depth at world point `x` (clamped to the sub-cell).
+    #[inline]
+    fn at(&self, x: DVec3) -> f64 {
+        self.at_fraction((x - self.lo) * self.inv_size)
+    }
+
+    /// The depth at fractional position `f` in the sub-cell (clamped to it).
+    #[inline]
+    fn at_fraction(&self, f: DVec3) -> f64 {
+        let f = f.clamp(DVec3::ZERO, DVec3::ONE);
+        let d = &self.d;
+        let x00 = d[0] + f.x * (d[1] - d[0]);
+        let x10 = d[2] + f.x * (d[3] - d[2]);
+        let x01 = d[4] + f.x * (d[5] - d[4]);
+        let x11 = d[6] + f.x * (d[7] - d[6]);
+        let y0 = x00 + f.y * (x10 - x00);
+        let y1 = x01 + f.y * (x11 - x01);
+        y0 + f.z * (y1 - y0)
+    }
+}
+
+/// The depth model of every light of a light pass: a lattice per directional light that takes
+/// one, `None` for the exit-face model (always so for point and spot lights). Building it runs
+/// the [`LightDepth::Auto`] checks and any refined light passes, which cost more than a render:
+/// build it once per light pass and share it ([`crate::single_scatter::SingleScatter::with_depth_model`]).
+#[derive(Clone, PartialEq)]
+pub struct LightDepthModel {
+    lattices: Vec<Option<DepthLattice>>,
+}
+
+impl fmt::Debug for LightDepthModel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_list()
+            .entries(self.lattices.iter().map(|l| match l {
+                Some(l) => format!("trilinear, refinement {}", l.refine),
+                None => "exit face".to_string(),
+            }))
+            .finish()
+    }
+}
+
+impl LightDepthModel {
+    /// The model `policy` asks for, for every light of `pass`.
+    pub fn build(pass: &LightPass, policy: LightDepth) -> Result<Self, GatherError> {
+        let mut lattices = Vec::with_capacity(pass.fields.len());
+        for (l, field) in pass.fields.iter().enumerate() {
+            if !matches!(field.light, Light::Directional { .. }) {
+                lattices.push(None);
+                continue;
+            }
+            let lattice = match policy {
+                LightDepth::ExitFace => None,
+                LightDepth::CornerTrilinear => Some(DepthLattice::build(pass, l, 1)?),
+                LightDepth::Refined(r) => Some(DepthLattice::build(pass, l, r)?),
+                LightDepth::Auto => Self::auto(pass, l)?,
+            };
+            lattices.push(lattice);
+        }
+        Ok(LightDepthModel { lattices })
+    }
+
+    fn auto(pass: &LightPass, l: usize) -> Result<Option<DepthLattice>, GatherError> {
+        let cells = pass.grid.cell_count();
+        let mut finest = None;
+        for refine in 1..=MAX_REFINEMENT {
+            if refine > 1 && cells * refine.pow(3) > AUTO_SUBCELL_BUDGET {
+                break;
+            }
+            let lattice = DepthLattice::build(pass, l, refine)?;
+            let error = lattice.cell_mean_error(pass, l);
+            tracing::debug!(
+                light = l,
+                refine,
+                trilinear_cell_mean_error = error,
+                accepted = error <= TRILINEAR_CELL_MEAN_TOLERANCE,
+                "first-bounce light depth model"
+            );
+            if error <= TRILINEAR_CELL_MEAN_TOLERANCE {
+                return Ok(Some(lattice));
+            }
+            finest = Some(lattice);
+        }
+        // Sub-cells converge to the exact T_L and beat the exit-face model at every
+        // refinement measured (tests/single_scatter.rs), so the finest affordable lattice is
+        // the fallback; the exit face only when the grid is too big to refine at all.
+        Ok(finest.filter(|lattice| lattice.refine > 1))
+    }
+
+    /// Light `l`'s lattice, or `None` for the exit-face model.
+    #[inline]
+    pub fn lattice(&self, l: usize) -> Option<&DepthLattice> {
+        self.lattices.get(l).and_then(Option::as_ref)
+    }
+
+    /// Bytes held by the lattices.
+    pub fn bytes(&self) -> usize {
+        self.lattices
+            .iter()
+            .flatten()
+            .map(DepthLattice::bytes)
+            .sum()
+    }
+}
