@@ -5,6 +5,7 @@ use std::f64::consts::PI;
 use std::fmt;
 
 use anyhow::{bail, Context, Result};
+use formfactor::ordinates::bins::face_bilinear;
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
@@ -163,9 +164,10 @@ pub fn solve_ordinates(
     op.transport(&external, &mut source);
     let (radiance, report) = run_solver(&op, &source, settings, hooks)?;
     // What the render adds to the exact first bounce: scattering of the solved (already
-    // once-scattered) radiance, i.e. second and higher orders.
+    // once-scattered) radiance, i.e. second and higher orders, by the true phase function
+    // towards each bin centre (the final directional bounce; the render interpolates).
     let mut higher = vec![0.0; op.len()];
-    op.scatter_density(&radiance, &mut higher);
+    op.gather_density(&radiance, &mut higher);
     Ok((
         ScatteredField::Binned {
             radiance: radiance.iter().map(|&v| v as f32).collect(),
@@ -228,7 +230,8 @@ pub fn stored_bins(settings: &SolveSettings) -> Option<StoredBins> {
 }
 
 /// A per-cell, per-bin source looked up by direction: bilinear between the bin centres of one
-/// cube face (the layout of `formfactor::ordinates::bins`: bin `f n² + i n + j`).
+/// cube face, extrapolated towards its edges (`formfactor::ordinates::bins::face_bilinear`;
+/// the layout of `formfactor::ordinates::bins`: bin `f n² + i n + j`).
 pub struct BinnedSource<'a> {
     values: &'a [f32],
     n: usize,
@@ -243,31 +246,11 @@ impl<'a> BinnedSource<'a> {
 
     #[inline]
     fn lookup(&self, cell: usize, w: DVec3) -> f64 {
-        let n = self.n;
-        let a = w.abs();
-        let axis = if a.x >= a.y && a.x >= a.z {
-            0
-        } else if a.y >= a.z {
-            1
-        } else {
-            2
-        };
-        let sign_positive = w[axis] >= 0.0;
-        let face = 2 * axis + if sign_positive { 0 } else { 1 };
-        let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
-        let inv = 1.0 / a[axis];
-        let (u, v) = (w[ua] * inv, w[va] * inv);
-        // Continuous bin coordinates with bin centres at integers (approximately: the true
-        // centres are the solid-angle-weighted means, within a fraction of a bin).
-        let s = ((u + 1.0) * 0.5 * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
-        let t = ((v + 1.0) * 0.5 * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
-        let (i0, j0) = (s.floor() as usize, t.floor() as usize);
-        let (i1, j1) = ((i0 + 1).min(n - 1), (j0 + 1).min(n - 1));
-        let (fs, ft) = (s - i0 as f64, t - j0 as f64);
-        let base = cell * 6 * n * n + face * n * n;
-        let at = |i: usize, j: usize| self.values[base + i * n + j] as f64;
-        (1.0 - fs) * ((1.0 - ft) * at(i0, j0) + ft * at(i0, j1))
-            + fs * ((1.0 - ft) * at(i1, j0) + ft * at(i1, j1))
+        let base = cell * 6 * self.n * self.n;
+        face_bilinear(self.n, w)
+            .iter()
+            .map(|&(l, weight)| weight * self.values[base + l] as f64)
+            .sum()
     }
 }
 
