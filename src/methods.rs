@@ -156,7 +156,10 @@ pub fn solve_ordinates(
         channel,
         scene.medium.phase,
         bins,
-        OrdinatesOptions::default(),
+        OrdinatesOptions {
+            transport_refinement: settings.transport_refinement,
+            ..OrdinatesOptions::default()
+        },
     )?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source.
     let external = op.external_density_from_pass(light_pass, channel)?;
