@@ -102,5 +102,70 @@ fn bench_scattering_render(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_render, bench_scattering_render);
+/// One request of the service load test (`examples/load_test.rs`): its 24×24×18 cloud (σt
+/// peak 0.6, albedo 0.95, isotropic), a zonal-style solution, a 512×384 view from its orbit
+/// (single-threaded, as each of the service's render slots runs). Cells this coarse need the
+/// first bounce's sub-cell lattice (`LightDepth::Auto` picks refinement 2).
+fn bench_service_render(c: &mut Criterion) {
+    use gather::light_depth::{LightDepth, LightDepthModel};
+    use gather::single_scatter::{SingleScatter, SingleScatterOptions};
+    use medium::light_pass::LightPass;
+    use medium::Light;
+
+    let dims = [24, 24, 18];
+    let sigma_t: Vec<f32> = cloud(dims, 7).iter().map(|d| d * 0.6).collect();
+    let medium = Medium::new(
+        Grid::new(dims, 1.0).unwrap(),
+        vec![ChannelMedium {
+            sigma_t,
+            albedo: CellValues::Uniform(0.95),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let lights = [Light::Directional {
+        direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
+        irradiance: 1.0,
+    }];
+    let pass = LightPass::compute(&medium.grid, &medium.channels[0], &lights).unwrap();
+    let depth = LightDepthModel::build(&pass, LightDepth::Auto).unwrap();
+    let higher: Vec<f32> = pass
+        .zonal_source(&medium.channels[0])
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    let first =
+        SingleScatter::with_depth_model(&medium, 0, &pass, SingleScatterOptions::default(), &depth)
+            .unwrap();
+    let solution = (first, volrad::pipeline::CellSource::new(&higher));
+    let centre = medium.grid.extent() * 0.5;
+    let radius = 2.5 * 24.0;
+    let angle = 0.5f64;
+    let eye = centre + DVec3::new(radius * angle.sin(), -radius * angle.cos(), 0.3 * radius);
+    let cam = Camera::perspective(eye, centre, DVec3::Z, 40.0, 512, 384).unwrap();
+    let opts = RenderOptions {
+        model: OpticalModel::Scattering,
+        ..RenderOptions::default()
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let mut group = c.benchmark_group("render");
+    group.sample_size(20);
+    group.bench_function("service_cloud24_512x384_one_thread", |b| {
+        b.iter(|| pool.install(|| render(&medium, 0, &cam, &opts, &solution).unwrap()))
+    });
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_render,
+    bench_scattering_render,
+    bench_service_render
+);
 criterion_main!(benches);

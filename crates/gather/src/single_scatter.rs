@@ -427,11 +427,8 @@ impl InScattering for SingleScatter<'_> {
         let continues = held && carry.t == t0;
         let mut total = 0.0;
         for l in 0..self.pass.fields.len() {
-            if let (Light::Directional { .. }, Some(lattice), true) = (
-                self.pass.fields[l].light,
-                self.depth.lattice(l),
-                self.lattice_path,
-            ) {
+            // Only directional lights have lattices.
+            if let Some(lattice) = self.depth.lattice(l).filter(|_| self.lattice_path) {
                 let carried = holds && l < CARRIED_LIGHTS;
                 let factor = if carried && held {
                     carry.values[3 * l + 2]
