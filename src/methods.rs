@@ -41,7 +41,42 @@ pub fn solver_method(it: IterationMethod) -> Method {
         IterationMethod::CoarseGaussSeidel => Method::CoarseCorrected {
             inner: Smoother::GaussSeidel,
         },
+        IterationMethod::TwoLevelCg { smoothing } => Method::TwoLevelCg { smoothing },
+        IterationMethod::DsaCg => Method::DsaCg,
     }
+}
+
+/// Refuses, before any operator is built, an iteration the solve method's operator cannot
+/// run: the conjugate-gradient family needs reciprocity (zonal operators only), and
+/// `dsa-cg` a diffusion approximation, which only the hierarchical operator provides.
+pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
+    let it = settings.iteration;
+    let needs_symmetry = matches!(
+        it,
+        IterationMethod::ConjugateGradient
+            | IterationMethod::TwoLevelCg { .. }
+            | IterationMethod::DsaCg
+    );
+    let zonal = matches!(
+        settings.method,
+        SolveMethod::Zonal | SolveMethod::ZonalHierarchical
+    );
+    if it == IterationMethod::DsaCg && settings.method != SolveMethod::ZonalHierarchical {
+        bail!(
+            "[solve] iteration `dsa-cg` needs a diffusion approximation, which only method \
+             `zonal-hierarchical` provides (not `{}`); use cg",
+            settings.method.name()
+        );
+    }
+    if needs_symmetry && !zonal {
+        bail!(
+            "[solve] iteration `{}` needs a symmetrisable (zonal) operator, which method `{}` \
+             does not build; use gauss-seidel, sor:OMEGA, gmres or bicgstab",
+            solver_method(it),
+            settings.method.name()
+        );
+    }
+    Ok(())
 }
 
 /// `--iteration TEXT` on top of the scene's setting.
@@ -88,6 +123,7 @@ pub fn solve_zonal(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
+    check_iteration(settings)?;
     let grid = &scene.medium.grid;
     let channel = &scene.medium.channels[c];
     let source = light_pass.zonal_source(channel);
@@ -149,6 +185,7 @@ pub fn solve_ordinates(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
+    check_iteration(settings)?;
     let bins = DirectionBins::cube(face_divisions(settings.bins)?)?;
     let channel = &scene.medium.channels[c];
     let op = OrdinatesOperator::from_channel(

@@ -88,8 +88,8 @@ fn minimal_scene_gets_the_contract_defaults() {
     assert_eq!(m.data.as_ref().unwrap().len(), 24);
     assert_eq!(s.background, 0.0);
     assert_eq!(s.solve.method, SolveMethod::ZonalHierarchical);
-    // The fastest robust iteration for the zonal system (docs/albedo.md).
-    assert_eq!(s.solve.iteration, IterationMethod::ConjugateGradient);
+    // The fastest robust iteration for the hierarchical zonal system (docs/albedo.md).
+    assert_eq!(s.solve.iteration, IterationMethod::DsaCg);
     assert_eq!(s.solve.tolerance, 1e-5);
     assert_eq!(s.solve.max_iterations, 2000);
     assert_eq!(s.solve.bins, 96);

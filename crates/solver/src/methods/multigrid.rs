@@ -758,7 +758,7 @@ mod tests {
         // 3-cell blocks; absorption 1e-3, so only the vacuum faces keep A well conditioned.
         let jumpy = |i: usize| {
             let x = [i % 24, (i / 24) % 24, i / 576];
-            if (x[0] / 3 + x[1] / 3 + x[2] / 3) % 2 == 0 {
+            if (x[0] / 3 + x[1] / 3 + x[2] / 3).is_multiple_of(2) {
                 1.0 / 3.0
             } else {
                 1e3 / 3.0
