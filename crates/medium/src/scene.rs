@@ -1050,7 +1050,8 @@ impl Scene {
         Ok(scene)
     }
 
-    /// The built-in scene of `volrad` with no arguments: Max's procedural cloud (seed 7) on
+    /// The built-in isotropic cloud (what `volrad` with no arguments solved until its default
+    /// became the backlit `data/cloud-backlit.toml`): Max's procedural cloud (seed 7) on
     /// 48×48×36 cells, σt scaled so the thickest axis-parallel row has optical depth 10,
     /// albedo 0.99, isotropic phase, one directional light from above and to the side, and
     /// one 512×384 camera "front".
