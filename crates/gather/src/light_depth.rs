@@ -13,8 +13,10 @@
 //! optically thin toward the light; in thick cells `d` has kinks (the face the light enters
 //! through changes), which sub-cells resolve. [`LightDepth::Auto`] takes the coarsest lattice
 //! whose cell means of `T_L` reproduce the light pass's exact cell averages to
-//! [`TRILINEAR_CELL_MEAN_TOLERANCE`], and falls back to the exit-face model (bilinear on the
-//! exit face plus exact in-cell attenuation, by quadrature) when none does.
+//! [`TRILINEAR_CELL_MEAN_TOLERANCE`], else the finest it can afford. Against exact shadow rays
+//! sub-cells beat the older exit-face model (bilinear on the exit face plus exact in-cell
+//! attenuation, by quadrature) from refinement 2 on; it remains for point and spot lights and
+//! for grids too large to refine.
 
 use std::fmt;
 
@@ -43,9 +45,11 @@ const AUTO_SUBCELL_BUDGET: usize = 8 << 20;
 pub enum LightDepth {
     /// The coarsest trilinear lattice (refinement 1, 2, … [`MAX_REFINEMENT`]) whose cell
     /// means of `T_L` reproduce the light pass's exact cell averages within
-    /// [`TRILINEAR_CELL_MEAN_TOLERANCE`], else [`LightDepth::ExitFace`]. Smooth, finely
-    /// resolved media take refinement 1; coarse grids of thick cells need sub-cells. The test
-    /// `auto_light_depth_stays_within_one_percent_of_exit_face` bounds the image error.
+    /// [`TRILINEAR_CELL_MEAN_TOLERANCE`], else the finest affordable one (up to 8M sub-cells;
+    /// [`LightDepth::ExitFace`] past that). Smooth, finely resolved media take refinement 1;
+    /// coarse grids of thick cells need sub-cells. The test
+    /// `auto_light_depth_is_within_one_and_a_half_percent_of_exact_shadow_rays` bounds the
+    /// image error.
     Auto,
     /// Trilinear in the light pass's corner depths (refinement 1).
     CornerTrilinear,
@@ -396,12 +400,17 @@ impl LightDepthModel {
 
     fn auto(pass: &LightPass, l: usize) -> Result<Option<DepthLattice>, GatherError> {
         let cells = pass.grid.cell_count();
-        let mut finest = None;
-        for refine in 1..=MAX_REFINEMENT {
-            if refine > 1 && cells * refine.pow(3) > AUTO_SUBCELL_BUDGET {
-                break;
-            }
+        let affordable = (2..=MAX_REFINEMENT)
+            .take_while(|r| cells * r.pow(3) <= AUTO_SUBCELL_BUDGET)
+            .last()
+            .unwrap_or(1);
+        for refine in 1..=affordable {
             let lattice = DepthLattice::build(pass, l, refine)?;
+            if refine > 1 && refine == affordable {
+                // The fallback whatever its error: no need to measure it.
+                tracing::debug!(light = l, refine, "first-bounce light depth model (finest)");
+                return Ok(Some(lattice));
+            }
             let error = lattice.cell_mean_error(pass, l);
             tracing::debug!(
                 light = l,
@@ -413,12 +422,11 @@ impl LightDepthModel {
             if error <= TRILINEAR_CELL_MEAN_TOLERANCE {
                 return Ok(Some(lattice));
             }
-            finest = Some(lattice);
         }
-        // Sub-cells converge to the exact T_L and beat the exit-face model at every
-        // refinement measured (tests/single_scatter.rs), so the finest affordable lattice is
-        // the fallback; the exit face only when the grid is too big to refine at all.
-        Ok(finest.filter(|lattice| lattice.refine > 1))
+        // Sub-cells converge to the exact T_L and beat the exit-face model from refinement 2
+        // on (tests/single_scatter.rs), so the finest affordable lattice is the fallback; the
+        // exit face only when the grid is too big to refine at all.
+        Ok(None)
     }
 
     /// Light `l`'s lattice, or `None` for the exit-face model.
