@@ -217,14 +217,12 @@ pub fn solve_ordinates(
     ))
 }
 
-/// Photons per light of the two-pass method's energetization pass.
-pub const TWO_PASS_PHOTONS: u64 = 1 << 21;
-
 /// Blasi & Wuethrich's two-pass method for channel `c`: second and higher orders stored by a
 /// seeded, deterministic photon pass (the render adds the exact first bounce).
 pub fn solve_two_pass(
     scene: &Scene,
     c: usize,
+    settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     use montecarlo::two_pass::{energetize, EnergetizeOptions};
@@ -237,7 +235,7 @@ pub fn solve_two_pass(
         }
     };
     let options = EnergetizeOptions {
-        photons_per_light: TWO_PASS_PHOTONS,
+        photons_per_light: settings.photons,
         bins,
         include_first_bounce: false,
         ..EnergetizeOptions::default()

@@ -63,7 +63,7 @@ pub fn solve_scene(
             SolveMethod::DiscreteOrdinates => {
                 crate::methods::solve_ordinates(scene, c, &light_pass, settings, hooks)?
             }
-            SolveMethod::TwoPass => crate::methods::solve_two_pass(scene, c, hooks)?,
+            SolveMethod::TwoPass => crate::methods::solve_two_pass(scene, c, settings, hooks)?,
         };
         channels.push(ChannelSolution {
             light_pass,

@@ -117,6 +117,9 @@ pub fn parse_methods(names: &[String]) -> Result<Vec<ValidateMethod>> {
     Ok(methods)
 }
 
+/// Two-pass photons per light in a `--quick` run.
+pub const QUICK_TWO_PASS_PHOTONS: u64 = 1 << 18;
+
 /// Samples and sizes of a validation run.
 #[derive(Clone, Debug, Serialize)]
 pub struct ValidateSettings {
@@ -543,6 +546,10 @@ fn run_method(
     if solve.method != solve_method {
         solve.method = solve_method;
         solve.iteration = IterationMethod::default_for(solve_method);
+    }
+    if settings.quick {
+        // CI-sized like the rest of a quick run: 2¹⁸ photons instead of the default 2²¹.
+        solve.photons = solve.photons.min(QUICK_TWO_PASS_PHOTONS);
     }
     let progress_bar = bar.clone();
     let label = format!("{}: {}", scene_label(scene), method.name());

@@ -162,6 +162,9 @@ pub struct SolveSettings {
     /// 1..=[`MAX_TRANSPORT_REFINEMENT`]), which shrinks the sweep's numerical diffusion at
     /// `r³` times the sweep cost; the unknowns stay per cell.
     pub transport_refinement: usize,
+    /// Two-pass only: photons per light of the energetization pass (its noise falls like
+    /// `1/√photons`).
+    pub photons: u64,
 }
 
 /// Which of Max's optical models a render uses.
@@ -328,9 +331,16 @@ impl SolveSettings {
             tolerance: 1e-5,
             max_iterations: 2000,
             transport_refinement: 1,
+            photons: DEFAULT_TWO_PASS_PHOTONS,
         }
     }
 }
+
+/// Photons per light of the two-pass method when `[solve] photons` is absent.
+pub const DEFAULT_TWO_PASS_PHOTONS: u64 = 1 << 21;
+
+/// Bounds of `[solve] photons`: fewer is noise, more is hours.
+pub const TWO_PASS_PHOTON_RANGE: std::ops::RangeInclusive<u64> = 1_000..=(1 << 30);
 
 /// Largest `[solve] transport_refinement` (sub-cells per cell side of the ordinates sweep).
 pub const MAX_TRANSPORT_REFINEMENT: usize = 4;
@@ -419,6 +429,7 @@ struct RawSolve {
     tolerance: Option<toml::Value>,
     max_iterations: Option<toml::Value>,
     transport_refinement: Option<toml::Value>,
+    photons: Option<toml::Value>,
 }
 
 #[derive(Deserialize)]
@@ -1393,6 +1404,21 @@ impl Ctx<'_> {
                         ));
                     }
                     out.transport_refinement = r as usize;
+                }
+                if let Some(n) = &s.photons {
+                    let key = "solve.photons";
+                    let n = self.integer(n, key, 1)? as u64;
+                    if !TWO_PASS_PHOTON_RANGE.contains(&n) {
+                        return Err(self.err(
+                            key,
+                            format!(
+                                "{n}: expected a whole number of photons per light from {} to {}",
+                                TWO_PASS_PHOTON_RANGE.start(),
+                                TWO_PASS_PHOTON_RANGE.end()
+                            ),
+                        ));
+                    }
+                    out.photons = n;
                 }
                 out
             }

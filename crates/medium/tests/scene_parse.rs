@@ -92,6 +92,7 @@ fn minimal_scene_gets_the_contract_defaults() {
     assert_eq!(s.solve.iteration, IterationMethod::DsaCg);
     assert_eq!(s.solve.tolerance, 1e-5);
     assert_eq!(s.solve.max_iterations, 2000);
+    assert_eq!(s.solve.photons, 1 << 21);
     assert_eq!(s.solve.bins, 96);
     assert_eq!(s.render.model, OpticalModel::Scattering);
     assert_eq!(s.render.exposure, 1.0);
@@ -429,6 +430,34 @@ fn negative_and_non_finite_values_are_refused() {
         "solve.tolerance",
         &["> 0"],
     );
+    for (name, photons) in [
+        ("few-photons", "10"),
+        ("many-photons", "4e12"),
+        ("frac-photons", "1500.5"),
+    ] {
+        assert_refused(
+            name,
+            &scene_text(&[
+                VOLUME,
+                MEDIUM,
+                LIGHT,
+                &format!("[solve]\nmethod = \"two-pass\"\nphotons = {photons}\n"),
+                CAMERA,
+            ]),
+            "solve.photons",
+            &[],
+        );
+    }
+    let dir = scratch("photons-ok");
+    write_volume(&dir);
+    let text = scene_text(&[
+        VOLUME,
+        MEDIUM,
+        LIGHT,
+        "[solve]\nmethod = \"two-pass\"\nphotons = 50000\n",
+        CAMERA,
+    ]);
+    assert_eq!(parse_in(&dir, &text).unwrap().solve.photons, 50_000);
 
     // Negative or non-finite values inside the volume file.
     let dir = scratch("neg-data");
