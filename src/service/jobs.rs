@@ -399,6 +399,8 @@ impl Service {
         let outcome = outcome.and_then(|sol| {
             sol.write(&path)
                 .map_err(|e| format!("writing the solution: {e}"))?;
+            // Before "done": the first view then costs what every later one does.
+            sol.prepare_renders();
             Ok(sol)
         });
         let stamp = self.tick();

@@ -62,18 +62,33 @@ pub struct ChannelSolution {
 /// cost more than a render). Not part of the file; equal to any other cache.
 #[derive(Clone, Default)]
 pub struct RenderCache {
-    light_depth: std::sync::OnceLock<LightDepthModel>,
+    /// The model, or why it could not be built (kept as text: renders report it each time).
+    light_depth: std::sync::OnceLock<Result<LightDepthModel, String>>,
 }
 
 impl RenderCache {
-    /// The automatic light-depth model of `pass` (the same `pass` on every call).
-    pub fn light_depth(&self, pass: &LightPass) -> Result<&LightDepthModel, gather::GatherError> {
-        if let Some(model) = self.light_depth.get() {
-            return Ok(model);
+    /// The automatic light-depth model of `pass` (the same `pass` on every call). Renders
+    /// that ask while another builds it wait for that build instead of repeating it.
+    pub fn light_depth(&self, pass: &LightPass) -> anyhow::Result<&LightDepthModel> {
+        self.light_depth
+            .get_or_init(|| {
+                LightDepthModel::build(pass, LightDepth::Auto).map_err(|e| e.to_string())
+            })
+            .as_ref()
+            .map_err(|e| anyhow::anyhow!("first-bounce light-depth model: {e}"))
+    }
+}
+
+impl Solution {
+    /// Builds what renders derive from the solution and share (each channel's
+    /// [`RenderCache`]), so that the first view is as fast as the rest. Errors are left for the
+    /// renders to report.
+    pub fn prepare_renders(&self) {
+        for ch in &self.channels {
+            if let Err(e) = ch.render_cache.light_depth(&ch.light_pass) {
+                tracing::warn!("preparing renders: {e:#}");
+            }
         }
-        let model = LightDepthModel::build(pass, LightDepth::Auto)?;
-        // Two renders may race to build it; both results are the same, one is kept.
-        Ok(self.light_depth.get_or_init(|| model))
     }
 }
 
