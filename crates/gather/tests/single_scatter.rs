@@ -515,3 +515,75 @@ fn auto_light_depth_is_within_one_and_a_half_percent_of_exact_shadow_rays() {
         "thick cells need sub-cells (or the exit face)"
     );
 }
+
+/// Edge cases of the light-depth lattice: a one-cell grid lit along an axis, and a point light
+/// beside a directional one (the point light keeps the exit-face model). Renders stay finite
+/// and agree with the exit-face model to within its own error.
+#[test]
+fn lattice_models_handle_one_cell_grids_axis_lights_and_point_lights() {
+    use gather::single_scatter::LightDepth;
+    use gather::{render, Camera};
+    let lit = |dims: [usize; 3], sigma: f32, lights: &[Light]| {
+        let grid = Grid::new(dims, 1.0).unwrap();
+        let medium = Medium::new(
+            grid,
+            vec![ChannelMedium {
+                sigma_t: vec![sigma; grid.cell_count()],
+                albedo: CellValues::Uniform(0.8),
+                emission: CellValues::Uniform(0.0),
+            }],
+            PhaseFunction::Isotropic,
+            Interpolation::Nearest,
+            None,
+        )
+        .unwrap();
+        let pass = LightPass::compute(&grid, &medium.channels[0], lights).unwrap();
+        let centre = grid.extent() * 0.5;
+        let camera = Camera::perspective(
+            centre + DVec3::new(-1.0, -2.0, 1.5) * grid.extent().length(),
+            centre,
+            DVec3::Z,
+            40.0,
+            48,
+            36,
+        )
+        .unwrap();
+        let image = |light_depth| {
+            let ss = SingleScatter::new(
+                &medium,
+                0,
+                &pass,
+                SingleScatterOptions {
+                    light_depth,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            render(&medium, 0, &camera, &options(), &ss).unwrap().pixels
+        };
+        let (auto, exit) = (image(LightDepth::Auto), image(LightDepth::ExitFace));
+        assert!(auto.iter().all(|v| v.is_finite() && *v >= 0.0));
+        let (sum_auto, sum_exit): (f64, f64) = (
+            auto.iter().map(|&v| v as f64).sum(),
+            exit.iter().map(|&v| v as f64).sum(),
+        );
+        assert!(sum_exit > 0.0, "{dims:?}: the medium must be lit");
+        (sum_auto / sum_exit - 1.0).abs()
+    };
+    let down = Light::Directional {
+        direction: DVec3::new(0.0, 0.0, -1.0),
+        irradiance: 1.0,
+    };
+    // Along an axis both models are exact: T_L depends on z alone, linearly in depth.
+    assert!(lit([1, 1, 1], 2.0, &[down]) < 1e-6);
+    assert!(lit([6, 5, 4], 1.5, &[down]) < 1e-6);
+    let oblique = Light::Directional {
+        direction: DVec3::new(0.3, -0.4, -0.87).normalize(),
+        irradiance: 1.0,
+    };
+    let point = Light::Point {
+        position: DVec3::new(-2.0, 7.0, 6.0),
+        intensity: 30.0,
+    };
+    assert!(lit([6, 5, 4], 0.8, &[oblique, point]) < 0.03);
+}
