@@ -66,34 +66,15 @@ fn case(dims: [usize; 3]) -> Case {
     }
 }
 
-fn norm(v: &[f64]) -> f64 {
-    v.iter().map(|x| x * x).sum::<f64>().sqrt()
-}
-
 /// Gauss–Seidel (block over bins) from `g = E` until `‖Δg‖ / ‖E‖ < TOLERANCE`.
 fn solve(c: &Case) {
     let t0 = Instant::now();
     let mut e = vec![0.0; c.op.len()];
     c.op.transport(&c.external, &mut e);
-    let norm_e = norm(&e);
-    let mut g = e.clone();
-    let mut before = g.clone();
-    let mut iterations = 0;
-    let mut change = f64::INFINITY;
-    while change >= TOLERANCE && iterations < 1000 {
-        before.copy_from_slice(&g);
-        c.op.sweep_in_place(&mut g, &e, 1.0);
-        iterations += 1;
-        let d: f64 = g
-            .iter()
-            .zip(&before)
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum::<f64>()
-            .sqrt();
-        change = d / norm_e;
-    }
+    let run = c.op.sweep_until_change(&e, TOLERANCE, 1000);
+    let (iterations, change) = (run.iterations, run.final_change);
     let secs = t0.elapsed().as_secs_f64();
-    let balance = c.op.energy_balance(&g, &c.external);
+    let balance = c.op.energy_balance(&run.solution, &c.external);
     let n = c.grid.cell_count();
     let m = c.op.bins().len();
     // State: g, E, the previous iterate and the external density (f64 each), plus the

@@ -91,25 +91,10 @@ fn solve(grid: &Grid, channel: &ChannelMedium, op: &OrdinatesOperator) {
     let external = op.external_density_from_pass(&pass, channel).unwrap();
     let mut e = vec![0.0; op.len()];
     op.transport(&external, &mut e);
-    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
-    let norm_e = norm(&e);
-    let mut g = e.clone();
-    let mut before = g.clone();
-    let (mut iterations, mut change) = (0, f64::INFINITY);
-    while change >= 1e-5 && iterations < 1000 {
-        before.copy_from_slice(&g);
-        op.sweep_in_place(&mut g, &e, 1.0);
-        iterations += 1;
-        let d: f64 = g
-            .iter()
-            .zip(&before)
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum::<f64>()
-            .sqrt();
-        change = d / norm_e;
-    }
+    let run = op.sweep_until_change(&e, 1e-5, 1000);
+    let iterations = run.iterations;
     let secs = t0.elapsed().as_secs_f64();
-    let balance = op.energy_balance(&g, &external);
+    let balance = op.energy_balance(&run.solution, &external);
     let (n, m) = (grid.cell_count(), op.bins().len());
     let state = 4 * n * m * 8 + op.scratch_bytes();
     println!(

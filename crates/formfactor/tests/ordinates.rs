@@ -429,23 +429,13 @@ fn gauss_seidel_reaches_the_jacobi_solution_in_fewer_sweeps() {
     let mut e = vec![0.0; op.len()];
     op.transport(&external, &mut e);
     let (xj, jac_iters) = jacobi(&op, &e, 1e-10);
-    let mut g = e.clone();
-    let mut gs_iters = 0;
-    let norm: f64 = e.iter().map(|v| v * v).sum::<f64>().sqrt();
-    for it in 1..=5000 {
-        let before = g.clone();
-        assert!(op.sweep_in_place(&mut g, &e, 1.0));
-        let change: f64 = g
-            .iter()
-            .zip(&before)
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum::<f64>()
-            .sqrt();
-        if change < 1e-10 * norm {
-            gs_iters = it;
-            break;
-        }
-    }
+    let run = op.sweep_until_change(&e, 1e-10, 5000);
+    let (g, gs_iters) = (run.solution, run.iterations);
+    assert!(
+        run.final_change < 1e-10,
+        "no convergence: {}",
+        run.final_change
+    );
     assert!(
         gs_iters > 0 && gs_iters <= jac_iters,
         "GS {gs_iters}, Jacobi {jac_iters}"

@@ -18,7 +18,7 @@ pub mod sweep;
 pub use assembled::AssembledOrdinates;
 pub use bins::DirectionBins;
 pub use phase_matrix::PhaseMatrix;
-pub use sweep::{EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy};
+pub use sweep::{EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve};
 
 /// What was wrong with an ordinates set-up.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -497,6 +497,15 @@ pub struct OrdinatesOperator {
     scratch: Mutex<Scratch>,
 }
 
+/// What [`OrdinatesOperator::sweep_until_change`] reached.
+#[derive(Clone, Debug)]
+pub struct SweepSolve {
+    pub solution: Vec<f64>,
+    pub iterations: usize,
+    /// `‖Δg‖ / ‖E‖` of the last sweep.
+    pub final_change: f64,
+}
+
 impl OrdinatesOperator {
     /// The operator for channel `channel` of `medium`.
     pub fn new(
@@ -649,6 +658,39 @@ impl OrdinatesOperator {
     /// σs = a σt per cell.
     pub fn sigma_s(&self) -> &[f64] {
         &self.sigma_s
+    }
+
+    /// Block Gauss–Seidel sweeps from `g = E` until the relative change `‖Δg‖ / ‖E‖` falls
+    /// below `tolerance` (or `max_iterations` sweeps): the solve that the discrete-ordinates
+    /// benchmark and `examples/ordinates_timing.rs` time, with no report or cancellation
+    /// overhead (volrad's solves go through `solver`).
+    pub fn sweep_until_change(
+        &self,
+        e: &[f64],
+        tolerance: f64,
+        max_iterations: usize,
+    ) -> SweepSolve {
+        let norm_e = e.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let mut g = e.to_vec();
+        let mut before = g.clone();
+        let (mut iterations, mut change) = (0, f64::INFINITY);
+        while change >= tolerance && iterations < max_iterations {
+            before.copy_from_slice(&g);
+            self.sweep_in_place(&mut g, e, 1.0);
+            iterations += 1;
+            let d: f64 = g
+                .iter()
+                .zip(&before)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt();
+            change = d / norm_e;
+        }
+        SweepSolve {
+            solution: g,
+            iterations,
+            final_change: change,
+        }
     }
 
     /// Bytes of the operator's own buffers (f64 scratch: density, sweep output and layer
