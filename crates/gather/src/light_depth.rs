@@ -21,8 +21,8 @@
 use std::fmt;
 
 use glam::DVec3;
-use medium::light_pass::LightPass;
-use medium::{CellValues, ChannelMedium, Grid, Light};
+use medium::light_pass::{directional_corner_depths, LightPass};
+use medium::{Grid, Light};
 use rayon::prelude::*;
 
 use crate::scattering::ViewSegment;
@@ -107,15 +107,13 @@ impl DepthLattice {
                         }
                     }
                 });
-            let channel = ChannelMedium {
-                sigma_t,
-                albedo: CellValues::Uniform(0.0),
-                emission: CellValues::Uniform(0.0),
+            let Light::Directional { direction, .. } = pass.fields[l].light else {
+                return Err(GatherError::Render(format!(
+                    "light {l} is not directional: only directional lights take a lattice"
+                )));
             };
-            let light = pass.fields[l].light;
-            let mut fine_pass = LightPass::compute(&fine, &channel, &[light])
-                .map_err(|e| GatherError::Render(format!("refined light pass: {e}")))?;
-            std::mem::take(&mut fine_pass.fields[0].corner_optical_depth)
+            directional_corner_depths(&fine, &sigma_t, direction)
+                .map_err(|e| GatherError::Render(format!("refined corner depths: {e}")))?
         };
         let stride_y = grid.dims[0] * refine + 1;
         Ok(DepthLattice {
@@ -126,10 +124,6 @@ impl DepthLattice {
             stride_z: stride_y * (grid.dims[1] * refine + 1),
             depth,
         })
-    }
-
-    pub fn refinement(&self) -> usize {
-        self.refine
     }
 
     /// Bytes held.
@@ -395,7 +389,13 @@ impl LightDepthModel {
             };
             lattices.push(lattice);
         }
-        Ok(LightDepthModel { lattices })
+        let model = LightDepthModel { lattices };
+        tracing::debug!(
+            ?model,
+            bytes = model.bytes(),
+            "first-bounce light depth model built"
+        );
+        Ok(model)
     }
 
     fn auto(pass: &LightPass, l: usize) -> Result<Option<DepthLattice>, GatherError> {
@@ -435,7 +435,7 @@ impl LightDepthModel {
         self.lattices.get(l).and_then(Option::as_ref)
     }
 
-    /// Bytes held by the lattices.
+    /// Bytes held by the lattices (logged when built).
     pub fn bytes(&self) -> usize {
         self.lattices
             .iter()

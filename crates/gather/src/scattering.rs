@@ -98,26 +98,21 @@ impl Default for RayCarry {
 impl RayCarry {
     pub const SLOTS: usize = 12;
 
-    /// Claims the carry for `owner` (any address unique to the source): true if it already
-    /// held `owner`'s values from an earlier segment of this ray; false if it was empty or
-    /// another source's, in which case it is now `owner`'s and `t` is NaN. A source that does
-    /// not win the claim (because another claimed first) simply recomputes.
+    /// Claims the carry for `owner` (any address unique to the source): `Some(true)` if it
+    /// holds `owner`'s values from an earlier segment of this ray, `Some(false)` if it was
+    /// empty and is now `owner`'s (`t` NaN), `None` if another source claimed it first (the
+    /// caller then simply recomputes).
     #[inline]
-    pub fn claim(&mut self, owner: usize) -> bool {
+    pub fn claim(&mut self, owner: usize) -> Option<bool> {
         if self.owner == owner {
-            return true;
-        }
-        if self.owner == 0 {
+            Some(true)
+        } else if self.owner == 0 {
             self.owner = owner;
             self.t = f64::NAN;
+            Some(false)
+        } else {
+            None
         }
-        false
-    }
-
-    /// True when `owner` holds the carry (after [`RayCarry::claim`]).
-    #[inline]
-    pub fn held_by(&self, owner: usize) -> bool {
-        self.owner == owner
     }
 }
 

@@ -99,8 +99,6 @@ pub struct SingleScatter<'a> {
     options: SingleScatterOptions,
     /// How each light's depth varies inside a cell (built here, or shared by the caller).
     depth: Cow<'a, LightDepthModel>,
-    /// Shadowed, no gradient shading: lattice lights take the closed-form segment.
-    lattice_path: bool,
     /// Per-cell `∇f` of the data (gradient shading only).
     gradient: Vec<DVec3>,
     max_source: f64,
@@ -148,11 +146,13 @@ impl<'a> SingleScatter<'a> {
         pass: &'a LightPass,
         options: SingleScatterOptions,
     ) -> Result<Self, GatherError> {
-        let depth = if options.shadows {
-            LightDepthModel::build(pass, options.light_depth)?
+        // Unshadowed ("Utah") light has no depth to model.
+        let policy = if options.shadows {
+            options.light_depth
         } else {
-            LightDepthModel::build(pass, LightDepth::ExitFace)?
+            LightDepth::ExitFace
         };
+        let depth = LightDepthModel::build(pass, policy)?;
         Self::build(medium, channel, pass, options, Cow::Owned(depth))
     }
 
@@ -228,7 +228,6 @@ impl<'a> SingleScatter<'a> {
             albedo: &ch.albedo,
             phase: medium.phase,
             options,
-            lattice_path: options.shadows && options.gradient_strength.is_none(),
             depth,
             gradient,
             max_source,
@@ -422,13 +421,15 @@ impl InScattering for SingleScatter<'_> {
         }
         let owner = self as *const Self as usize;
         // `held`: values from an earlier segment of this ray are ours; `holds`: we may write.
-        let held = carry.claim(owner);
-        let holds = carry.held_by(owner);
+        let claim = carry.claim(owner);
+        let (held, holds) = (claim == Some(true), claim.is_some());
         let continues = held && carry.t == t0;
+        // Shadowed, no gradient shading: lattice lights take the closed-form segment.
+        let lattice_path = self.options.shadows && self.options.gradient_strength.is_none();
         let mut total = 0.0;
         for l in 0..self.pass.fields.len() {
             // Only directional lights have lattices.
-            if let Some(lattice) = self.depth.lattice(l).filter(|_| self.lattice_path) {
+            if let Some(lattice) = self.depth.lattice(l).filter(|_| lattice_path) {
                 let carried = holds && l < CARRIED_LIGHTS;
                 let factor = if carried && held {
                     carry.values[3 * l + 2]

@@ -744,6 +744,36 @@ fn point_deposit(
     })
 }
 
+/// The exact optical depth toward a directional light travelling along `direction` at every
+/// cell corner ([`Grid::corner_index`]), as [`LightPass::compute`] stores it, without the cell
+/// averages that cost most of a light pass: for a finer corner lattice over the same medium.
+pub fn directional_corner_depths(
+    grid: &Grid,
+    sigma_t: &[f32],
+    direction: DVec3,
+) -> Result<Vec<f32>, MediumError> {
+    if sigma_t.len() != grid.cell_count() {
+        return Err(MediumError::invalid(
+            "light pass",
+            format!(
+                "{} σt values for a grid of {} cells",
+                sigma_t.len(),
+                grid.cell_count()
+            ),
+        ));
+    }
+    let Light::Directional { direction, .. } = (Light::Directional {
+        direction,
+        irradiance: 1.0,
+    })
+    .validated()?
+    else {
+        unreachable!("validated keeps the kind")
+    };
+    let medium = FrameMedium::new(grid, sigma_t, direction);
+    Ok(directional_corner_optical_depth(grid, &medium))
+}
+
 /// Exact optical depth toward the light (`−ln T_L`) at every corner for a directional light,
 /// plane by plane in the sweep frame. The backward ray from any corner crosses its `q`-th
 /// layer at the same sub-cell position for every corner (all corners sit on the lattice), so
