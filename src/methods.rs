@@ -285,10 +285,13 @@ impl<'a> BinnedSource<'a> {
     #[inline]
     fn lookup(&self, cell: usize, w: DVec3) -> f64 {
         let base = cell * 6 * self.n * self.n;
-        face_bilinear(self.n, w)
+        let value: f64 = face_bilinear(self.n, w)
             .iter()
             .map(|&(l, weight)| weight * self.values[base + l] as f64)
-            .sum()
+            .sum();
+        // Past a face's outer bin centres the extrapolation weights go negative; scattered
+        // radiance cannot, however peaked the field.
+        value.max(0.0)
     }
 }
 
@@ -488,5 +491,29 @@ pub fn fluence(solution: &Solution, c: usize) -> Vec<f64> {
             })
             .collect(),
         _ => unscattered,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A field peaked in one bin, looked up towards the far corner of its face, where the
+    /// extrapolation weight of that bin is negative: the source is 0 there, not negative, and
+    /// still the bin's value at its centre.
+    #[test]
+    fn binned_source_never_goes_negative_past_the_outer_centres() {
+        let n = 2;
+        let mut values = vec![0.0f32; 6 * n * n];
+        // Face +x, bin (i = 0 along y, j = 1 along z).
+        values[1] = 1.0;
+        let source = BinnedSource::new(&values, n);
+        let corner = DVec3::new(1.0, 0.95, 0.95).normalize();
+        let weights = face_bilinear(n, corner);
+        let raw: f64 = weights.iter().map(|&(l, w)| w * values[l] as f64).sum();
+        assert!(raw < 0.0, "the case must extrapolate below zero ({raw})");
+        assert_eq!(source.at(DVec3::ZERO, 0, corner), 0.0);
+        let centre = DVec3::new(1.0, -0.5, 0.5).normalize();
+        assert!((source.at(DVec3::ZERO, 0, centre) - 1.0).abs() < 1e-12);
     }
 }
