@@ -455,7 +455,8 @@ fn validate_scene(
         let _enter = span.enter();
         let baseline = reset_peak_rss();
         let run = run_method(scene, spec, &camera, method, settings, bar)?;
-        let peak_rss_growth_bytes = baseline.and_then(|b| peak_rss().map(|p| p.saturating_sub(b)));
+        let peak_rss_growth_bytes =
+            baseline.and_then(|b| run.peak_rss_bytes.map(|p| p.saturating_sub(b)));
         let vs_path_tracer = compare(
             &run.image,
             &reference,
@@ -505,6 +506,8 @@ struct MethodRun {
     image: Image,
     solve_seconds: Option<f64>,
     render_seconds: f64,
+    /// Process peak RSS right after the render, before anything else allocates.
+    peak_rss_bytes: Option<u64>,
     solution_file_bytes: Option<u64>,
     iterations: Option<usize>,
     converged: Option<bool>,
@@ -536,6 +539,7 @@ fn run_method(
             image: Image::new(traced.mean.width, traced.mean.height, 1, traced.mean.pixels)?,
             solve_seconds: None,
             render_seconds: started.elapsed().as_secs_f64(),
+            peak_rss_bytes: peak_rss(),
             solution_file_bytes: None,
             iterations: None,
             converged: None,
@@ -581,10 +585,13 @@ fn run_method(
     let started = Instant::now();
     let image = render_view(&solution, spec, Some(settings.render_spp))?;
     let render_seconds = started.elapsed().as_secs_f64();
+    // Read before the solution is encoded to learn its size: that copy is not the method's.
+    let peak_rss_bytes = peak_rss();
     Ok(MethodRun {
         image,
         solve_seconds: Some(solve_seconds),
         render_seconds,
+        peak_rss_bytes,
         solution_file_bytes: Some(solution.to_bytes().len() as u64),
         iterations: report.map(|r| r.iterations),
         converged: report.map(|r| r.converged),
