@@ -158,14 +158,13 @@ fn dsa_cg_reaches_the_jacobi_solution_in_fewer_iterations_than_cg() {
 }
 
 #[test]
-fn dsa_cg_at_albedo_one_converges_or_says_it_did_not() {
+fn dsa_cg_converges_at_albedo_one() {
     let op = small_cloud_operator([12, 12, 10], 2.0, 1.0);
     let e: Vec<f64> = (0..op.len()).map(|i| (i % 5) as f64).collect();
     let (g, r) = solve_with(&op, &e, "dsa-cg", 1e-8);
     assert!(g.iter().all(|v| v.is_finite()));
-    assert_eq!(r.converged, r.final_residual <= 1e-8, "{r:?}");
     // The cloud leaks at its edges, so a = 1 still has a solution: it must be found.
-    assert!(r.converged, "{r:?}");
+    assert!(r.converged && r.final_residual <= 1e-8, "{r:?}");
 }
 
 #[test]

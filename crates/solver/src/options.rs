@@ -189,7 +189,10 @@ impl FromStr for Method {
                         .ok()
                         .filter(|&m| m <= MAX_TWO_LEVEL_SMOOTHING)
                         .ok_or_else(|| {
-                            err("the two-level smoothing must be an integer from 0 to 8")
+                            err(&format!(
+                                "the two-level smoothing must be an integer from 0 to \
+                                 {MAX_TWO_LEVEL_SMOOTHING}"
+                            ))
                         })?,
                 };
                 Ok(Method::TwoLevelCg { smoothing })

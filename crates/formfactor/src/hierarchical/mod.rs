@@ -109,8 +109,6 @@ pub struct HierarchicalOperator {
     /// Coarse aggregates for the solver's two-level methods: the clusters of level
     /// [`COARSE_LEVEL`] (blocks of `2^COARSE_LEVEL` cells per edge).
     aggregates: Vec<u32>,
-    /// σt per cell, for the diffusion approximation.
-    sigma_t: Vec<f32>,
 }
 
 /// Pyramid level whose clusters are the solver's coarse aggregates: 8×8×8-cell blocks, so the
@@ -372,7 +370,6 @@ impl HierarchicalOperator {
             near_val,
             weights: None,
             aggregates: block_aggregates(grid, COARSE_LEVEL),
-            sigma_t: sigma_t.to_vec(),
         };
 
         // Per-column energy accounting: c_j = near_j + β_j Σ_levels Σ_links K α_sum(other end).
@@ -653,18 +650,20 @@ impl TransportOperator for HierarchicalOperator {
     /// cells of the medium, Marshak vacuum faces `D / (h (h/2 + 2D))` towards empty cells and
     /// the grid's edges.
     fn diffusion(&self) -> Option<solver::Diffusion> {
+        // σt per cell is the finest pyramid level's mean.
+        let sigma_cells = &self.levels[0].sigma_mean;
         let grid = &self.grid;
         let h = grid.cell_size;
         let d = grid.dims;
         let n = self.len();
-        let coef = |i: usize| 1.0 / (3.0 * self.sigma_t[i] as f64);
+        let coef = |i: usize| 1.0 / (3.0 * sigma_cells[i] as f64);
         let stride = [1, d[0], d[0] * d[1]];
         let mut row_ptr = Vec::with_capacity(n + 1);
         let mut col = Vec::new();
         let mut val = Vec::new();
         row_ptr.push(0);
         for i in 0..n {
-            if self.sigma_t[i] > 0.0 {
+            if sigma_cells[i] > 0.0 {
                 let x = [i % d[0], (i / d[0]) % d[1], i / (d[0] * d[1])];
                 let di = coef(i);
                 let mut diag = 0.0;
@@ -675,7 +674,7 @@ impl TransportOperator for HierarchicalOperator {
                         } else {
                             (x[ax] > 0).then(|| i - stride[ax])
                         };
-                        match neighbour.filter(|&j| self.sigma_t[j] > 0.0) {
+                        match neighbour.filter(|&j| sigma_cells[j] > 0.0) {
                             Some(j) => {
                                 let dj = coef(j);
                                 let c = 2.0 * di * dj / ((di + dj) * h * h);
@@ -692,7 +691,7 @@ impl TransportOperator for HierarchicalOperator {
             }
             row_ptr.push(col.len());
         }
-        let sigma_t: Vec<f64> = self.sigma_t.iter().map(|&s| s as f64).collect();
+        let sigma_t: Vec<f64> = sigma_cells.iter().map(|&s| s as f64).collect();
         let sigma_s = sigma_t
             .iter()
             .zip(&self.albedo)

@@ -22,6 +22,7 @@
 use std::sync::Mutex;
 
 use glam::DVec3;
+use medium::scene::MAX_TRANSPORT_REFINEMENT;
 use medium::{light_pass::LightPass, ChannelMedium, Grid, Light, Medium, PhaseFunction};
 use rayon::prelude::*;
 use solver::operator::TransportOperator;
@@ -544,9 +545,9 @@ impl OrdinatesOperator {
             .validate()
             .map_err(|e| OrdinatesError::Medium(e.to_string()))?;
         let r = options.transport_refinement;
-        if !(1..=4).contains(&r) {
+        if !(1..=MAX_TRANSPORT_REFINEMENT).contains(&r) {
             return Err(OrdinatesError::Option(format!(
-                "transport_refinement = {r}: must be in 1..=4"
+                "transport_refinement = {r}: must be in 1..={MAX_TRANSPORT_REFINEMENT}"
             )));
         }
         if r > 1 && options.periodic_xy {

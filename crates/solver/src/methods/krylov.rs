@@ -246,11 +246,11 @@ pub(crate) enum Preconditioner<'a> {
     Identity,
     /// `z = r + P A_c⁻¹ Pᵀ W r` (additive coarse correction).
     Coarse(CoarseSpace<'a>),
+    /// Diffusion-synthetic acceleration (see [`Dsa`]).
+    Dsa(Box<Dsa>),
     /// `z = (I − Π) S_m (I − Π) r + P A_c⁻¹ Pᵀ W r` with `S_m = Σ_{j≤m} K^j` (`m` extra
     /// applications of `K`): the balancing two-level preconditioner (see
     /// [`Method::TwoLevelCg`](crate::Method::TwoLevelCg)).
-    /// Diffusion-synthetic acceleration (see [`Dsa`]).
-    Dsa(Box<Dsa>),
     TwoLevel {
         coarse: CoarseSpace<'a>,
         smoothing: usize,
