@@ -123,7 +123,6 @@ pub fn solve_zonal(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
-    check_iteration(settings)?;
     let grid = &scene.medium.grid;
     let channel = &scene.medium.channels[c];
     let source = light_pass.zonal_source(channel);
@@ -177,6 +176,14 @@ fn face_divisions(bins: usize) -> Result<usize> {
         .with_context(|| format!("{bins} bins: expected 6n² for n = 1..=8"))
 }
 
+/// The sweep options a scene's `[solve]` settings ask for.
+pub fn ordinates_options(settings: &SolveSettings) -> OrdinatesOptions {
+    OrdinatesOptions {
+        transport_refinement: settings.transport_refinement,
+        ..OrdinatesOptions::default()
+    }
+}
+
 /// Discrete-ordinates multiple scattering for channel `c`.
 pub fn solve_ordinates(
     scene: &Scene,
@@ -185,7 +192,6 @@ pub fn solve_ordinates(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
-    check_iteration(settings)?;
     let bins = DirectionBins::cube(face_divisions(settings.bins)?)?;
     let channel = &scene.medium.channels[c];
     let op = OrdinatesOperator::from_channel(
@@ -193,10 +199,7 @@ pub fn solve_ordinates(
         channel,
         scene.medium.phase,
         bins,
-        OrdinatesOptions {
-            transport_refinement: settings.transport_refinement,
-            ..OrdinatesOptions::default()
-        },
+        ordinates_options(settings),
     )?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source.
     let external = op.external_density_from_pass(light_pass, channel)?;
@@ -497,6 +500,14 @@ pub fn fluence(solution: &Solution, c: usize) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn transport_refinement_of_the_scene_reaches_the_sweep_options() {
+        let mut settings = SolveSettings::default_for(&medium::PhaseFunction::Isotropic);
+        assert_eq!(ordinates_options(&settings).transport_refinement, 1);
+        settings.transport_refinement = 3;
+        assert_eq!(ordinates_options(&settings).transport_refinement, 3);
+    }
 
     /// A field peaked in one bin, looked up towards the far corner of its face, where the
     /// extrapolation weight of that bin is negative: the source is 0 there, not negative, and

@@ -48,6 +48,8 @@ pub fn solve_scene(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<Solution> {
+    // Before any light pass or operator: an iteration the method cannot run is refused now.
+    crate::methods::check_iteration(settings)?;
     let medium = &scene.medium;
     let mut channels = Vec::with_capacity(medium.channels.len());
     for (c, channel) in medium.channels.iter().enumerate() {

@@ -45,7 +45,8 @@ fn transport_refinement_from_the_scene_builds_a_refined_sweep() {
     assert_eq!(scene_with("").unwrap().solve.transport_refinement, 1);
     let scene = scene_with("transport_refinement = 2").unwrap();
     assert_eq!(scene.solve.transport_refinement, 2);
-    // What volrad's solve does with it (src/methods.rs): the operator sweeps 2³ sub-cells.
+    // (volrad passes it on in `methods::ordinates_options`, tested there.) The operator
+    // built with it sweeps 2³ sub-cells.
     let options = OrdinatesOptions {
         transport_refinement: scene.solve.transport_refinement,
         ..OrdinatesOptions::default()
