@@ -49,7 +49,14 @@ pub fn solver_method(it: IterationMethod) -> Method {
 /// Refuses, before any operator is built, an iteration the solve method's operator cannot
 /// run: the conjugate-gradient family needs reciprocity (zonal operators only), and
 /// `dsa-cg` a diffusion approximation, which only the hierarchical operator provides.
+/// Methods that do not iterate (none, single scatter, two-pass) ignore the setting.
 pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
+    if matches!(
+        settings.method,
+        SolveMethod::None | SolveMethod::SingleScatter | SolveMethod::TwoPass
+    ) {
+        return Ok(());
+    }
     let it = settings.iteration;
     let needs_symmetry = matches!(
         it,
@@ -500,6 +507,26 @@ pub fn fluence(solution: &Solution, c: usize) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn iteration_checks_apply_only_to_methods_that_iterate() {
+        let mut settings = SolveSettings::default_for(&medium::PhaseFunction::Isotropic);
+        settings.iteration = IterationMethod::ConjugateGradient;
+        for method in [
+            SolveMethod::SingleScatter,
+            SolveMethod::TwoPass,
+            SolveMethod::None,
+        ] {
+            settings.method = method;
+            assert!(check_iteration(&settings).is_ok(), "{method:?}");
+        }
+        settings.method = SolveMethod::DiscreteOrdinates;
+        let err = check_iteration(&settings).unwrap_err().to_string();
+        assert!(
+            err.contains("cg") && err.contains("discrete-ordinates"),
+            "{err}"
+        );
+    }
 
     #[test]
     fn transport_refinement_of_the_scene_reaches_the_sweep_options() {
