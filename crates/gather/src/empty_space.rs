@@ -94,12 +94,13 @@ impl EmptySpace {
         self.distance[cell] as i64 - 1 - reach as i64
     }
 
-    /// Where `ray`, now inside `cell`, leaves the cube of cells within `radius` of it.
+    /// Where `ray`, now inside the cell at `coords`, leaves the cube of cells within `radius`
+    /// of it.
     #[inline]
-    pub(crate) fn exit(&self, ray: &Ray, cell: usize, radius: i64) -> f64 {
+    pub(crate) fn exit(&self, ray: &Ray, coords: [usize; 3], radius: i64) -> f64 {
         let h = self.grid.cell_size;
         let mut t = f64::INFINITY;
-        for (a, index) in self.grid.coords(cell).into_iter().enumerate() {
+        for (a, index) in coords.into_iter().enumerate() {
             let d = ray.direction[a];
             let bound = if d > 0.0 {
                 (index as i64 + radius + 1) as f64 * h
@@ -150,7 +151,7 @@ mod tests {
         let ray = Ray::new(grid.cell_center(cell), DVec3::new(1.0, 0.3, -0.2));
         // Radius 2 around cell 4: cells 2..=6, i.e. x up to 7 · 0.5 = 3.5; the x face is hit
         // first (from x = 2.25, distance 1.25 along x).
-        let t = space.exit(&ray, cell, 2);
+        let t = space.exit(&ray, grid.coords(cell), 2);
         assert!((ray.at(t).x - 3.5).abs() < 1e-12);
     }
 }

@@ -223,80 +223,136 @@ impl DepthLattice {
     /// the piece integrates in closed form from its end values `F = e^{−σt (t−t0)} T_L`.
     #[inline]
     pub fn segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+        if self.refine == 1 {
+            self.whole_cell_segment(seg, start)
+        } else {
+            self.sub_cell_segment(seg, start)
+        }
+    }
+
+    /// Refinement 1: the cell is one piece.
+    #[inline]
+    fn whole_cell_segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+        let depths = self.corners(seg.coords);
+        let (d_a, f_a) = match start {
+            Some(light) => (light.depth, light.transmittance),
+            None => {
+                let d = depths.at(seg.ray.at(seg.t0));
+                (d, (-d).exp())
+            }
+        };
+        let d_b = depths.at(seg.ray.at(seg.t1));
+        let end = LightAt {
+            depth: d_b,
+            transmittance: (-d_b).exp(),
+        };
+        let len = seg.t1 - seg.t0;
+        let f_b = seg.attenuation * end.transmittance;
+        let integral = if len > 0.0 {
+            piece_integral(f_a, f_b, seg.sigma_t * len + d_b - d_a, len)
+        } else {
+            0.0
+        };
+        (integral, end)
+    }
+
+    /// Refinement > 1: the sub-cells the segment crosses are walked in order (a small DDA
+    /// inside the cell), one closed-form piece each.
+    fn sub_cell_segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
         let (ray, coords) = (seg.ray, seg.coords);
         let r = self.refine;
-        let h = self.sub_size * r as f64;
-        let lo = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * h;
-        // Sub-cell face crossings inside (t0, t1), sorted.
-        let mut breaks = [0.0f64; 3 * (MAX_REFINEMENT - 1) + 1];
-        let mut count = 0;
-        if r > 1 {
-            for a in 0..3 {
-                let d = ray.direction[a];
-                if d == 0.0 {
-                    continue;
+        let s = self.sub_size;
+        let lo = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * (s * r as f64);
+        // The sub-cell holding the start, and where the ray next crosses a sub-cell face on
+        // each axis. A start on a face may land in the neighbour across it: the first piece is
+        // then of zero length and the walk steps into the right sub-cell.
+        let f0 = (ray.at(seg.t0) - lo) * self.inv_sub_size;
+        let mut sub = [0usize; 3];
+        let mut t_next = [f64::INFINITY; 3];
+        let mut t_delta = [0.0f64; 3];
+        let mut step_up = [false; 3];
+        for a in 0..3 {
+            let q = (f0[a].max(0.0) as usize).min(r - 1);
+            sub[a] = coords[a] * r + q;
+            let d = ray.direction[a];
+            if d > 0.0 {
+                step_up[a] = true;
+                t_delta[a] = s / d;
+                if q + 1 < r {
+                    t_next[a] = (lo[a] + (q + 1) as f64 * s - ray.origin[a]) / d;
                 }
-                let inv = 1.0 / d;
-                for m in 1..r {
-                    let t = (lo[a] + m as f64 * self.sub_size - ray.origin[a]) * inv;
-                    if t > seg.t0 && t < seg.t1 {
-                        // Insertion keeps the few breaks sorted.
-                        let mut p = count;
-                        while p > 0 && breaks[p - 1] > t {
-                            breaks[p] = breaks[p - 1];
-                            p -= 1;
-                        }
-                        breaks[p] = t;
-                        count += 1;
-                    }
+            } else if d < 0.0 {
+                t_delta[a] = -s / d;
+                if q > 0 {
+                    t_next[a] = (lo[a] + q as f64 * s - ray.origin[a]) / d;
                 }
             }
         }
-        breaks[count] = seg.t1;
+        let first = coords.map(|c| c * r);
         let sigma = seg.sigma_t;
-        let inv_sub = self.inv_sub_size;
         let mut a = seg.t0;
+        let mut depths = self.corners(sub);
         let (mut d_a, mut f_a) = match start {
             Some(light) => (light.depth, light.transmittance),
-            None => (f64::NAN, f64::NAN),
+            None => {
+                let d = depths.at(ray.at(a));
+                (d, (-d).exp())
+            }
         };
         let mut total = 0.0;
-        let mut end = LightAt {
-            depth: 0.0,
-            transmittance: 1.0,
-        };
-        for (p, &b) in breaks[..=count].iter().enumerate() {
-            let len = b - a;
-            let sub = if r == 1 {
-                coords
+        loop {
+            let axis = if t_next[0] < t_next[1] {
+                if t_next[0] < t_next[2] {
+                    0
+                } else {
+                    2
+                }
+            } else if t_next[1] < t_next[2] {
+                1
             } else {
-                let mid = (ray.at(0.5 * (a + b)) - lo) * inv_sub;
-                let at = |q: usize| coords[q] * r + (mid[q].max(0.0) as usize).min(r - 1);
-                [at(0), at(1), at(2)]
+                2
             };
-            let depths = self.corners(sub);
-            if p == 0 && start.is_none() {
-                d_a = depths.at(ray.at(a));
-                f_a = (-d_a).exp();
-            }
-            let d_b = depths.at(ray.at(b));
-            let f_b = if p == count {
-                end = LightAt {
+            if t_next[axis] >= seg.t1 {
+                // The last piece ends the segment.
+                let d_b = depths.at(ray.at(seg.t1));
+                let end = LightAt {
                     depth: d_b,
                     transmittance: (-d_b).exp(),
                 };
-                seg.attenuation * end.transmittance
-            } else {
-                (-(sigma * (b - seg.t0) + d_b)).exp()
-            };
+                let len = seg.t1 - a;
+                if len > 0.0 {
+                    let f_b = seg.attenuation * end.transmittance;
+                    total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
+                }
+                return (total, end);
+            }
+            let b = t_next[axis].max(a);
+            let d_b = depths.at(ray.at(b));
+            let f_b = (-(sigma * (b - seg.t0) + d_b)).exp();
+            let len = b - a;
             if len > 0.0 {
                 total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
             }
-            f_a = f_b;
-            d_a = d_b;
-            a = b;
+            (a, d_a, f_a) = (b, d_b, f_b);
+            // Into the neighbouring sub-cell (always inside this cell: a face on the cell's
+            // boundary has no crossing scheduled).
+            if step_up[axis] {
+                sub[axis] += 1;
+                if sub[axis] + 1 - first[axis] >= r {
+                    t_next[axis] = f64::INFINITY;
+                } else {
+                    t_next[axis] += t_delta[axis];
+                }
+            } else {
+                sub[axis] -= 1;
+                if sub[axis] == first[axis] {
+                    t_next[axis] = f64::INFINITY;
+                } else {
+                    t_next[axis] += t_delta[axis];
+                }
+            }
+            depths = self.corners(sub);
         }
-        (total, end)
     }
 }
 
@@ -427,6 +483,12 @@ impl LightDepthModel {
         // on (tests/single_scatter.rs), so the finest affordable lattice is the fallback; the
         // exit face only when the grid is too big to refine at all.
         Ok(None)
+    }
+
+    /// Every light's lattice (`None`: the exit-face model), in light order.
+    #[inline]
+    pub fn lattices(&self) -> impl Iterator<Item = Option<&DepthLattice>> {
+        self.lattices.iter().map(Option::as_ref)
     }
 
     /// Light `l`'s lattice, or `None` for the exit-face model.

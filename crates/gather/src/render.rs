@@ -27,8 +27,13 @@ use crate::image_io::Image;
 use crate::scattering::{weight_and_attenuation, InScattering, RayCarry, ViewSegment};
 use crate::{Camera, GatherError};
 
-/// Side of the square image tiles rendered as one parallel task.
+/// Width of the blocks a task's band of rows is walked in, so that neighbouring rays (which
+/// cross the same cells) run together.
 pub const TILE: usize = 16;
+
+/// Rows per parallel task: small enough that the tasks of a frame whose cost is concentrated
+/// in a few rows (a cloud in mid-frame) still spread evenly over the threads.
+const BAND_ROWS: usize = 4;
 
 /// What to render and how.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -251,7 +256,7 @@ impl<'a> RayIntegrator<'a> {
                 // restart the traversal there (worth it only for cubes of several cells).
                 let radius = self.empty.empty_radius(seg.cell, 0);
                 if radius >= JUMP_RADIUS {
-                    let t_next = self.empty.exit(ray, seg.cell, radius);
+                    let t_next = self.empty.exit(ray, seg.coords, radius);
                     if t_next >= t_out {
                         break 'restart;
                     }
@@ -308,7 +313,7 @@ impl<'a> RayIntegrator<'a> {
             // the whole known-empty cube, keeping to the lattice of step midpoints.
             let radius = self.empty.empty_radius(corners.cell, 1);
             if radius >= 0 {
-                let t_next = self.empty.exit(ray, corners.cell, radius);
+                let t_next = self.empty.exit(ray, corners.coords, radius);
                 let k_next = ((t_next - t_in) / dt - 0.5).ceil();
                 k = if k_next > k as f64 {
                     k_next as usize
@@ -357,8 +362,9 @@ fn emission_ratio_max(sigma_t: &[f32], emission: &CellValues) -> f64 {
 /// The 8 cell-centred neighbours of a point and their trilinear weights (values clamped to
 /// the edge cells outside the outermost centres).
 struct Trilinear {
-    /// The cell containing the point.
+    /// The cell containing the point, and its coordinates.
     cell: usize,
+    coords: [usize; 3],
     index: [[usize; 2]; 3],
     frac: [f64; 3],
     strides: [usize; 3],
@@ -383,6 +389,7 @@ impl Trilinear {
         let strides = [1, grid.dims[0], grid.dims[0] * grid.dims[1]];
         Trilinear {
             cell: own[0] + strides[1] * own[1] + strides[2] * own[2],
+            coords: own,
             index,
             frac,
             strides,
@@ -519,7 +526,8 @@ fn clip_box(lo: DVec3, hi: DVec3, ray: &Ray) -> Option<(f64, f64)> {
 
 /// Renders one colour channel of `medium` as seen by `camera`. Each pixel is the mean of
 /// `options.spp` stratified samples over its area (the stratum centres: deterministic).
-/// Parallel over 16×16 tiles.
+/// Parallel over bands of four rows (fine enough to balance a frame whose cost sits in a few
+/// rows), each walked in 16-pixel-wide blocks.
 pub fn render(
     medium: &Medium,
     channel: usize,
@@ -532,13 +540,14 @@ pub fn render(
     let (sx, sy) = options.strata();
     let inv_spp = 1.0 / (sx * sy) as f64;
     let mut pixels = vec![0.0f32; width * height];
-    // A band of TILE rows per task, walked tile by tile so that neighbouring rays (which
-    // cross the same cells) run together.
+    // A band of BAND_ROWS rows per task (each its own task: `with_max_len(1)`), walked in
+    // TILE-wide blocks.
     pixels
-        .par_chunks_mut(width * TILE)
+        .par_chunks_mut(width * BAND_ROWS)
+        .with_max_len(1)
         .enumerate()
         .for_each(|(band, rows)| {
-            let y0 = band * TILE;
+            let y0 = band * BAND_ROWS;
             let band_height = rows.len() / width;
             for x0 in (0..width).step_by(TILE) {
                 let x1 = (x0 + TILE).min(width);

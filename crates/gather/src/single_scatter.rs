@@ -102,6 +102,8 @@ pub struct SingleScatter<'a> {
     /// Per-cell `∇f` of the data (gradient shading only).
     gradient: Vec<DVec3>,
     max_source: f64,
+    /// Every light takes the lattice path ([`SingleScatter::lattice_segment`]).
+    lattices_only: bool,
 }
 
 /// Largest value of the phase function over `cos θ ∈ [−1, 1]` (ends plus a fine scan).
@@ -222,7 +224,12 @@ impl<'a> SingleScatter<'a> {
         } else {
             max_irradiance * per_irradiance
         };
+        let lattices_only = options.shadows
+            && options.gradient_strength.is_none()
+            && pass.fields.len() <= CARRIED_LIGHTS
+            && (0..pass.fields.len()).all(|l| depth.lattice(l).is_some());
         Ok(SingleScatter {
+            lattices_only,
             pass,
             sigma_t: &ch.sigma_t,
             albedo: &ch.albedo,
@@ -409,8 +416,56 @@ impl SingleScatter<'_> {
 /// `p(ω_l·ω) E_l`.
 const CARRIED_LIGHTS: usize = RayCarry::SLOTS / 3;
 
-impl InScattering for SingleScatter<'_> {
-    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+impl SingleScatter<'_> {
+    /// The segment when every light has a depth lattice (shadows on, no gradient shading, at
+    /// most [`CARRIED_LIGHTS`]): the common case, kept small so that it stays fast.
+    #[inline]
+    fn lattice_segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        if seg.t1 <= seg.t0 {
+            return 0.0;
+        }
+        let sigma_s = self.sigma_t[seg.cell] as f64 * self.albedo.get(seg.cell) as f64;
+        if sigma_s == 0.0 {
+            return 0.0;
+        }
+        let claim = carry.claim(self as *const Self as usize);
+        let (held, holds) = (claim == Some(true), claim.is_some());
+        let continues = held && carry.t == seg.t0;
+        let mut total = 0.0;
+        for (l, lattice) in self.depth.lattices().enumerate() {
+            let Some(lattice) = lattice else {
+                continue;
+            };
+            let factor = if held {
+                carry.values[3 * l + 2]
+            } else {
+                let f = self.directional_factor(l, seg.ray);
+                if holds {
+                    carry.values[3 * l + 2] = f;
+                }
+                f
+            };
+            let start = continues.then(|| LightAt {
+                depth: carry.values[3 * l],
+                transmittance: carry.values[3 * l + 1],
+            });
+            let (integral, end) = lattice.segment(seg, start);
+            if holds {
+                carry.values[3 * l] = end.depth;
+                carry.values[3 * l + 1] = end.transmittance;
+            }
+            total += factor * integral;
+        }
+        if holds {
+            carry.t = seg.t1;
+        }
+        sigma_s * total
+    }
+
+    /// Every other case: lights without lattices (point, spot, exit face), "Utah", gradient
+    /// shading. Kept out of line so its bulk does not slow the lattice path.
+    #[inline(never)]
+    fn general_segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
         let (cell, ray, t0, t1, sigma_t) = (seg.cell, seg.ray, seg.t0, seg.t1, seg.sigma_t);
         if t1 <= t0 {
             return 0.0;
@@ -498,6 +553,17 @@ impl InScattering for SingleScatter<'_> {
             carry.t = t1;
         }
         total
+    }
+}
+
+impl InScattering for SingleScatter<'_> {
+    #[inline]
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        if self.lattices_only {
+            self.lattice_segment(seg, carry)
+        } else {
+            self.general_segment(seg, carry)
+        }
     }
 
     fn at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3) -> f64 {

@@ -93,6 +93,9 @@ pub struct GridTraversal {
     dims: [i64; 3],
     cell: [i64; 3],
     step: [i64; 3],
+    /// The linear index of `cell` and its change per step on each axis.
+    index: i64,
+    index_step: [i64; 3],
     t_next: [f64; 3],
     t_delta: [f64; 3],
     t: f64,
@@ -109,6 +112,8 @@ impl GridTraversal {
                 dims,
                 cell: [0; 3],
                 step: [0; 3],
+                index: 0,
+                index_step: [0; 3],
                 t_next: [0.0; 3],
                 t_delta: [0.0; 3],
                 t: 0.0,
@@ -137,10 +142,13 @@ impl GridTraversal {
                 t_delta[a] = -h / d;
             }
         }
+        let stride = [1, dims[0], dims[0] * dims[1]];
         GridTraversal {
             dims,
             cell,
             step,
+            index: cell[0] + stride[1] * cell[1] + stride[2] * cell[2],
+            index_step: [0, 1, 2].map(|a| step[a] * stride[a]),
             t_next,
             t_delta,
             t: t0,
@@ -158,22 +166,14 @@ impl Iterator for GridTraversal {
         if self.done {
             return None;
         }
-        // The axis whose boundary comes first.
-        let a = if self.t_next[0] < self.t_next[1] {
-            if self.t_next[0] < self.t_next[2] {
-                0
-            } else {
-                2
-            }
-        } else if self.t_next[1] < self.t_next[2] {
-            1
-        } else {
-            2
-        };
+        // The axis whose boundary comes first (ties as before: y over x, z over both),
+        // chosen by selects rather than branches, which the CPU cannot predict here.
+        let t = &self.t_next;
+        let a01 = std::hint::select_unpredictable(t[1] <= t[0], 1usize, 0);
+        let a = std::hint::select_unpredictable(t[2] <= t[a01], 2usize, a01);
         let t_exit = self.t_next[a].min(self.t_end);
-        let [nx, ny, _] = self.dims;
         let seg = Segment {
-            cell: (self.cell[0] + nx * (self.cell[1] + ny * self.cell[2])) as usize,
+            cell: self.index as usize,
             coords: self.cell.map(|c| c as usize),
             t_enter: self.t,
             t_exit: t_exit.max(self.t),
@@ -183,8 +183,10 @@ impl Iterator for GridTraversal {
             self.done = true;
         } else {
             self.cell[a] += self.step[a];
+            self.index += self.index_step[a];
             self.t_next[a] += self.t_delta[a];
-            if self.cell[a] < 0 || self.cell[a] >= self.dims[a] {
+            // Rounding can leave the box before `t_end`; the unsigned compare catches −1 too.
+            if self.cell[a] as u64 >= self.dims[a] as u64 {
                 self.done = true;
             }
         }
