@@ -34,45 +34,13 @@ impl EmptySpace {
                 }
             }
         }
-        // Linear offsets of the 13 neighbours before a cell in x-fastest order.
-        let mut before = [0usize; 13];
-        let mut n = 0;
-        for dk in -1i64..=0 {
-            for dj in -1i64..=1 {
-                for di in -1i64..=1 {
-                    if (dk, dj, di) < (0, 0, 0) {
-                        before[n] = (-(di + px as i64 * (dj + py as i64 * dk))) as usize;
-                        n += 1;
-                    }
-                }
-            }
-        }
-        let relax = |d: &mut Vec<u8>, c: usize, neighbour: &dyn Fn(usize) -> usize| {
-            let mut best = d[c];
-            if best == 0 {
-                return;
-            }
-            for &o in &before {
-                best = best.min(d[neighbour(o)].saturating_add(1));
-            }
-            d[c] = best;
-        };
-        for k in 1..=nz {
-            for j in 1..=ny {
-                let row = px * (j + py * k);
-                for c in row + 1..=row + nx {
-                    relax(&mut padded, c, &|o| c - o);
-                }
-            }
-        }
-        for k in (1..=nz).rev() {
-            for j in (1..=ny).rev() {
-                let row = px * (j + py * k);
-                for c in (row + 1..=row + nx).rev() {
-                    relax(&mut padded, c, &|o| c + o);
-                }
-            }
-        }
+        // Forward pass, then the same on the reversed array (the mask is symmetric). Each row's
+        // 12 neighbours in earlier rows are taken as whole shifted rows (which vectorises); only
+        // the in-row neighbour is a serial scan.
+        chamfer_pass(&mut padded, px, py, pz);
+        padded.reverse();
+        chamfer_pass(&mut padded, px, py, pz);
+        padded.reverse();
         let mut distance = vec![0u8; grid.cell_count()];
         for k in 0..nz {
             for j in 0..ny {
@@ -115,6 +83,44 @@ impl EmptySpace {
     }
 }
 
+/// One chamfer sweep over a padded `px × py × pz` array of distances (x fastest): each inner
+/// cell becomes the minimum of itself and 1 + its 13 neighbours that come before it. The
+/// padding (one cell on every side, never written) keeps every neighbour in bounds.
+fn chamfer_pass(d: &mut [u8], px: usize, py: usize, pz: usize) {
+    let plane = px * py;
+    let mut before = vec![MAX_DISTANCE; px];
+    for k in 1..pz - 1 {
+        for j in 1..py - 1 {
+            let row = px * j + plane * k;
+            // The minimum over the earlier rows' neighbours, for every cell of the row at once:
+            // rows (j−1, j, j+1) of plane k−1 and row j−1 of plane k, each at i−1, i, i+1.
+            before.fill(MAX_DISTANCE);
+            for src in [row - plane - px, row - plane, row - plane + px, row - px] {
+                // Cell i (1 ≤ i ≤ px − 2) sees columns i − 1, i, i + 1 of the source row.
+                let (left, mid, right) = (
+                    &d[src..src + px - 2],
+                    &d[src + 1..src + px - 1],
+                    &d[src + 2..src + px],
+                );
+                for (((b, &l), &m), &r) in
+                    before[1..px - 1].iter_mut().zip(left).zip(mid).zip(right)
+                {
+                    *b = (*b).min(l).min(m).min(r);
+                }
+            }
+            let mut previous = d[row];
+            for i in 1..px - 1 {
+                let c = row + i;
+                let v = d[c]
+                    .min(before[i].saturating_add(1))
+                    .min(previous.saturating_add(1));
+                d[c] = v;
+                previous = v;
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -139,6 +145,34 @@ mod tests {
                 .min()
                 .unwrap();
             assert_eq!(space.distance[c] as i64, want, "cell {:?}", grid.coords(c));
+        }
+    }
+
+    #[test]
+    fn distances_match_brute_force_on_random_occupancy() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        for _ in 0..40 {
+            let dims = [0, 1, 2].map(|_| rng.gen_range(1..9));
+            let grid = Grid::new(dims, 1.0).unwrap();
+            let density = rng.gen_range(0.0..0.2);
+            let occupied: Vec<bool> = (0..grid.cell_count())
+                .map(|_| rng.gen_bool(density))
+                .collect();
+            let marked: Vec<[i64; 3]> = (0..grid.cell_count())
+                .filter(|&c| occupied[c])
+                .map(|c| grid.coords(c).map(|v| v as i64))
+                .collect();
+            let space = EmptySpace::new(&grid, &occupied);
+            for c in 0..grid.cell_count() {
+                let p = grid.coords(c).map(|v| v as i64);
+                let want = marked
+                    .iter()
+                    .map(|m| (0..3).map(|a| (p[a] - m[a]).abs()).max().unwrap())
+                    .min()
+                    .map_or(MAX_DISTANCE, |d| d.min(MAX_DISTANCE as i64) as u8);
+                assert_eq!(space.distance[c], want, "dims {dims:?}, cell {p:?}");
+            }
         }
     }
 
