@@ -169,6 +169,62 @@ impl Camera {
         self.width as f64 / self.height as f64
     }
 
+    /// A rectangle of pixels `[x0, x1) × [y0, y1)` outside which no ray of this camera meets
+    /// the box `[lo, hi]` (conservative: the bounds of the corners' projections, one pixel
+    /// wider). The whole image when the box reaches behind a perspective eye.
+    pub fn pixel_bounds(&self, lo: DVec3, hi: DVec3) -> [u32; 4] {
+        let whole = [0, 0, self.width, self.height];
+        let (mut min, mut max) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for c in 0..8 {
+            let corner = DVec3::new(
+                if c & 1 == 0 { lo.x } else { hi.x },
+                if c & 2 == 0 { lo.y } else { hi.y },
+                if c & 4 == 0 { lo.z } else { hi.z },
+            );
+            let v = corner - self.eye;
+            // Image-plane coordinates in [-1, 1] at the image edges.
+            let (sx, sy) = match self.projection {
+                CameraProjection::Perspective { tan_half_fov_y } => {
+                    let depth = v.dot(self.forward);
+                    if !(depth > 1e-9 * (1.0 + v.length())) {
+                        return whole;
+                    }
+                    let scale = 1.0 / (depth * tan_half_fov_y);
+                    (
+                        v.dot(self.right) * scale / self.aspect(),
+                        v.dot(self.up) * scale,
+                    )
+                }
+                CameraProjection::Orthographic { height } => {
+                    let half = 0.5 * height;
+                    (
+                        v.dot(self.right) / (half * self.aspect()),
+                        v.dot(self.up) / half,
+                    )
+                }
+            };
+            let p = [
+                (sx + 1.0) * 0.5 * self.width as f64,
+                (1.0 - sy) * 0.5 * self.height as f64,
+            ];
+            for a in 0..2 {
+                min[a] = min[a].min(p[a]);
+                max[a] = max[a].max(p[a]);
+            }
+        }
+        if !(min[0].is_finite() && min[1].is_finite() && max[0].is_finite() && max[1].is_finite()) {
+            return whole;
+        }
+        let span = |lo: f64, hi: f64, n: u32| {
+            let a = (lo.floor() - 1.0).clamp(0.0, n as f64) as u32;
+            let b = (hi.ceil() + 1.0).clamp(0.0, n as f64) as u32;
+            (a, b.max(a))
+        };
+        let (x0, x1) = span(min[0], max[0], self.width);
+        let (y0, y1) = span(min[1], max[1], self.height);
+        [x0, y0, x1, y1]
+    }
+
     /// The ray through continuous image point `(px, py)` (pixels; `(0, 0)` top-left corner,
     /// `(width, height)` bottom-right). Its direction has unit length.
     #[inline]

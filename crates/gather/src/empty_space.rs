@@ -153,11 +153,11 @@ mod tests {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
         for _ in 0..40 {
-            let dims = [0, 1, 2].map(|_| rng.gen_range(1..9));
+            let dims = [0, 1, 2].map(|_| rng.random_range(1..9));
             let grid = Grid::new(dims, 1.0).unwrap();
-            let density = rng.gen_range(0.0..0.2);
+            let density = rng.random_range(0.0..0.2);
             let occupied: Vec<bool> = (0..grid.cell_count())
-                .map(|_| rng.gen_bool(density))
+                .map(|_| rng.random_bool(density))
                 .collect();
             let marked: Vec<[i64; 3]> = (0..grid.cell_count())
                 .filter(|&c| occupied[c])

@@ -540,6 +540,15 @@ pub fn render(
     let (sx, sy) = options.strata();
     let inv_spp = 1.0 / (sx * sy) as f64;
     let mut pixels = vec![0.0f32; width * height];
+    // Pixels whose rays cannot meet the occupied box see only the background: no rays there.
+    let [bx0, by0, bx1, by1] = match integrator.occupied {
+        Some((lo, hi)) => camera.pixel_bounds(lo, hi).map(|v| v as usize),
+        None => [0; 4],
+    };
+    let background = {
+        let sum: f64 = (0..sx * sy).map(|_| integrator.background).sum();
+        (sum * inv_spp) as f32
+    };
     // A band of BAND_ROWS rows per task (each its own task: `with_max_len(1)`), walked in
     // TILE-wide blocks.
     pixels
@@ -547,12 +556,16 @@ pub fn render(
         .with_max_len(1)
         .enumerate()
         .for_each(|(band, rows)| {
+            rows.fill(background);
             let y0 = band * BAND_ROWS;
             let band_height = rows.len() / width;
-            for x0 in (0..width).step_by(TILE) {
-                let x1 = (x0 + TILE).min(width);
+            for x0 in (bx0..bx1).step_by(TILE) {
+                let x1 = (x0 + TILE).min(bx1);
                 for dy in 0..band_height {
                     let y = y0 + dy;
+                    if y < by0 || y >= by1 {
+                        continue;
+                    }
                     for x in x0..x1 {
                         let mut sum = 0.0;
                         for b in 0..sy {

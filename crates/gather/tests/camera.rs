@@ -133,3 +133,84 @@ fn degenerate_cameras_are_refused() {
     assert!(Camera::from_spec(&spec(e, t, up, persp(40.0), 4, 4)).is_ok());
     assert!(Camera::from_spec(&spec(e, t, up, persp(179.0), 4, 4)).is_ok());
 }
+
+/// Whether the ray meets the box `[lo, hi]` at some `t ≥ 0` (slab test).
+fn meets_box(ray: &medium::traversal::Ray, lo: DVec3, hi: DVec3) -> bool {
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for a in 0..3 {
+        let (o, d) = (ray.origin[a], ray.direction[a]);
+        if d == 0.0 {
+            if o < lo[a] || o > hi[a] {
+                return false;
+            }
+        } else {
+            let (ta, tb) = ((lo[a] - o) / d, (hi[a] - o) / d);
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+    }
+    t0 <= t1
+}
+
+#[test]
+fn no_ray_outside_the_pixel_bounds_meets_the_box() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let mut cropped = 0;
+    for trial in 0..60 {
+        let lo = DVec3::new(
+            rng.random_range(0.0..10.0),
+            rng.random_range(0.0..10.0),
+            0.0,
+        );
+        let hi = lo + DVec3::new(rng.random_range(0.5..8.0), rng.random_range(0.5..8.0), 6.0);
+        let centre = 0.5 * (lo + hi);
+        // Eyes near and far; some inside the box, where nothing may be cropped.
+        let distance = rng.random_range(0.0..40.0);
+        let eye = centre
+            + DVec3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                0.3,
+            ) * distance;
+        let target = centre
+            + DVec3::new(
+                rng.random_range(-4.0..4.0),
+                rng.random_range(-4.0..4.0),
+                0.0,
+            );
+        let projection = if trial % 3 == 0 {
+            Projection::Orthographic {
+                height: rng.random_range(5.0..30.0),
+            }
+        } else {
+            persp(rng.random_range(20.0..90.0))
+        };
+        let Ok(cam) = Camera::from_spec(&spec(eye, target, DVec3::Z, projection, 64, 48)) else {
+            continue;
+        };
+        let [x0, y0, x1, y1] = cam.pixel_bounds(lo, hi);
+        assert!(x0 <= x1 && x1 <= 64 && y0 <= y1 && y1 <= 48);
+        if [x0, y0, x1, y1] != [0, 0, 64, 48] {
+            cropped += 1;
+        }
+        // Sample each pixel outside the bounds at its corners, edge midpoints and centre.
+        for y in 0..48u32 {
+            for x in 0..64u32 {
+                if (x0..x1).contains(&x) && (y0..y1).contains(&y) {
+                    continue;
+                }
+                for (fx, fy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5)] {
+                    let ray = cam.ray(x as f64 + fx, y as f64 + fy);
+                    assert!(
+                        !meets_box(&ray, lo, hi),
+                        "trial {trial}: pixel ({x}, {y}) outside {:?} sees the box",
+                        [x0, y0, x1, y1]
+                    );
+                }
+            }
+        }
+    }
+    // The bounds must also do their job: most views of a box from outside crop something.
+    assert!(cropped > 20, "only {cropped} of 60 views were cropped");
+}
