@@ -132,7 +132,7 @@ impl DepthLattice {
     }
 
     /// The eight corner depths of sub-cell `sub` (lattice coordinates).
-    #[inline]
+    #[inline(always)]
     fn corners(&self, sub: [usize; 3]) -> SubCellDepths {
         let c = sub[0] + self.stride_y * sub[1] + self.stride_z * sub[2];
         let (sy, sz) = (self.stride_y, self.stride_z);
@@ -388,13 +388,13 @@ struct SubCellDepths {
 
 impl SubCellDepths {
     /// The depth at world point `x` (clamped to the sub-cell).
-    #[inline]
+    #[inline(always)]
     fn at(&self, x: DVec3) -> f64 {
         self.at_fraction((x - self.lo) * self.inv_size)
     }
 
     /// The depth at fractional position `f` in the sub-cell (clamped to it).
-    #[inline]
+    #[inline(always)]
     fn at_fraction(&self, f: DVec3) -> f64 {
         let f = f.clamp(DVec3::ZERO, DVec3::ONE);
         let d = &self.d;
