@@ -11,7 +11,7 @@ use medium::Scene;
 
 use crate::app::{choose_camera, load_scene, orbit_cameras, view_outputs};
 use crate::cli::{ExportArgs, ExportField, RenderArgs, RenderMethod, SolveArgs};
-use crate::pipeline::{render_view, render_view_scaled, solve_scene, SolveHooks};
+use crate::pipeline::{render_view, render_view_through, solve_scene, view_medium, SolveHooks};
 use crate::progress::SolveProgress;
 use crate::solution::Solution;
 
@@ -131,9 +131,11 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         view_outputs(&args.output, &names)
     };
     let exposure = args.exposure.unwrap_or(solution.render.exposure);
+    // One rescaled copy of the whole grid for every view, not one per view.
+    let medium = view_medium(&solution, args.extinction_scale)?;
     for (view, out) in views.iter().zip(&outputs) {
         let started = Instant::now();
-        let image = render_view_scaled(&solution, view, args.spp, args.extinction_scale)?;
+        let image = render_view_through(&solution, &medium, view, args.spp)?;
         image
             .save(out, exposure)
             .with_context(|| format!("writing {}", out.display()))?;

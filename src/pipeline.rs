@@ -1,6 +1,7 @@
 //! Orchestration shared by the command line and the service: scene → light pass → operator →
 //! solve → [`Solution`]; solution + camera → image.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
@@ -8,7 +9,7 @@ use gather::{Camera, Image, InScattering, RayCarry, RenderOptions, ViewSegment};
 use glam::DVec3;
 use medium::light_pass::LightPass;
 use medium::scene::{CameraSpec, SceneOrigin, SolveMethod, SolveSettings};
-use medium::Scene;
+use medium::{Medium, Scene};
 
 use crate::solution::{ChannelSolution, ScatteredField, Solution};
 
@@ -125,22 +126,51 @@ pub fn render_view(solution: &Solution, camera: &CameraSpec, spp: Option<u32>) -
 
 /// Renders one view of a solution, with σt along the view rays multiplied by
 /// `extinction_scale` when given (Blasi & Wuethrich §4.3's separate render-time absorption;
-/// the solved sources and the first bounce keep the solved medium).
+/// the solved sources and the first bounce keep the solved medium). For several views with one
+/// scale, build the medium once with [`view_medium`] and render each with
+/// [`render_view_through`].
 pub fn render_view_scaled(
     solution: &Solution,
     camera: &CameraSpec,
     spp: Option<u32>,
     extinction_scale: Option<f32>,
 ) -> Result<Image> {
-    let scaled;
-    let view_medium = match extinction_scale {
-        None => &solution.medium,
-        Some(scale) => {
-            scaled = montecarlo::with_extinction_scale(&solution.medium, scale)
-                .map_err(|e| anyhow::anyhow!("--extinction-scale: {e}"))?;
-            &scaled
-        }
-    };
+    let medium = view_medium(solution, extinction_scale)?;
+    render_view_through(solution, &medium, camera, spp)
+}
+
+/// The medium view rays pass through: the solved one, or a copy with σt multiplied by
+/// `extinction_scale` (a whole-grid copy, so callers rendering many views build it once).
+pub fn view_medium(solution: &Solution, extinction_scale: Option<f32>) -> Result<Cow<'_, Medium>> {
+    match extinction_scale {
+        None => Ok(Cow::Borrowed(&solution.medium)),
+        Some(scale) => montecarlo::with_extinction_scale(&solution.medium, scale)
+            .map(Cow::Owned)
+            .map_err(|e| anyhow::anyhow!("--extinction-scale: {e}")),
+    }
+}
+
+/// Renders one view of a solution with the view rays passing through `view_medium` (from
+/// [`view_medium`]: the solved medium or a rescaled copy; the solved sources and the first
+/// bounce keep the solved medium). It must share the solution's grid and channels.
+pub fn render_view_through(
+    solution: &Solution,
+    view_medium: &Medium,
+    camera: &CameraSpec,
+    spp: Option<u32>,
+) -> Result<Image> {
+    // The sources index cells of the solution's grid: another grid would read the wrong cells.
+    if view_medium.grid != solution.medium.grid
+        || view_medium.channels.len() != solution.medium.channels.len()
+    {
+        anyhow::bail!(
+            "the view medium ({:?} cells, {} channels) does not match the solution's ({:?} cells, {} channels)",
+            view_medium.grid.dims,
+            view_medium.channels.len(),
+            solution.medium.grid.dims,
+            solution.medium.channels.len()
+        );
+    }
     let camera = Camera::from_spec(camera)?;
     let options = RenderOptions {
         model: solution.render.model,

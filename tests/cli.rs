@@ -389,3 +389,61 @@ fn render_time_extinction_scale_thins_the_view_medium_only() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--extinction-scale"), "{}", stderr(&o));
 }
+
+/// `render --orbit N --extinction-scale S` builds the rescaled medium once for all views: each
+/// orbit image is bit for bit the one-view render of that camera with the same scale, and the
+/// scale reaches every view, not only the first (each is brighter than the unscaled view).
+#[test]
+fn orbit_with_extinction_scale_matches_one_view_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path(), "zonal", r#"{ kind = "isotropic" }"#);
+    let sol = dir.path().join("s.volrad");
+    let out = volrad(&["-q", "solve", s(&scene), "-o", s(&sol)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let orbit = dir.path().join("orbit.pfm");
+    let o = volrad(&[
+        "-q",
+        "render",
+        "--solution",
+        s(&sol),
+        "--orbit",
+        "3",
+        "--extinction-scale",
+        "0.5",
+        "-o",
+        s(&orbit),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+
+    let solution = volrad::solution::Solution::read(&sol).unwrap();
+    let views = volrad::app::orbit_cameras(&solution.cameras[0], 3);
+    assert_eq!(views.len(), 3);
+    for view in &views {
+        let from_cli = gather::read_pfm(&dir.path().join(format!("orbit_{}.pfm", view.name)))
+            .unwrap_or_else(|e| panic!("orbit view {}: {e}", view.name));
+        let one_view =
+            volrad::pipeline::render_view_scaled(&solution, view, None, Some(0.5)).unwrap();
+        assert_eq!(
+            (from_cli.width, from_cli.height, from_cli.channels),
+            (one_view.width, one_view.height, one_view.channels),
+            "{}",
+            view.name
+        );
+        assert!(
+            from_cli
+                .pixels
+                .iter()
+                .zip(&one_view.pixels)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{}: orbit image differs from the one-view render",
+            view.name
+        );
+        let unscaled = volrad::pipeline::render_view(&solution, view, None).unwrap();
+        let sum = |p: &[f32]| p.iter().map(|&v| v as f64).sum::<f64>();
+        assert!(
+            sum(&from_cli.pixels) > 1.05 * sum(&unscaled.pixels),
+            "{}: the extinction scale did not thin this view",
+            view.name
+        );
+    }
+}
