@@ -67,15 +67,10 @@ impl ValidateMethod {
         ValidateMethod::PathTrace,
     ];
 
+    /// The solve method's own spelling (`SolveMethod::name`, as in `[solve] method`), and
+    /// `path-trace` as `render --method` spells it.
     pub fn name(self) -> &'static str {
-        match self {
-            ValidateMethod::SingleScatter => "single-scatter",
-            ValidateMethod::Zonal => "zonal",
-            ValidateMethod::ZonalHierarchical => "zonal-hierarchical",
-            ValidateMethod::DiscreteOrdinates => "discrete-ordinates",
-            ValidateMethod::TwoPass => "two-pass",
-            ValidateMethod::PathTrace => "path-trace",
-        }
+        self.solve_method().map_or("path-trace", SolveMethod::name)
     }
 
     pub fn parse(name: &str) -> Option<ValidateMethod> {
@@ -1029,6 +1024,8 @@ mod tests {
     fn method_names_round_trip_and_unknown_ones_are_named() {
         for m in ValidateMethod::ALL {
             assert_eq!(ValidateMethod::parse(m.name()), Some(m));
+            // report.json (serde) and report.md (name) spell a method the same way.
+            assert_eq!(serde_json::to_value(m).unwrap(), m.name());
         }
         let err = parse_methods(&["zonal".into(), "monte-carlo".into()]).unwrap_err();
         assert!(err.to_string().contains("`monte-carlo`"), "{err}");
