@@ -16,37 +16,50 @@ impl NoisyImage {
     /// errors `sqrt(Σ s²) / factor²` of independent pixels. `None` when the size is not a
     /// multiple of `factor` or `factor` is 0.
     pub fn block_average(&self, factor: u32) -> Option<NoisyImage> {
-        let (w, h) = (self.mean.width, self.mean.height);
-        if factor == 0 || w % factor != 0 || h % factor != 0 {
-            return None;
-        }
-        let (bw, bh) = (w / factor, h / factor);
-        let n = (factor * factor) as f64;
-        let mut mean = Vec::with_capacity((bw * bh) as usize);
-        let mut se = Vec::with_capacity((bw * bh) as usize);
-        for by in 0..bh {
-            for bx in 0..bw {
-                let (mut m, mut v) = (0.0f64, 0.0f64);
-                for y in by * factor..(by + 1) * factor {
-                    for x in bx * factor..(bx + 1) * factor {
-                        m += self.mean.get(x, y) as f64;
-                        v += (self.std_error.get(x, y) as f64).powi(2);
-                    }
-                }
-                mean.push((m / n) as f32);
-                se.push((v.sqrt() / n) as f32);
-            }
-        }
-        let image = |pixels| ImageChannel {
-            width: bw,
-            height: bh,
-            pixels,
-        };
+        let n = (factor as f64).powi(2);
         Some(NoisyImage {
-            mean: image(mean),
-            std_error: image(se),
+            mean: block_mean(&self.mean, factor)?,
+            std_error: block_map(&self.std_error, factor, |v| v * v, |sum| sum.sqrt() / n)?,
         })
     }
+}
+
+/// Means of `factor × factor` pixel blocks (sums in f64). `None` when the size is not a
+/// multiple of `factor` or `factor` is 0.
+pub fn block_mean(image: &ImageChannel, factor: u32) -> Option<ImageChannel> {
+    let n = (factor as f64).powi(2);
+    block_map(image, factor, |v| v, |sum| sum / n)
+}
+
+/// `finish(Σ term(v))` over each `factor × factor` block, in f64.
+fn block_map(
+    image: &ImageChannel,
+    factor: u32,
+    term: impl Fn(f64) -> f64,
+    finish: impl Fn(f64) -> f64,
+) -> Option<ImageChannel> {
+    let (w, h) = (image.width, image.height);
+    if factor == 0 || w % factor != 0 || h % factor != 0 {
+        return None;
+    }
+    let (bw, bh) = (w / factor, h / factor);
+    let mut pixels = Vec::with_capacity((bw * bh) as usize);
+    for by in 0..bh {
+        for bx in 0..bw {
+            let mut sum = 0.0f64;
+            for y in by * factor..(by + 1) * factor {
+                for x in bx * factor..(bx + 1) * factor {
+                    sum += term(image.get(x, y) as f64);
+                }
+            }
+            pixels.push(finish(sum) as f32);
+        }
+    }
+    Some(ImageChannel {
+        width: bw,
+        height: bh,
+        pixels,
+    })
 }
 
 /// Agreement of a render `x` with a reference `r`, over the pixels where the reference is
@@ -70,10 +83,15 @@ pub struct Comparison {
     pub chi2_per_pixel: f64,
 }
 
-/// Compares `x` with the reference `r` (same size). `None` when sizes differ or no pixel
-/// is above the threshold.
+/// Compares `x` with the reference `r` (same size). `None` when sizes differ (means or
+/// standard errors) or no pixel is above the threshold.
 pub fn compare(x: &NoisyImage, r: &NoisyImage, threshold: f64) -> Option<Comparison> {
-    if x.mean.pixels.len() != r.mean.pixels.len() || x.mean.width != r.mean.width {
+    let size = |c: &ImageChannel| (c.width, c.height, c.pixels.len());
+    let reference_size = size(&r.mean);
+    if [&x.mean, &x.std_error, &r.std_error]
+        .iter()
+        .any(|c| size(c) != reference_size)
+    {
         return None;
     }
     let max = r.mean.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
@@ -108,4 +126,56 @@ pub fn compare(x: &NoisyImage, r: &NoisyImage, threshold: f64) -> Option<Compari
         relative_mean_std_error: noise.sqrt() / sr,
         chi2_per_pixel: chi2 / n as f64,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn channel(width: u32, height: u32, pixels: Vec<f32>) -> ImageChannel {
+        ImageChannel {
+            width,
+            height,
+            pixels,
+        }
+    }
+
+    #[test]
+    fn block_average_means_values_and_adds_errors_in_quadrature() {
+        let noisy = NoisyImage {
+            mean: channel(4, 2, vec![0.0, 2.0, 4.0, 4.0, 2.0, 0.0, 4.0, 4.0]),
+            std_error: channel(4, 2, vec![0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.0, 0.0]),
+        };
+        let b = noisy.block_average(2).unwrap();
+        assert_eq!((b.mean.width, b.mean.height), (2, 1));
+        assert_eq!(b.mean.pixels, vec![1.0, 4.0]);
+        // Four independent errors of 0.4: sqrt(4 · 0.16) / 4 = 0.2; two of 0.4: sqrt(0.32) / 4.
+        assert!((b.std_error.pixels[0] - 0.2).abs() < 1e-7);
+        assert!((b.std_error.pixels[1] - 0.32f32.sqrt() / 4.0).abs() < 1e-7);
+        assert!(noisy.block_average(3).is_none() && noisy.block_average(0).is_none());
+        assert_eq!(block_mean(&noisy.mean, 2), Some(b.mean));
+    }
+
+    #[test]
+    fn both_noises_are_taken_out_and_mismatched_errors_refused() {
+        let r = NoisyImage {
+            mean: channel(2, 2, vec![1.0; 4]),
+            std_error: channel(2, 2, vec![0.06; 4]),
+        };
+        let x = NoisyImage {
+            mean: channel(2, 2, vec![1.1, 0.9, 1.1, 0.9]),
+            std_error: channel(2, 2, vec![0.08; 4]),
+        };
+        // |x − r| = 0.1 = sqrt(0.06² + 0.08²): the difference is exactly the two noises.
+        let c = compare(&x, &r, 0.01).unwrap();
+        assert!(c.relative_rms_error < 1e-3, "{c:?}");
+        assert!((c.relative_rms_raw - 0.1).abs() < 1e-6);
+        assert!((c.chi2_per_pixel - 1.0).abs() < 1e-4);
+        // A standard-error image of another size is refused, not indexed out of bounds.
+        let short = NoisyImage {
+            std_error: channel(1, 2, vec![0.08; 2]),
+            ..x.clone()
+        };
+        assert!(compare(&short, &r, 0.01).is_none());
+    }
 }
