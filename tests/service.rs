@@ -512,6 +512,55 @@ fn restart_serves_cached_solutions_and_never_corrupt_ones() {
     );
 }
 
+/// A solution found in the cache after a restart is prepared for rendering in the background
+/// (its first-bounce light-depth model built), as a fresh solve is before it reports done, so
+/// that the first view costs what later ones do; no render is asked for here. The cache's
+/// Debug shows `light_depth: None` until the model is built.
+#[test]
+fn restart_prepares_cached_solutions_for_rendering() {
+    let dir = tempfile::tempdir().unwrap();
+    let id = {
+        let server = start(dir.path());
+        let id = submit(server.addr, &scene(4, 0.9));
+        assert_eq!(wait_finished(server.addr, &id)["state"], "done");
+        server.stop();
+        id
+    };
+    let read = volrad::solution::Solution::read(&dir.path().join(format!("{id}.vrs"))).unwrap();
+    let unprepared = |sol: &volrad::solution::Solution| {
+        sol.channels
+            .iter()
+            .filter(|ch| format!("{:?}", ch.render_cache).contains("light_depth: None"))
+            .count()
+    };
+    assert_eq!(
+        unprepared(&read),
+        read.channels.len(),
+        "a solution read from a file starts unprepared"
+    );
+
+    let server = start(dir.path());
+    let started = Instant::now();
+    loop {
+        let served = server.service.solution(&id).expect("served after restart");
+        if unprepared(&served) == 0 {
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(8),
+            "the cached solution was not prepared for rendering: {:?}",
+            served.channels[0].render_cache
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let png = get(
+        server.addr,
+        &format!("/v1/scenes/{id}/render?width=16&height=12"),
+    )
+    .unwrap();
+    assert_eq!(png.status, 200, "{}", png.text());
+}
+
 #[test]
 fn least_recently_used_solutions_are_evicted() {
     let dir = tempfile::tempdir().unwrap();

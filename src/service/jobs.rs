@@ -117,6 +117,8 @@ impl Service {
         });
         let service = Service { inner };
         let mut requeue = Vec::new();
+        // Solutions read from the cache, to be prepared for rendering off the startup path.
+        let mut loaded = Vec::new();
         for id in cache.known_ids() {
             let scene = match std::fs::read_to_string(cache.scene_path(&id)) {
                 Ok(text) => match parse_scene(&cache, &text) {
@@ -167,6 +169,9 @@ impl Service {
             } else {
                 continue;
             };
+            if let Some(sol) = &solution {
+                loaded.push((id.clone(), Arc::downgrade(sol)));
+            }
             let stamp = service.tick();
             service.lock().insert(
                 id,
@@ -194,7 +199,59 @@ impl Service {
         for id in requeue {
             service.enqueue(&id);
         }
+        service.prepare_in_background(loaded);
         Ok(service)
+    }
+
+    /// Builds the render caches of solutions found in the cache directory on a thread of their
+    /// own, as a finished solve does before it reports done, so that the first view after a
+    /// restart costs what later ones do. Not at startup (each build can cost more than a
+    /// render, and the server should answer at once) and not on the solve worker (solves would
+    /// wait). A render that comes first builds the cache itself, or waits for the build in
+    /// progress; solutions deleted or evicted meanwhile are skipped.
+    fn prepare_in_background(&self, loaded: Vec<(String, std::sync::Weak<Solution>)>) {
+        if loaded.is_empty() {
+            return;
+        }
+        let service = self.clone();
+        let spawned = std::thread::Builder::new()
+            .name("volrad-prepare".into())
+            .spawn(move || {
+                let started = std::time::Instant::now();
+                for (id, solution) in loaded {
+                    if service.is_shut_down() {
+                        return;
+                    }
+                    let Some(solution) = solution.upgrade() else {
+                        continue;
+                    };
+                    let prepared = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        solution.prepare_renders()
+                    }));
+                    if prepared.is_err() {
+                        tracing::warn!(
+                            "preparing renders of {id} panicked; its renders will retry"
+                        );
+                    }
+                }
+                tracing::info!(
+                    "prepared cached solutions for rendering in {:.2} s",
+                    started.elapsed().as_secs_f64()
+                );
+            });
+        if let Err(e) = spawned {
+            // Renders then build each cache on first use, as before.
+            tracing::warn!("not preparing cached solutions for rendering: {e}");
+        }
+    }
+
+    /// Whether [`Service::shutdown`] has run (the solve queue is closed).
+    fn is_shut_down(&self) -> bool {
+        self.inner
+            .queue
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .is_none()
     }
 
     pub(crate) fn lock(&self) -> MutexGuard<'_, HashMap<String, Job>> {
