@@ -20,7 +20,7 @@ use medium::Scene;
 use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions};
 use serde::Serialize;
 
-use crate::compare::{compare, Comparison};
+use crate::compare::{block_means, compare, compare_noisy, Comparison};
 use crate::pipeline::{render_view, solve_scene, SolveHooks};
 
 /// Pixels count in an error figure when the reference exceeds this fraction of its maximum
@@ -327,19 +327,6 @@ fn unique_name(name: &str, taken: &[String]) -> String {
         .unwrap_or_else(|| name.to_string())
 }
 
-/// Channel 0 of an image as a one-channel image.
-fn channel0(image: &Image) -> Result<Image> {
-    if image.channels == 1 {
-        return Ok(image.clone());
-    }
-    let pixels = image
-        .pixels
-        .chunks_exact(image.channels as usize)
-        .map(|p| p[0])
-        .collect();
-    Ok(Image::new(image.width, image.height, 1, pixels)?)
-}
-
 /// Mitsuba reference files beside the scene: `<camera>.pfm` and `<camera>_stderr.pfm`.
 fn mitsuba_reference(
     scene_path: &Path,
@@ -435,9 +422,15 @@ fn validate_scene(
             .as_ref()
             .map(|(m, s, file, _)| {
                 // Both images are noisy here: take out both standard errors.
-                let both = combined_error(s, &reference_err)?;
-                compare(&reference, m, Some(&both), MASK_THRESHOLD, 1)
-                    .map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
+                compare_noisy(
+                    &reference,
+                    Some(&reference_err),
+                    m,
+                    Some(s),
+                    MASK_THRESHOLD,
+                    1,
+                )
+                .map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
             })
             .transpose()?,
         mitsuba_files: mitsuba.as_ref().map(|(_, _, a, b)| (a.clone(), b.clone())),
@@ -461,7 +454,7 @@ fn validate_scene(
         )
         .map_err(|e| anyhow::anyhow!("{name}, {}: {e}", method.name()))?;
         let image_name = format!("{name}_{}.png", method.name());
-        let composite = side_by_side(&reference, &channel0(&run.image)?)?;
+        let composite = side_by_side(&reference, &run.image)?;
         write_png(&options.out.join(&image_name), &composite)?;
         tracing::info!(
             relative_rms = vs_path_tracer.relative_rms,
@@ -604,20 +597,6 @@ fn scene_label(scene: &Scene) -> String {
     }
 }
 
-/// `sqrt(a² + b²)` per pixel: the standard error of the difference of two independent images.
-fn combined_error(a: &Image, b: &Image) -> Result<Image> {
-    if (a.width, a.height) != (b.width, b.height) {
-        bail!("standard-error images differ in size");
-    }
-    let pixels = a
-        .pixels
-        .iter()
-        .zip(&b.pixels)
-        .map(|(x, y)| x.hypot(*y))
-        .collect();
-    Ok(Image::new(a.width, a.height, 1, pixels)?)
-}
-
 /// Mean of `stderr / reference` over the mask: how noisy the reference is per pixel.
 fn relative_noise(reference: &Image, stderr: &Image) -> f64 {
     let max = reference.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
@@ -691,26 +670,9 @@ impl Rgb {
     }
 }
 
-/// Averages `factor × factor` blocks of a one-channel image (edges that do not fill a block
-/// are dropped).
+/// Block means of channel 0 for the panels (partial blocks at the edges dropped).
 fn downscale(image: &Image, factor: u32) -> Result<Image> {
-    if factor <= 1 {
-        return Ok(image.clone());
-    }
-    let (w, h) = (image.width / factor, image.height / factor);
-    let mut pixels = Vec::with_capacity((w * h) as usize);
-    for by in 0..h {
-        for bx in 0..w {
-            let mut s = 0.0f64;
-            for y in by * factor..(by + 1) * factor {
-                for x in bx * factor..(bx + 1) * factor {
-                    s += image.get(x, y, 0) as f64;
-                }
-            }
-            pixels.push((s / (factor * factor) as f64) as f32);
-        }
-    }
-    Ok(Image::new(w.max(1), h.max(1), 1, pixels)?)
+    block_means(image, factor).map_err(|e| anyhow::anyhow!("downscaling a panel: {e}"))
 }
 
 /// Diverging false colour of a relative error: blue (−scale) – white (0) – red (+scale).
@@ -743,7 +705,8 @@ fn panel_exposure(reference: &Image) -> f64 {
 }
 
 /// reference | method | relative error `(x − r)/r` of `ERROR_MAP_BLOCK`² block means (blocks
-/// whose reference is below the mask threshold grey). Both radiance panels share one exposure.
+/// whose reference is below the mask threshold grey), channel 0. Both radiance panels share
+/// one exposure.
 fn side_by_side(reference: &Image, method: &Image) -> Result<Rgb> {
     let factor = reference.width.div_ceil(MAX_PANEL_WIDTH).max(1);
     let r = downscale(reference, factor)?;
@@ -1040,13 +1003,5 @@ mod tests {
         assert_eq!(error_colour(ERROR_MAP_SCALE), [255, 0, 0]);
         let half = error_colour(0.5 * ERROR_MAP_SCALE);
         assert!(half[0] == 255 && half[1] > 100 && half[1] < 150);
-    }
-
-    #[test]
-    fn downscale_averages_blocks() {
-        let img = Image::new(4, 2, 1, vec![0.0, 2.0, 4.0, 4.0, 2.0, 0.0, 4.0, 4.0]).unwrap();
-        let d = downscale(&img, 2).unwrap();
-        assert_eq!((d.width, d.height), (2, 1));
-        assert_eq!(d.pixels, vec![1.0, 4.0]);
     }
 }
