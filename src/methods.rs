@@ -504,9 +504,68 @@ pub fn fluence(solution: &Solution, c: usize) -> Vec<f64> {
     }
 }
 
+/// Refuses a solution whose solve was cancelled in any channel: its fields are partial. (Not
+/// converging is a report, not an error: callers warn in their own way.)
+pub fn refuse_cancelled(solution: &Solution) -> Result<()> {
+    let cancelled = solution
+        .channels
+        .iter()
+        .enumerate()
+        .find_map(|(c, ch)| ch.report.as_ref().filter(|r| r.cancelled).map(|r| (c, r)));
+    if let Some((c, r)) = cancelled {
+        bail!(
+            "solve cancelled (channel {c}) after {} iterations",
+            r.iterations
+        );
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cancel that landed in a later channel refuses the solution just as one in channel 0.
+    #[test]
+    fn a_cancelled_channel_refuses_the_solution() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/cloud24-isotropic/scene.toml");
+        let scene = Scene::from_file(&path).unwrap();
+        let mut settings = scene.solve.clone();
+        settings.method = SolveMethod::SingleScatter;
+        let mut solution =
+            crate::pipeline::solve_scene(&scene, &settings, &SolveHooks::default()).unwrap();
+        let report = |cancelled| SolveReport {
+            method: "jacobi".into(),
+            iterations: 3,
+            converged: false,
+            final_residual: 0.5,
+            residual_history: Vec::new(),
+            seconds: 0.0,
+            seconds_per_iteration: 0.0,
+            operator_applications: 3,
+            operator_sweeps: 0,
+            cancelled,
+            stop_reason: if cancelled {
+                solver::StopReason::Cancelled
+            } else {
+                solver::StopReason::MaxIterations
+            },
+        };
+        let mut second = solution.channels[0].clone();
+        solution.channels[0].report = Some(report(false));
+        second.report = Some(report(true));
+        assert!(
+            refuse_cancelled(&solution).is_ok(),
+            "unconverged is no error"
+        );
+        solution.channels.push(second);
+        let err = refuse_cancelled(&solution).unwrap_err().to_string();
+        assert!(
+            err.contains("channel 1") && err.contains("3 iterations"),
+            "{err}"
+        );
+    }
 
     #[test]
     fn iteration_checks_apply_only_to_methods_that_iterate() {

@@ -557,11 +557,9 @@ fn run_method(
     let started = Instant::now();
     let solution = solve_scene(scene, &solve, &hooks)?;
     let solve_seconds = started.elapsed().as_secs_f64();
+    crate::methods::refuse_cancelled(&solution)?;
     let report = solution.channels[0].report.as_ref();
     if let Some(r) = report {
-        if r.cancelled {
-            bail!("solve cancelled after {} iterations", r.iterations);
-        }
         if !r.converged {
             tracing::warn!(
                 iterations = r.iterations,
