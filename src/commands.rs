@@ -71,11 +71,9 @@ pub fn solve_with_progress(
     let solution = solve_scene(scene, settings, &hooks);
     progress.finish();
     let solution = solution?;
+    crate::methods::refuse_cancelled(&solution)?;
     for (c, ch) in solution.channels.iter().enumerate() {
         if let Some(r) = &ch.report {
-            if r.cancelled {
-                bail!("solve cancelled after {} iterations", r.iterations);
-            }
             if !r.converged && !quiet {
                 eprintln!(
                     "warning: channel {c} did not converge: relative residual {:.3e} after {} iterations ({:?})",

@@ -24,7 +24,9 @@
 //! Raw volumes are uploaded on their own (`POST /v1/volumes?dims=…`, stored by content hash
 //! under `volumes/`) and named by the scene's `[volume] file`; a scene may not name any
 //! other file. Every valid solution in the cache directory is loaded at start-up and kept in
-//! memory; renders share it through an `Arc`.
+//! memory; renders share it through an `Arc`. A background thread then builds each loaded
+//! solution's render cache (the first bounce's light-depth model), as a fresh solve does
+//! before it reports done.
 
 pub mod cache;
 pub mod client;
