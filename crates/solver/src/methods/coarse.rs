@@ -210,30 +210,29 @@ impl<'a> CoarseSpace<'a> {
         }
         let Some(lu) = &self.lu else {
             // No coarse solve: fall back to the plain residual on the coarse part.
-            for (zi, &a) in z.iter_mut().zip(self.aggs.iter()) {
-                *zi += self.means[a as usize];
-            }
+            prolong_add(&self.aggs, &self.means, z);
             return;
         };
         lu.solve(&mut self.rc, &mut self.tmp);
-        for (zi, &a) in z.iter_mut().zip(self.aggs.iter()) {
-            *zi += self.rc[a as usize];
-        }
+        prolong_add(&self.aggs, &self.rc, z);
     }
 
     /// `g += P A_c⁻¹ Pᵀ W r`.
     pub(crate) fn correct(&mut self, r: &[f64], weights: Option<&[f64]>, g: &mut [f64]) {
-        let Some(lu) = &self.lu else {
+        if self.lu.is_none() {
             return;
-        };
-        self.rc.iter_mut().for_each(|v| *v = 0.0);
-        for (i, (&a, &ri)) in self.aggs.iter().zip(r).enumerate() {
-            self.rc[a as usize] += weights.map_or(ri, |w| w[i] * ri);
         }
+        self.restrict(r, weights);
+        let lu = self.lu.as_ref().expect("checked");
         lu.solve(&mut self.rc, &mut self.tmp);
-        for (gi, &a) in g.iter_mut().zip(self.aggs.iter()) {
-            *gi += self.rc[a as usize];
-        }
+        prolong_add(&self.aggs, &self.rc, g);
+    }
+}
+
+/// `x += P coarse`: each unknown gets its aggregate's value.
+fn prolong_add(aggs: &[u32], coarse: &[f64], x: &mut [f64]) {
+    for (xi, &a) in x.iter_mut().zip(aggs) {
+        *xi += coarse[a as usize];
     }
 }
 
