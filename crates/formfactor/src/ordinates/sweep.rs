@@ -714,16 +714,26 @@ impl OrdinatesOperator {
             x.len() == self.len() && density.len() == self.len(),
             "scatter_density: vectors must have cells × bins entries"
         );
-        self.scatter_into(x, density, Layout::CellMajor, 0, m);
+        self.scatter_into(&self.scatter, x, density, Layout::CellMajor, 0, m);
     }
 
     /// Scattering densities of bins `l0..l1` in `layout`, by blocks of cells: one GEMM
-    /// `X_block (cells × M) · (P Ω)ᵀ (M × bins)` per block, then the rows scaled by σs. Blocks
-    /// without scattering cells are written as zeros without the product.
-    fn scatter_into(&self, x: &[f64], dst: &mut [f64], layout: Layout, l0: usize, l1: usize) {
+    /// `X_block (cells × M) · Wᵀ (M × bins)` per block, then the rows scaled by σs. Blocks
+    /// without scattering cells are written as zeros without the product. `weights`
+    /// (`W[l·M + j]`, M × M row-major) is the solve's `P_lj Ω_j` (`self.scatter`) or the final
+    /// gather's weights ([`gather_density`](Self::gather_density)).
+    fn scatter_into(
+        &self,
+        weights: &[f64],
+        x: &[f64],
+        dst: &mut [f64],
+        layout: Layout,
+        l0: usize,
+        l1: usize,
+    ) {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        debug_assert!(x.len() == n * m && l0 < l1 && l1 <= m);
+        debug_assert!(x.len() == n * m && l0 < l1 && l1 <= m && weights.len() == m * m);
         debug_assert!(
             dst.len()
                 >= m * if layout == Layout::BinMajor {
@@ -740,7 +750,15 @@ impl OrdinatesOperator {
             // SAFETY: `x` has N·M cell-major elements, `dst` is large enough for `layout`
             // (asserted above), and block b is this task's alone.
             unsafe {
-                self.scatter_block(x.as_ptr(), Layout::CellMajor, base, layout, l0..l1, c0..c1)
+                self.scatter_block(
+                    weights,
+                    x.as_ptr(),
+                    Layout::CellMajor,
+                    base,
+                    layout,
+                    l0..l1,
+                    c0..c1,
+                )
             };
         });
     }
@@ -757,11 +775,13 @@ impl OrdinatesOperator {
     /// `x_layout`), written into `dst` (laid out as `layout`).
     ///
     /// # Safety
-    /// `x` and `dst` must point to whole cell × bin arrays in their layouts, and no one else
-    /// may write `x` for these cells, or access the elements (c, l) of `dst` with `c` in
-    /// `cells` and `l` in `bins`, while this runs.
+    /// `weights` must hold M × M values, `x` and `dst` must point to whole cell × bin arrays
+    /// in their layouts, and no one else may write `x` for these cells, or access the elements
+    /// (c, l) of `dst` with `c` in `cells` and `l` in `bins`, while this runs.
+    #[allow(clippy::too_many_arguments)] // two strided arrays, each with its layout
     unsafe fn scatter_block(
         &self,
+        weights: &[f64],
         x: *const f64,
         x_layout: Layout,
         dst: SharedMut,
@@ -783,7 +803,7 @@ impl OrdinatesOperator {
                 x.add(cells.start * rsa),
                 rsa as isize,
                 csa as isize,
-                self.scatter.as_ptr().add(bins.start * m),
+                weights.as_ptr().add(bins.start * m),
                 1,
                 m as isize,
                 0.0,
@@ -1305,34 +1325,8 @@ impl OrdinatesOperator {
                     .map(|(p, w)| p * w)
             })
             .collect();
-        out.par_chunks_mut(m * SCATTER_BLOCK)
-            .zip(x.par_chunks(m * SCATTER_BLOCK))
-            .zip(self.sigma_s.par_chunks(SCATTER_BLOCK))
-            .for_each(|((dst, src), ss)| {
-                let cells = ss.len();
-                // SAFETY: `src` and `dst` hold `cells × m` row-major values, `weights` m × m.
-                unsafe {
-                    matrixmultiply::dgemm(
-                        cells,
-                        m,
-                        m,
-                        1.0,
-                        src.as_ptr(),
-                        m as isize,
-                        1,
-                        weights.as_ptr(),
-                        1,
-                        m as isize,
-                        0.0,
-                        dst.as_mut_ptr(),
-                        m as isize,
-                        1,
-                    );
-                }
-                for (row, &sc) in dst.chunks_mut(m).zip(ss) {
-                    row.iter_mut().for_each(|v| *v *= sc);
-                }
-            });
+        // The same block product as the solve's scattering, with these weights.
+        self.scatter_into(&weights, x, out, Layout::CellMajor, 0, m);
     }
 
     /// Angular integral `Σ_l I_l Ω_l` per cell (the zonal `4π ×` mean radiance).
@@ -1355,7 +1349,7 @@ impl TransportOperator for OrdinatesOperator {
         let m = self.bins.len();
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;
-        self.scatter_into(x, &mut s.density, Layout::BinMajor, 0, m);
+        self.scatter_into(&self.scatter, x, &mut s.density, Layout::BinMajor, 0, m);
         self.transport_all(y, s, false);
     }
 
@@ -1393,6 +1387,7 @@ impl TransportOperator for OrdinatesOperator {
             // cells belong to one task.
             unsafe {
                 self.scatter_block(
+                    &self.scatter,
                     g_bins.ptr(),
                     Layout::BinMajor,
                     density,
