@@ -11,6 +11,8 @@ use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, Hierarchi
 use medium::{generators, CellValues, ChannelMedium, Grid};
 use rayon::prelude::*;
 use solver::{Method, SolveControl, SolveOptions, TransportOperator};
+// Benchmarks run with the product's allocator, which the volrad crate sets.
+use volrad as _;
 
 /// Max's generated cloud scaled so its largest axis-parallel optical depth is `depth` (h = 1),
 /// as for the built-in scene.

@@ -8,6 +8,8 @@ use glam::DVec3;
 use medium::generators::cloud;
 use medium::light_pass::{LightPass, LightPassOptions};
 use medium::{CellValues, ChannelMedium, Grid, Light};
+// Benchmarks run with the product's allocator, which the volrad crate sets.
+use volrad as _;
 
 const SIGMA_T_SCALE: f32 = 0.4;
 

@@ -15,6 +15,8 @@ use medium::generators::cloud;
 use medium::light_pass::LightPass;
 use medium::{CellValues, ChannelMedium, Grid, Light, PhaseFunction};
 use solver::operator::TransportOperator;
+// Benchmarks run with the product's allocator, which the volrad crate sets.
+use volrad as _;
 
 const SIGMA_T_SCALE: f32 = 0.4;
 const TOLERANCE: f64 = 1e-5;

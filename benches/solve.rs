@@ -14,6 +14,8 @@ use solver::{
     predicted_iterations, solve, spectral_radius, Method, RowAccess, SolveControl, SolveOptions,
     TransportOperator,
 };
+// Benchmarks run with the product's allocator, which the volrad crate sets.
+use volrad as _;
 
 const NX: usize = 64;
 const NY: usize = 64;
