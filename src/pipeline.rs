@@ -185,5 +185,25 @@ pub fn render_view_through(
         .map(|(c, ch)| crate::methods::channel_scattering(solution, c, ch, options.model))
         .collect::<Result<Vec<Box<dyn InScattering + '_>>>>()?;
     let refs: Vec<&dyn InScattering> = sources.iter().map(|b| b.as_ref()).collect();
-    Ok(gather::render_image(view_medium, &camera, &options, &refs)?)
+    // The solved medium's render indices are kept with the solution; a rescaled view medium
+    // gets its own for this render.
+    if !std::ptr::eq(view_medium, &solution.medium) {
+        return Ok(gather::render_image(view_medium, &camera, &options, &refs)?);
+    }
+    let indices = solution
+        .channels
+        .iter()
+        .enumerate()
+        .map(|(c, ch)| {
+            ch.render_cache
+                .render_index(&solution.medium, c, options.model)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(gather::render_image_indexed(
+        view_medium,
+        &camera,
+        &options,
+        &refs,
+        &indices,
+    )?)
 }

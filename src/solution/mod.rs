@@ -8,8 +8,9 @@ pub mod container;
 use std::path::Path;
 
 use gather::light_depth::{LightDepth, LightDepthModel};
+use gather::RenderIndex;
 use medium::light_pass::{LightEnergy, LightField, LightPass};
-use medium::scene::{CameraSpec, RenderSettings, SolveMethod};
+use medium::scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 use serde::{Deserialize, Serialize};
 
@@ -57,13 +58,17 @@ pub struct ChannelSolution {
     pub render_cache: RenderCache,
 }
 
-/// What renders derive from a channel's light pass and can share: the first bounce's
-/// light-depth model ([`LightDepthModel`], whose automatic choice and refined light passes
-/// cost more than a render). Not part of the file; equal to any other cache.
+/// What renders derive from a channel's light pass and medium and can share: the first
+/// bounce's light-depth model ([`LightDepthModel`], whose automatic choice and refined light
+/// passes cost more than a render) and the channel's [`RenderIndex`] under the solution's
+/// render model (empty-space distances: a serial walk over every cell). Not part of the file;
+/// equal to any other cache.
 #[derive(Clone, Default)]
 pub struct RenderCache {
     /// The model, or why it could not be built (kept as text: renders report it each time).
     light_depth: std::sync::OnceLock<Result<LightDepthModel, String>>,
+    /// The index and the model it was built for, or why it could not be built.
+    render_index: std::sync::OnceLock<Result<(OpticalModel, RenderIndex), String>>,
 }
 
 impl RenderCache {
@@ -77,6 +82,30 @@ impl RenderCache {
             .as_ref()
             .map_err(|e| anyhow::anyhow!("first-bounce light-depth model: {e}"))
     }
+
+    /// Channel `channel`'s render index of `medium` (the solution's own, on every call) under
+    /// `model`. The first call's model is the one kept (a solution renders under its own
+    /// model); another model is refused rather than served a wrong index.
+    pub fn render_index(
+        &self,
+        medium: &Medium,
+        channel: usize,
+        model: OpticalModel,
+    ) -> anyhow::Result<&RenderIndex> {
+        let (kept, index) = self
+            .render_index
+            .get_or_init(|| {
+                RenderIndex::new(medium, channel, model)
+                    .map(|index| (model, index))
+                    .map_err(|e| e.to_string())
+            })
+            .as_ref()
+            .map_err(|e| anyhow::anyhow!("render index: {e}"))?;
+        if *kept != model {
+            anyhow::bail!("render index kept for model {kept:?}, asked for {model:?}");
+        }
+        Ok(index)
+    }
 }
 
 impl Solution {
@@ -84,8 +113,14 @@ impl Solution {
     /// [`RenderCache`]), so that the first view is as fast as the rest. Errors are left for the
     /// renders to report.
     pub fn prepare_renders(&self) {
-        for ch in &self.channels {
+        for (c, ch) in self.channels.iter().enumerate() {
             if let Err(e) = ch.render_cache.light_depth(&ch.light_pass) {
+                tracing::warn!("preparing renders: {e:#}");
+            }
+            if let Err(e) = ch
+                .render_cache
+                .render_index(&self.medium, c, self.render.model)
+            {
                 tracing::warn!("preparing renders: {e:#}");
             }
         }
@@ -102,6 +137,7 @@ impl std::fmt::Debug for RenderCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RenderCache")
             .field("light_depth", &self.light_depth.get())
+            .field("render_index", &self.render_index.get().map(|r| r.is_ok()))
             .finish()
     }
 }

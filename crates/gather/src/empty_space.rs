@@ -10,6 +10,7 @@ use medium::traversal::Ray;
 /// Distances are capped here (they are stored as `u8`).
 const MAX_DISTANCE: u8 = 255;
 
+#[derive(Clone)]
 pub(crate) struct EmptySpace {
     grid: Grid,
     distance: Vec<u8>,

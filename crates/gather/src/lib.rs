@@ -23,7 +23,10 @@ pub mod single_scatter;
 pub use camera::{Camera, CameraProjection};
 pub use error::GatherError;
 pub use image_io::{read_pfm, Image, ImageFormat};
-pub use render::{render, render_image, ImageChannel, RayIntegrator, RenderOptions};
+pub use render::{
+    render, render_image, render_image_indexed, render_indexed, ImageChannel, RayIntegrator,
+    RenderIndex, RenderOptions,
+};
 pub use scattering::{
     segment_weight, InScattering, RayCarry, ScatteringSum, UniformSource, ViewSegment,
 };

@@ -20,6 +20,8 @@ use medium::grid::Grid;
 use medium::scene::{OpticalModel, Scene};
 use medium::traversal::Ray;
 use medium::{CellValues, Interpolation, Medium};
+use std::borrow::Cow;
+
 use rayon::prelude::*;
 
 use crate::empty_space::EmptySpace;
@@ -140,18 +142,13 @@ pub struct RayIntegrator<'a> {
     use_emission: bool,
     use_scattering: bool,
     background: f64,
-    /// Largest emission anywhere, and largest `e/σt` (infinite if some cell emits without
-    /// extinction, or for the emission-only model): bounds for early termination.
-    emission_max: f64,
-    emission_ratio_max: f64,
     /// Upper bound on the scattered source (0 when unused; infinite if unknown).
     scattering_max: f64,
-    /// World-space box holding every cell that can absorb or emit (for `trilinear`, grown by
-    /// a cell for the interpolation's reach); rays are clipped to it, so the empty margins
-    /// of a volume cost nothing. `None`: the medium is empty for this model.
-    occupied: Option<(DVec3, DVec3)>,
-    /// Distances to the nearest occupied cell, for jumping over empty space.
-    empty: EmptySpace,
+    /// Copied from the index for the per-segment termination test.
+    emission_max: f64,
+    emission_ratio_max: f64,
+    /// What the render derives from the medium alone (built here, or shared by the caller).
+    index: Cow<'a, RenderIndex>,
     termination: f64,
     step: f64,
 }
@@ -165,50 +162,53 @@ impl<'a> RayIntegrator<'a> {
         scattering: &'a dyn InScattering,
     ) -> Result<Self, GatherError> {
         options.validate()?;
-        let ch = medium.channels.get(channel).ok_or_else(|| {
-            GatherError::Render(format!(
-                "channel {channel} requested of a medium with {}",
-                medium.channels.len()
-            ))
-        })?;
+        let index = RenderIndex::new(medium, channel, options.model)?;
+        Self::build(medium, options, scattering, Cow::Owned(index))
+    }
+
+    /// As [`RayIntegrator::new`] with the index built once for this medium, channel and
+    /// `options.model` (refused if it was built for another grid, channel, model or
+    /// interpolation).
+    pub fn with_index(
+        medium: &'a Medium,
+        options: &RenderOptions,
+        scattering: &'a dyn InScattering,
+        index: &'a RenderIndex,
+    ) -> Result<Self, GatherError> {
+        options.validate()?;
+        index.check(medium, options.model)?;
+        Self::build(medium, options, scattering, Cow::Borrowed(index))
+    }
+
+    fn build(
+        medium: &'a Medium,
+        options: &RenderOptions,
+        scattering: &'a dyn InScattering,
+        index: Cow<'a, RenderIndex>,
+    ) -> Result<Self, GatherError> {
+        let ch = &medium.channels[index.channel];
         use OpticalModel::*;
-        let use_sigma = options.model != EmissionOnly;
-        let use_emission = options.model != AbsorptionOnly && !ch.emission.is_zero();
         let use_scattering =
             matches!(options.model, SingleScatterUnshadowed | Scattering) && !scattering.is_zero();
-        let (emission_max, emission_ratio_max) = if use_emission {
-            let ratio = if use_sigma {
-                emission_ratio_max(&ch.sigma_t, &ch.emission)
-            } else {
-                f64::INFINITY
-            };
-            (ch.emission.max() as f64, ratio)
-        } else {
-            (0.0, 0.0)
-        };
         let scattering_max = if use_scattering {
             scattering.max_source()
         } else {
             0.0
         };
-        let occupancy = occupancy(&ch.sigma_t, &ch.emission, use_sigma, use_emission);
-        let occupied = occupied_box(&medium.grid, &occupancy, medium.interpolation);
-        let empty = EmptySpace::new(&medium.grid, &occupancy);
         Ok(RayIntegrator {
             grid: medium.grid,
             sigma_t: &ch.sigma_t,
             emission: &ch.emission,
             scattering,
             interpolation: medium.interpolation,
-            use_sigma,
-            use_emission,
+            use_sigma: index.use_sigma,
+            use_emission: index.use_emission,
             use_scattering,
             background: options.background,
-            emission_max,
-            emission_ratio_max,
             scattering_max,
-            occupied,
-            empty,
+            emission_max: index.emission_max,
+            emission_ratio_max: index.emission_ratio_max,
+            index,
             termination: options.termination,
             step: options.trilinear_step * medium.grid.cell_size,
         })
@@ -218,7 +218,7 @@ impl<'a> RayIntegrator<'a> {
     /// `t = 0` (so the medium behind the origin is not seen) and adding the background.
     #[inline]
     pub fn radiance(&self, ray: &Ray) -> f64 {
-        let Some((lo, hi)) = self.occupied else {
+        let Some((lo, hi)) = self.index.occupied else {
             return self.background;
         };
         let Some((t_in, t_out)) = clip_box(lo, hi, ray) else {
@@ -246,6 +246,7 @@ impl<'a> RayIntegrator<'a> {
     }
 
     fn radiance_nearest(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
+        let empty = &self.index.empty;
         let mut transmittance = 1.0f64;
         let mut radiance = 0.0f64;
         let mut t_start = t_in;
@@ -254,9 +255,9 @@ impl<'a> RayIntegrator<'a> {
             for seg in self.grid.traverse(ray, t_start, t_out) {
                 // Deep in empty space: jump to where the ray leaves the known-empty cube and
                 // restart the traversal there (worth it only for cubes of several cells).
-                let radius = self.empty.empty_radius(seg.cell, 0);
+                let radius = empty.empty_radius(seg.cell, 0);
                 if radius >= JUMP_RADIUS {
-                    let t_next = self.empty.exit(ray, seg.coords, radius);
+                    let t_next = empty.exit(ray, seg.coords, radius);
                     if t_next >= t_out {
                         break 'restart;
                     }
@@ -297,6 +298,7 @@ impl<'a> RayIntegrator<'a> {
     }
 
     fn radiance_trilinear(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
+        let empty = &self.index.empty;
         let length = t_out - t_in;
         let steps = (length / self.step).ceil().max(1.0);
         let dt = length / steps;
@@ -311,9 +313,9 @@ impl<'a> RayIntegrator<'a> {
             let corners = Trilinear::new(&self.grid, x);
             // The interpolated field is zero in cells whose neighbours are all empty; jump over
             // the whole known-empty cube, keeping to the lattice of step midpoints.
-            let radius = self.empty.empty_radius(corners.cell, 1);
+            let radius = empty.empty_radius(corners.cell, 1);
             if radius >= 0 {
-                let t_next = self.empty.exit(ray, corners.coords, radius);
+                let t_next = empty.exit(ray, corners.coords, radius);
                 let k_next = ((t_next - t_in) / dt - 0.5).ceil();
                 k = if k_next > k as f64 {
                     k_next as usize
@@ -444,6 +446,92 @@ impl Trilinear {
     }
 }
 
+/// What renders of one channel of a medium under one optical model derive from the medium
+/// alone: the box rays are clipped to, the empty-space distances they jump by, and the
+/// emission bounds of early termination. Building it walks every cell (serially, in part), so
+/// renders of many views of one medium share one ([`render_indexed`],
+/// [`RayIntegrator::with_index`]); [`render`] builds its own each time.
+#[derive(Clone)]
+pub struct RenderIndex {
+    grid: Grid,
+    channel: usize,
+    model: OpticalModel,
+    interpolation: Interpolation,
+    use_sigma: bool,
+    use_emission: bool,
+    /// Largest emission anywhere, and largest `e/σt` (infinite if some cell emits without
+    /// extinction, or for the emission-only model): bounds for early termination.
+    emission_max: f64,
+    emission_ratio_max: f64,
+    /// World-space box holding every cell that can absorb or emit (for `trilinear`, grown by
+    /// a cell for the interpolation's reach); rays are clipped to it, so the empty margins
+    /// of a volume cost nothing. `None`: the medium is empty for this model.
+    occupied: Option<(DVec3, DVec3)>,
+    /// Distances to the nearest occupied cell, for jumping over empty space.
+    empty: EmptySpace,
+}
+
+impl RenderIndex {
+    pub fn new(medium: &Medium, channel: usize, model: OpticalModel) -> Result<Self, GatherError> {
+        let ch = medium.channels.get(channel).ok_or_else(|| {
+            GatherError::Render(format!(
+                "channel {channel} requested of a medium with {}",
+                medium.channels.len()
+            ))
+        })?;
+        use OpticalModel::*;
+        let use_sigma = model != EmissionOnly;
+        let use_emission = model != AbsorptionOnly && !ch.emission.is_zero();
+        let (emission_max, emission_ratio_max) = if use_emission {
+            let ratio = if use_sigma {
+                emission_ratio_max(&ch.sigma_t, &ch.emission)
+            } else {
+                f64::INFINITY
+            };
+            (ch.emission.max() as f64, ratio)
+        } else {
+            (0.0, 0.0)
+        };
+        let occupancy = occupancy(&ch.sigma_t, &ch.emission, use_sigma, use_emission);
+        Ok(RenderIndex {
+            grid: medium.grid,
+            channel,
+            model,
+            interpolation: medium.interpolation,
+            use_sigma,
+            use_emission,
+            emission_max,
+            emission_ratio_max,
+            occupied: occupied_box(&medium.grid, &occupancy, medium.interpolation),
+            empty: EmptySpace::new(&medium.grid, &occupancy),
+        })
+    }
+
+    /// Refuses an index built for another grid, channel count, optical model or
+    /// interpolation than `medium` and `model` (the values themselves cannot be checked
+    /// cheaply: an index is for the medium it was built from).
+    fn check(&self, medium: &Medium, model: OpticalModel) -> Result<(), GatherError> {
+        if self.grid != medium.grid
+            || self.channel >= medium.channels.len()
+            || self.model != model
+            || self.interpolation != medium.interpolation
+        {
+            return Err(GatherError::Render(format!(
+                "render index built for channel {} of a {:?} grid, model {:?}, {:?} \
+                 interpolation; asked for a {:?} grid with {} channels, model {model:?}, {:?}",
+                self.channel,
+                self.grid.dims,
+                self.model,
+                self.interpolation,
+                medium.grid.dims,
+                medium.channels.len(),
+                medium.interpolation
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// Smallest empty radius (cells around the current one) worth a restart of the traversal.
 const JUMP_RADIUS: i64 = 2;
 
@@ -536,12 +624,33 @@ pub fn render(
     scattering: &dyn InScattering,
 ) -> Result<ImageChannel, GatherError> {
     let integrator = RayIntegrator::new(medium, channel, options, scattering)?;
+    render_rays(&integrator, camera, options)
+}
+
+/// [`render`] with the [`RenderIndex`] of this medium, channel and `options.model` built once
+/// for many views.
+pub fn render_indexed(
+    medium: &Medium,
+    camera: &Camera,
+    options: &RenderOptions,
+    scattering: &dyn InScattering,
+    index: &RenderIndex,
+) -> Result<ImageChannel, GatherError> {
+    let integrator = RayIntegrator::with_index(medium, options, scattering, index)?;
+    render_rays(&integrator, camera, options)
+}
+
+fn render_rays(
+    integrator: &RayIntegrator,
+    camera: &Camera,
+    options: &RenderOptions,
+) -> Result<ImageChannel, GatherError> {
     let (width, height) = (camera.width as usize, camera.height as usize);
     let (sx, sy) = options.strata();
     let inv_spp = 1.0 / (sx * sy) as f64;
     let mut pixels = vec![0.0f32; width * height];
     // Pixels whose rays cannot meet the occupied box see only the background: no rays there.
-    let [bx0, by0, bx1, by1] = match integrator.occupied {
+    let [bx0, by0, bx1, by1] = match integrator.index.occupied {
         Some((lo, hi)) => camera.pixel_bounds(lo, hi).map(|v| v as usize),
         None => [0; 4],
     };
@@ -595,6 +704,35 @@ pub fn render_image(
     options: &RenderOptions,
     scattering: &[&dyn InScattering],
 ) -> Result<Image, GatherError> {
+    render_image_with(medium, camera, options, scattering, &[])
+}
+
+/// [`render_image`] with one [`RenderIndex`] per channel built once for many views (channel
+/// `c`'s index for channel `c`, under `options.model`).
+pub fn render_image_indexed(
+    medium: &Medium,
+    camera: &Camera,
+    options: &RenderOptions,
+    scattering: &[&dyn InScattering],
+    indices: &[&RenderIndex],
+) -> Result<Image, GatherError> {
+    if indices.len() != medium.channels.len() {
+        return Err(GatherError::Render(format!(
+            "{} render indices for a medium with {} channels",
+            indices.len(),
+            medium.channels.len()
+        )));
+    }
+    render_image_with(medium, camera, options, scattering, indices)
+}
+
+fn render_image_with(
+    medium: &Medium,
+    camera: &Camera,
+    options: &RenderOptions,
+    scattering: &[&dyn InScattering],
+    indices: &[&RenderIndex],
+) -> Result<Image, GatherError> {
     let n = medium.channels.len();
     if !scattering.is_empty() && scattering.len() != n {
         return Err(GatherError::Render(format!(
@@ -605,7 +743,18 @@ pub fn render_image(
     let mut channels = Vec::with_capacity(n);
     for c in 0..n {
         let source: &dyn InScattering = scattering.get(c).copied().unwrap_or(&());
-        channels.push(render(medium, c, camera, options, source)?);
+        channels.push(match indices.get(c) {
+            Some(index) if index.channel == c => {
+                render_indexed(medium, camera, options, source, index)?
+            }
+            Some(index) => {
+                return Err(GatherError::Render(format!(
+                    "render index of channel {} given for channel {c}",
+                    index.channel
+                )))
+            }
+            None => render(medium, c, camera, options, source)?,
+        });
     }
     let mut pixels = vec![0.0f32; camera.width as usize * camera.height as usize * n];
     for (c, ch) in channels.iter().enumerate() {

@@ -801,3 +801,70 @@ fn early_termination_stops_thick_rays() {
         assert!(rel_err(got, 0.5 * (1.0 - (-40.0f64).exp())) <= termination.max(1e-12));
     }
 }
+
+/// A render index built once serves every view with the image `render` gives, bit for bit,
+/// for each optical model; an index built for another model or grid is refused.
+#[test]
+fn a_shared_render_index_gives_the_same_images_and_refuses_another_medium() {
+    use gather::{render_indexed, RenderIndex};
+    let dims = [7, 6, 5];
+    let mut rng = Pcg64::seed_from_u64(3);
+    // Patchy: empty cells between occupied ones, so empty-space jumps happen.
+    let sigma_t: Vec<f32> = (0..dims.iter().product::<usize>())
+        .map(|_| {
+            if rng.random_bool(0.4) {
+                rng.random_range(0.1..1.5)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let emission = CellValues::PerCell(sigma_t.iter().map(|s| 0.5 * s).collect());
+    let medium = Medium::new(
+        Grid::new(dims, 1.0).unwrap(),
+        vec![ChannelMedium {
+            sigma_t,
+            albedo: CellValues::Uniform(0.0),
+            emission,
+        }],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let source = UniformSource(0.3);
+    for model in [
+        OpticalModel::EmissionAbsorption,
+        OpticalModel::AbsorptionOnly,
+        OpticalModel::EmissionOnly,
+        OpticalModel::Scattering,
+    ] {
+        let opts = RenderOptions {
+            model,
+            background: 0.1,
+            ..RenderOptions::default()
+        };
+        let index = RenderIndex::new(&medium, 0, model).unwrap();
+        for cam in cameras_around(medium.grid.extent(), false) {
+            let fresh = render(&medium, 0, &cam, &opts, &source).unwrap();
+            let shared = render_indexed(&medium, &cam, &opts, &source, &index).unwrap();
+            assert_eq!(fresh.pixels, shared.pixels, "{model:?}");
+        }
+        let other_model = if model == OpticalModel::AbsorptionOnly {
+            OpticalModel::EmissionOnly
+        } else {
+            OpticalModel::AbsorptionOnly
+        };
+        let cam = &cameras_around(medium.grid.extent(), false)[0];
+        let wrong = RenderOptions {
+            model: other_model,
+            ..opts
+        };
+        assert!(render_indexed(&medium, cam, &wrong, &source, &index).is_err());
+    }
+    let other_grid = homogeneous([7, 6, 4], 1.0, 0.5, 0.0);
+    let index = RenderIndex::new(&medium, 0, OpticalModel::AbsorptionOnly).unwrap();
+    let cam = &cameras_around(other_grid.grid.extent(), false)[0];
+    let opts = options(OpticalModel::AbsorptionOnly, 0.0);
+    assert!(render_indexed(&other_grid, cam, &opts, &(), &index).is_err());
+}
