@@ -23,7 +23,7 @@ use medium::{Light, Medium, PhaseFunction};
 
 use std::borrow::Cow;
 
-use crate::light_depth::LightAt;
+use crate::light_depth::{DepthLattice, LightAt};
 pub use crate::light_depth::{LightDepth, LightDepthModel, TRILINEAR_CELL_MEAN_TOLERANCE};
 use crate::scattering::{InScattering, RayCarry, ViewSegment};
 use crate::GatherError;
@@ -433,33 +433,50 @@ impl SingleScatter<'_> {
         let continues = held && carry.t == seg.t0;
         let mut total = 0.0;
         for (l, lattice) in self.depth.lattices().enumerate() {
-            let Some(lattice) = lattice else {
-                continue;
-            };
-            let factor = if held {
-                carry.values[3 * l + 2]
-            } else {
-                let f = self.directional_factor(l, seg.ray);
-                if holds {
-                    carry.values[3 * l + 2] = f;
-                }
-                f
-            };
-            let start = continues.then(|| LightAt {
-                depth: carry.values[3 * l],
-                transmittance: carry.values[3 * l + 1],
-            });
-            let (integral, end) = lattice.segment(seg, start);
-            if holds {
-                carry.values[3 * l] = end.depth;
-                carry.values[3 * l + 1] = end.transmittance;
+            if let Some(lattice) = lattice {
+                total += self.lattice_light(l, lattice, seg, carry, held, holds, continues);
             }
-            total += factor * integral;
         }
         if holds {
             carry.t = seg.t1;
         }
         sigma_s * total
+    }
+
+    /// Light `l`'s `p(ω_l·ω) E_l ∫ e^{−σt (t−t0)} T_L dt` over the segment from its lattice
+    /// (times σs by the caller). `held`: the carry holds this ray's values; `carried`: light
+    /// `l` may keep its values there; `continues`: the previous segment ended at `t0`.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn lattice_light(
+        &self,
+        l: usize,
+        lattice: &DepthLattice,
+        seg: &ViewSegment,
+        carry: &mut RayCarry,
+        held: bool,
+        carried: bool,
+        continues: bool,
+    ) -> f64 {
+        let factor = if carried && held {
+            carry.values[3 * l + 2]
+        } else {
+            let f = self.directional_factor(l, seg.ray);
+            if carried {
+                carry.values[3 * l + 2] = f;
+            }
+            f
+        };
+        let start = (continues && carried).then(|| LightAt {
+            depth: carry.values[3 * l],
+            transmittance: carry.values[3 * l + 1],
+        });
+        let (integral, end) = lattice.segment(seg, start);
+        if carried {
+            carry.values[3 * l] = end.depth;
+            carry.values[3 * l + 1] = end.transmittance;
+        }
+        factor * integral
     }
 
     /// Every other case: lights without lattices (point, spot, exit face), "Utah", gradient
@@ -486,25 +503,8 @@ impl SingleScatter<'_> {
             // Only directional lights have lattices.
             if let Some(lattice) = self.depth.lattice(l).filter(|_| lattice_path) {
                 let carried = holds && l < CARRIED_LIGHTS;
-                let factor = if carried && held {
-                    carry.values[3 * l + 2]
-                } else {
-                    let f = self.directional_factor(l, ray);
-                    if carried {
-                        carry.values[3 * l + 2] = f;
-                    }
-                    f
-                };
-                let start = (continues && carried).then(|| LightAt {
-                    depth: carry.values[3 * l],
-                    transmittance: carry.values[3 * l + 1],
-                });
-                let (integral, end) = lattice.segment(seg, start);
-                if carried {
-                    carry.values[3 * l] = end.depth;
-                    carry.values[3 * l + 1] = end.transmittance;
-                }
-                total += sigma_s * factor * integral;
+                total +=
+                    sigma_s * self.lattice_light(l, lattice, seg, carry, held, carried, continues);
                 continue;
             }
             if !self.options.shadows {
