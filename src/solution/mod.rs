@@ -67,8 +67,8 @@ pub struct ChannelSolution {
 pub struct RenderCache {
     /// The model, or why it could not be built (kept as text: renders report it each time).
     light_depth: std::sync::OnceLock<Result<LightDepthModel, String>>,
-    /// The index and the model it was built for, or why it could not be built.
-    render_index: std::sync::OnceLock<Result<(OpticalModel, RenderIndex), String>>,
+    /// The index, or why it could not be built.
+    render_index: std::sync::OnceLock<Result<RenderIndex, String>>,
 }
 
 impl RenderCache {
@@ -92,17 +92,16 @@ impl RenderCache {
         channel: usize,
         model: OpticalModel,
     ) -> anyhow::Result<&RenderIndex> {
-        let (kept, index) = self
+        let index = self
             .render_index
-            .get_or_init(|| {
-                RenderIndex::new(medium, channel, model)
-                    .map(|index| (model, index))
-                    .map_err(|e| e.to_string())
-            })
+            .get_or_init(|| RenderIndex::new(medium, channel, model).map_err(|e| e.to_string()))
             .as_ref()
             .map_err(|e| anyhow::anyhow!("render index: {e}"))?;
-        if *kept != model {
-            anyhow::bail!("render index kept for model {kept:?}, asked for {model:?}");
+        if index.model() != model {
+            anyhow::bail!(
+                "render index kept for model {:?}, asked for {model:?}",
+                index.model()
+            );
         }
         Ok(index)
     }

@@ -507,6 +507,11 @@ impl RenderIndex {
         })
     }
 
+    /// The optical model it was built for.
+    pub fn model(&self) -> OpticalModel {
+        self.model
+    }
+
     /// Refuses an index built for another grid, channel count, optical model or
     /// interpolation than `medium` and `model` (the values themselves cannot be checked
     /// cheaply: an index is for the medium it was built from).
