@@ -132,9 +132,10 @@ impl Image {
         Ok(())
     }
 
-    /// 8-bit display values of every pixel, by [`tone_map`].
+    /// 8-bit display values of every pixel: [`tone_map`]'s bytes, through a [`ToneMap`].
     pub fn tone_mapped(&self, exposure: f64) -> Vec<u8> {
-        self.pixels.iter().map(|&l| tone_map(l, exposure)).collect()
+        let map = ToneMap::new(exposure);
+        self.pixels.iter().map(|&l| map.apply(l)).collect()
     }
 
     fn write_png(&self, target: &Path, tmp: &Path, exposure: f64) -> Result<(), GatherError> {
@@ -185,6 +186,126 @@ pub fn tone_map(l: f32, exposure: f64) -> u8 {
         0.0
     };
     (srgb_encode(1.0 - (-exposure * l).exp()) * 255.0 + 0.5).clamp(0.0, 255.0) as u8
+}
+
+/// [`tone_map`] at one exposure as the 255 radiances where its byte steps up, found once:
+/// each value then costs a branch-free search of that table instead of an `exp` and a `powf`
+/// (the service tone-maps every image it sends). The bytes are [`tone_map`]'s exactly: each
+/// step is the smallest `f32` that `tone_map` itself takes to that byte.
+#[derive(Clone, Debug)]
+pub struct ToneMap {
+    exposure: f64,
+    /// `steps[k]` (`k ≥ 1`): the least radiance whose byte is `≥ k` (`+∞` if none);
+    /// `steps[0] = 0`. `None`: an exposure without steps (not finite and positive), where
+    /// every value goes through [`tone_map`].
+    steps: Option<Box<[f32; 256]>>,
+}
+
+impl ToneMap {
+    pub fn new(exposure: f64) -> Self {
+        let steps = (exposure.is_finite() && exposure > 0.0).then(|| {
+            let mut steps = Box::new([0.0f32; 256]);
+            let tone = |bits: u32| tone_map(f32::from_bits(bits), exposure);
+            // Non-negative finite floats order as their bit patterns.
+            let top = f32::MAX.to_bits();
+            let mut below = 0u32;
+            for k in 1..=255u8 {
+                let Some(at) = first_reaching(k, below, top, guess_bits(k, exposure), &tone) else {
+                    steps[k as usize..].fill(f32::INFINITY);
+                    break;
+                };
+                steps[k as usize] = f32::from_bits(at);
+                below = at;
+            }
+            steps
+        });
+        ToneMap { exposure, steps }
+    }
+
+    /// [`tone_map`]`(l, exposure)`.
+    #[inline]
+    pub fn apply(&self, l: f32) -> u8 {
+        let Some(steps) = &self.steps else {
+            return tone_map(l, self.exposure);
+        };
+        if !(l.is_finite() && l > 0.0) {
+            return 0;
+        }
+        // The last k with steps[k] ≤ l (steps[0] = 0 < l), in eight selects.
+        let mut k = 0;
+        for half in [128, 64, 32, 16, 8, 4, 2, 1] {
+            if steps[k + half] <= l {
+                k += half;
+            }
+        }
+        k as u8
+    }
+}
+
+/// Where `tone_map` should first reach byte `k`, from the inverse of its curve (a guess: the
+/// search confirms it bit by bit).
+fn guess_bits(k: u8, exposure: f64) -> u32 {
+    let encoded = (k as f64 - 0.5) / 255.0;
+    let linear = if encoded <= 0.040_45 {
+        encoded / 12.92
+    } else {
+        ((encoded + 0.055) / 1.055).powf(2.4)
+    };
+    let l = -(-linear).ln_1p() / exposure;
+    if l.is_finite() && l >= 0.0 {
+        (l as f32).to_bits()
+    } else {
+        f32::MAX.to_bits()
+    }
+}
+
+/// The least bit pattern in `[below, top]` whose `tone` is `≥ k`, `None` if even `top`'s is
+/// not; `tone` must not decrease. Gallops from `guess` to bracket it, then bisects.
+fn first_reaching(
+    k: u8,
+    below: u32,
+    top: u32,
+    guess: u32,
+    tone: &impl Fn(u32) -> u8,
+) -> Option<u32> {
+    if tone(top) < k {
+        return None;
+    }
+    if tone(below) >= k {
+        return Some(below);
+    }
+    // Invariant: tone(lo) < k ≤ tone(hi).
+    let guess = guess.clamp(below, top);
+    let (mut lo, mut hi) = if tone(guess) >= k {
+        let (mut hi, mut step) = (guess, 1u32);
+        loop {
+            let probe = hi.saturating_sub(step).max(below);
+            if tone(probe) < k {
+                break (probe, hi);
+            }
+            hi = probe;
+            step = step.saturating_mul(2);
+        }
+    } else {
+        let (mut lo, mut step) = (guess, 1u32);
+        loop {
+            let probe = lo.saturating_add(step).min(top);
+            if tone(probe) >= k {
+                break (lo, probe);
+            }
+            lo = probe;
+            step = step.saturating_mul(2);
+        }
+    };
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if tone(mid) >= k {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    Some(hi)
 }
 
 /// The sRGB transfer curve for a linear value in [0, 1].

@@ -22,7 +22,7 @@ pub mod single_scatter;
 
 pub use camera::{Camera, CameraProjection};
 pub use error::GatherError;
-pub use image_io::{read_pfm, Image, ImageFormat};
+pub use image_io::{read_pfm, Image, ImageFormat, ToneMap};
 pub use render::{
     render, render_image, render_image_indexed, render_indexed, ImageChannel, RayIntegrator,
     RenderIndex, RenderOptions,

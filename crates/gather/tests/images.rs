@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use gather::image_io::{parse_pfm, srgb_encode};
-use gather::{read_pfm, GatherError, Image};
+use gather::image_io::{parse_pfm, srgb_encode, tone_map};
+use gather::{read_pfm, GatherError, Image, ToneMap};
 
 /// A fresh empty directory for one test.
 fn scratch(name: &str) -> PathBuf {
@@ -179,6 +179,85 @@ fn png_is_tone_mapped_and_srgb_encoded() {
     let decoded = image::open(&path).unwrap();
     assert_eq!(decoded.color(), image::ColorType::Rgb8);
     assert_eq!(decoded.to_rgb8().as_raw(), &vec![0, half, 255, 0, 0, 0]);
+}
+
+/// The table gives `tone_map`'s bytes exactly: at every step and the floats around it (where an
+/// off-by-one-ulp step would show), at many radiances over 18 decades, at special values, and at
+/// exposures without a table (which fall back to `tone_map`).
+#[test]
+fn tone_map_table_gives_the_same_bytes_as_the_curve() {
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut uniform = move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let special = [
+        0.0,
+        -0.0,
+        -1.0,
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::MAX,
+        f32::MIN_POSITIVE,
+        f32::from_bits(1),
+        1e-30,
+    ];
+    for exposure in [
+        1e-3,
+        0.37,
+        1.0,
+        4.0,
+        250.0,
+        0.0,
+        -2.0,
+        f64::NAN,
+        f64::INFINITY,
+    ] {
+        let map = ToneMap::new(exposure);
+        let check = |l: f32| {
+            assert_eq!(
+                map.apply(l),
+                tone_map(l, exposure),
+                "radiance {l:e} (bits {:#x}) at exposure {exposure}",
+                l.to_bits()
+            )
+        };
+        special.iter().for_each(|&l| check(l));
+        for _ in 0..20_000 {
+            check(10f64.powf(-12.0 + 18.0 * uniform()) as f32);
+        }
+        // Around each place the byte changes, found by scanning the curve.
+        let mut steps_seen = 0;
+        let mut l = 1e-9f32;
+        while l < 1e9 {
+            let next = l * 1.001;
+            if tone_map(l, exposure) != tone_map(next, exposure) {
+                steps_seen += 1;
+                let (mut lo, mut hi) = (l.to_bits(), next.to_bits());
+                while hi - lo > 1 {
+                    let mid = lo + (hi - lo) / 2;
+                    if tone_map(f32::from_bits(mid), exposure) == tone_map(l, exposure) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                for bits in hi.saturating_sub(3)..=hi + 3 {
+                    check(f32::from_bits(bits));
+                }
+            }
+            l = next;
+        }
+        if exposure.is_finite() && exposure > 0.0 {
+            assert!(
+                steps_seen >= 200,
+                "{steps_seen} steps at exposure {exposure}"
+            );
+        }
+    }
 }
 
 #[test]
