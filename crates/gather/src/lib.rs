@@ -13,6 +13,7 @@
 
 pub mod camera;
 mod empty_space;
+mod exponential;
 pub mod error;
 pub mod image_io;
 pub mod light_depth;

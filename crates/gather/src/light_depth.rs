@@ -25,6 +25,7 @@ use medium::light_pass::{directional_corner_depths, LightPass};
 use medium::{Grid, Light};
 use rayon::prelude::*;
 
+use crate::exponential::{exp, fma_available};
 use crate::scattering::ViewSegment;
 use crate::GatherError;
 
@@ -74,6 +75,8 @@ pub struct DepthLattice {
     stride_y: usize,
     stride_z: usize,
     depth: Vec<f32>,
+    /// The CPU has FMA: segments run [`DepthLattice::segment_fma`].
+    fma: bool,
 }
 
 impl DepthLattice {
@@ -123,6 +126,7 @@ impl DepthLattice {
             stride_y,
             stride_z: stride_y * (grid.dims[1] * refine + 1),
             depth,
+            fma: fma_available(),
         })
     }
 
@@ -163,7 +167,7 @@ impl DepthLattice {
         let lo = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * h;
         let f = (x - lo) * self.inv_sub_size;
         let at = |q: usize| coords[q] * r + (f[q].max(0.0) as usize).min(r - 1);
-        self.corners([at(0), at(1), at(2)]).at(x)
+        self.corners([at(0), at(1), at(2)]).at::<false>(x)
     }
 
     /// Extinction-weighted relative L1 error of this lattice's cell means of `T_L` against the
@@ -223,28 +227,57 @@ impl DepthLattice {
     /// the piece integrates in closed form from its end values `F = e^{−σt (t−t0)} T_L`.
     #[inline]
     pub fn segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+        #[cfg(target_arch = "x86_64")]
+        if self.fma {
+            // SAFETY: `fma` is set only where the CPU has FMA.
+            return unsafe { self.segment_fma(seg, start) };
+        }
+        self.segment_body::<false>(seg, start)
+    }
+
+    /// [`DepthLattice::segment`] compiled with FMA: fused interpolation and the inlined
+    /// [`crate::exponential::exp_fused`] instead of libm calls (the last bits differ from the
+    /// portable build's).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "fma")]
+    fn segment_fma(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+        self.segment_body::<true>(seg, start)
+    }
+
+    /// [`DepthLattice::segment`] for callers that are themselves compiled with FMA (`FMA`
+    /// true) or not: inlined into them.
+    #[inline(always)]
+    pub(crate) fn segment_body<const FMA: bool>(
+        &self,
+        seg: &ViewSegment,
+        start: Option<LightAt>,
+    ) -> (f64, LightAt) {
         if self.refine == 1 {
-            self.whole_cell_segment(seg, start)
+            self.whole_cell_segment::<FMA>(seg, start)
         } else {
-            self.sub_cell_segment(seg, start)
+            self.sub_cell_segment::<FMA>(seg, start)
         }
     }
 
     /// Refinement 1: the cell is one piece.
-    #[inline]
-    fn whole_cell_segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+    #[inline(always)]
+    fn whole_cell_segment<const FMA: bool>(
+        &self,
+        seg: &ViewSegment,
+        start: Option<LightAt>,
+    ) -> (f64, LightAt) {
         let depths = self.corners(seg.coords);
         let (d_a, f_a) = match start {
             Some(light) => (light.depth, light.transmittance),
             None => {
-                let d = depths.at(seg.ray.at(seg.t0));
-                (d, (-d).exp())
+                let d = depths.at::<FMA>(seg.ray.at(seg.t0));
+                (d, exp::<FMA>(-d))
             }
         };
-        let d_b = depths.at(seg.ray.at(seg.t1));
+        let d_b = depths.at::<FMA>(seg.ray.at(seg.t1));
         let end = LightAt {
             depth: d_b,
-            transmittance: (-d_b).exp(),
+            transmittance: exp::<FMA>(-d_b),
         };
         let len = seg.t1 - seg.t0;
         let f_b = seg.attenuation * end.transmittance;
@@ -258,7 +291,12 @@ impl DepthLattice {
 
     /// Refinement > 1: the sub-cells the segment crosses are walked in order (a small DDA
     /// inside the cell), one closed-form piece each.
-    fn sub_cell_segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+    #[inline(always)]
+    fn sub_cell_segment<const FMA: bool>(
+        &self,
+        seg: &ViewSegment,
+        start: Option<LightAt>,
+    ) -> (f64, LightAt) {
         let (ray, coords) = (seg.ray, seg.coords);
         let r = self.refine;
         let s = self.sub_size;
@@ -295,8 +333,8 @@ impl DepthLattice {
         let (mut d_a, mut f_a) = match start {
             Some(light) => (light.depth, light.transmittance),
             None => {
-                let d = depths.at(ray.at(a));
-                (d, (-d).exp())
+                let d = depths.at::<FMA>(ray.at(a));
+                (d, exp::<FMA>(-d))
             }
         };
         let mut total = 0.0;
@@ -314,10 +352,10 @@ impl DepthLattice {
             };
             if t_next[axis] >= seg.t1 {
                 // The last piece ends the segment.
-                let d_b = depths.at(ray.at(seg.t1));
+                let d_b = depths.at::<FMA>(ray.at(seg.t1));
                 let end = LightAt {
                     depth: d_b,
-                    transmittance: (-d_b).exp(),
+                    transmittance: exp::<FMA>(-d_b),
                 };
                 let len = seg.t1 - a;
                 if len > 0.0 {
@@ -327,8 +365,8 @@ impl DepthLattice {
                 return (total, end);
             }
             let b = t_next[axis].max(a);
-            let d_b = depths.at(ray.at(b));
-            let f_b = (-(sigma * (b - seg.t0) + d_b)).exp();
+            let d_b = depths.at::<FMA>(ray.at(b));
+            let f_b = exp::<FMA>(-(sigma * (b - seg.t0) + d_b));
             let len = b - a;
             if len > 0.0 {
                 total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
@@ -353,6 +391,16 @@ impl DepthLattice {
             }
             depths = self.corners(sub);
         }
+    }
+}
+
+/// `a b + c`, fused when `FMA`.
+#[inline(always)]
+fn mul_add<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if FMA {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
     }
 }
 
@@ -389,22 +437,27 @@ struct SubCellDepths {
 impl SubCellDepths {
     /// The depth at world point `x` (clamped to the sub-cell).
     #[inline(always)]
-    fn at(&self, x: DVec3) -> f64 {
-        self.at_fraction((x - self.lo) * self.inv_size)
+    fn at<const FMA: bool>(&self, x: DVec3) -> f64 {
+        self.lerp::<FMA>((x - self.lo) * self.inv_size)
     }
 
     /// The depth at fractional position `f` in the sub-cell (clamped to it).
     #[inline(always)]
     fn at_fraction(&self, f: DVec3) -> f64 {
+        self.lerp::<false>(f)
+    }
+
+    #[inline(always)]
+    fn lerp<const FMA: bool>(&self, f: DVec3) -> f64 {
         let f = f.clamp(DVec3::ZERO, DVec3::ONE);
         let d = &self.d;
-        let x00 = d[0] + f.x * (d[1] - d[0]);
-        let x10 = d[2] + f.x * (d[3] - d[2]);
-        let x01 = d[4] + f.x * (d[5] - d[4]);
-        let x11 = d[6] + f.x * (d[7] - d[6]);
-        let y0 = x00 + f.y * (x10 - x00);
-        let y1 = x01 + f.y * (x11 - x01);
-        y0 + f.z * (y1 - y0)
+        let x00 = mul_add::<FMA>(f.x, d[1] - d[0], d[0]);
+        let x10 = mul_add::<FMA>(f.x, d[3] - d[2], d[2]);
+        let x01 = mul_add::<FMA>(f.x, d[5] - d[4], d[4]);
+        let x11 = mul_add::<FMA>(f.x, d[7] - d[6], d[6]);
+        let y0 = mul_add::<FMA>(f.y, x10 - x00, x00);
+        let y1 = mul_add::<FMA>(f.y, x11 - x01, x01);
+        mul_add::<FMA>(f.z, y1 - y0, y0)
     }
 }
 

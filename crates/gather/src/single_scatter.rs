@@ -104,6 +104,8 @@ pub struct SingleScatter<'a> {
     max_source: f64,
     /// Every light takes the lattice path ([`SingleScatter::lattice_segment`]).
     lattices_only: bool,
+    /// The CPU has FMA: the lattice path runs [`SingleScatter::lattice_segment_fma`].
+    fma: bool,
 }
 
 /// Largest value of the phase function over `cos θ ∈ [−1, 1]` (ends plus a fine scan).
@@ -230,6 +232,7 @@ impl<'a> SingleScatter<'a> {
             && (0..pass.fields.len()).all(|l| depth.lattice(l).is_some());
         Ok(SingleScatter {
             lattices_only,
+            fma: crate::exponential::fma_available(),
             pass,
             sigma_t: &ch.sigma_t,
             albedo: &ch.albedo,
@@ -419,8 +422,8 @@ const CARRIED_LIGHTS: usize = RayCarry::SLOTS / 3;
 impl SingleScatter<'_> {
     /// The segment when every light has a depth lattice (shadows on, no gradient shading, at
     /// most [`CARRIED_LIGHTS`]): the common case, kept small so that it stays fast.
-    #[inline]
-    fn lattice_segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+    #[inline(always)]
+    fn lattice_segment<const FMA: bool>(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
         if seg.t1 <= seg.t0 {
             return 0.0;
         }
@@ -434,7 +437,7 @@ impl SingleScatter<'_> {
         let mut total = 0.0;
         for (l, lattice) in self.depth.lattices().enumerate() {
             if let Some(lattice) = lattice {
-                total += self.lattice_light(l, lattice, seg, carry, held, holds, continues);
+                total += self.lattice_light::<FMA>(l, lattice, seg, carry, held, holds, continues);
             }
         }
         if holds {
@@ -448,7 +451,7 @@ impl SingleScatter<'_> {
     /// `l` may keep its values there; `continues`: the previous segment ended at `t0`.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn lattice_light(
+    fn lattice_light<const FMA: bool>(
         &self,
         l: usize,
         lattice: &DepthLattice,
@@ -471,12 +474,20 @@ impl SingleScatter<'_> {
             depth: carry.values[3 * l],
             transmittance: carry.values[3 * l + 1],
         });
-        let (integral, end) = lattice.segment(seg, start);
+        let (integral, end) = lattice.segment_body::<FMA>(seg, start);
         if carried {
             carry.values[3 * l] = end.depth;
             carry.values[3 * l + 1] = end.transmittance;
         }
         factor * integral
+    }
+
+    /// [`SingleScatter::lattice_segment`] compiled with FMA, the lattice's walk inlined into it
+    /// (fused interpolation, inlined `exp`; the last bits differ from the portable build's).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "fma")]
+    fn lattice_segment_fma(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        self.lattice_segment::<true>(seg, carry)
     }
 
     /// Every other case: lights without lattices (point, spot, exit face), "Utah", gradient
@@ -503,8 +514,8 @@ impl SingleScatter<'_> {
             // Only directional lights have lattices.
             if let Some(lattice) = self.depth.lattice(l).filter(|_| lattice_path) {
                 let carried = holds && l < CARRIED_LIGHTS;
-                total +=
-                    sigma_s * self.lattice_light(l, lattice, seg, carry, held, carried, continues);
+                total += sigma_s
+                    * self.lattice_light::<false>(l, lattice, seg, carry, held, carried, continues);
                 continue;
             }
             if !self.options.shadows {
@@ -560,7 +571,12 @@ impl InScattering for SingleScatter<'_> {
     #[inline]
     fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
         if self.lattices_only {
-            self.lattice_segment(seg, carry)
+            #[cfg(target_arch = "x86_64")]
+            if self.fma {
+                // SAFETY: `fma` is set only where the CPU has FMA.
+                return unsafe { self.lattice_segment_fma(seg, carry) };
+            }
+            self.lattice_segment::<false>(seg, carry)
         } else {
             self.general_segment(seg, carry)
         }
