@@ -151,6 +151,8 @@ pub struct RayIntegrator<'a> {
     index: Cow<'a, RenderIndex>,
     termination: f64,
     step: f64,
+    /// The CPU has FMA: `nearest` rays run [`RayIntegrator::radiance_nearest_fma`].
+    fma: bool,
 }
 
 impl<'a> RayIntegrator<'a> {
@@ -211,6 +213,7 @@ impl<'a> RayIntegrator<'a> {
             index,
             termination: options.termination,
             step: options.trilinear_step * medium.grid.cell_size,
+            fma: crate::exponential::fma_available(),
         })
     }
 
@@ -225,7 +228,14 @@ impl<'a> RayIntegrator<'a> {
             return self.background;
         };
         match self.interpolation {
-            Interpolation::Nearest => self.radiance_nearest(ray, t_in, t_out),
+            Interpolation::Nearest => {
+                #[cfg(target_arch = "x86_64")]
+                if self.fma {
+                    // SAFETY: `fma` is set only where the CPU has FMA.
+                    return unsafe { self.radiance_nearest_fma(ray, t_in, t_out) };
+                }
+                self.radiance_nearest::<false>(ray, t_in, t_out)
+            }
             Interpolation::Trilinear => self.radiance_trilinear(ray, t_in, t_out),
         }
     }
@@ -245,7 +255,15 @@ impl<'a> RayIntegrator<'a> {
         }
     }
 
-    fn radiance_nearest(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
+    /// [`RayIntegrator::radiance_nearest`] compiled with FMA (its per-cell `exp` inlined).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "fma")]
+    fn radiance_nearest_fma(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
+        self.radiance_nearest::<true>(ray, t_in, t_out)
+    }
+
+    #[inline(always)]
+    fn radiance_nearest<const FMA: bool>(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
         let empty = &self.index.empty;
         let mut transmittance = 1.0f64;
         let mut radiance = 0.0f64;
@@ -281,7 +299,7 @@ impl<'a> RayIntegrator<'a> {
                 if (sigma == 0.0 && emission == 0.0) || len <= 0.0 {
                     continue;
                 }
-                let view = ViewSegment::new(ray, &seg, sigma);
+                let view = ViewSegment::new_with::<FMA>(ray, &seg, sigma);
                 let mut q = emission * view.weight;
                 if self.use_scattering {
                     q += self.scattering.segment(&view, &mut carry);

@@ -34,8 +34,14 @@ impl<'r> ViewSegment<'r> {
     /// once for emission and every source).
     #[inline]
     pub fn new(ray: &'r Ray, segment: &Segment, sigma_t: f64) -> Self {
+        Self::new_with::<false>(ray, segment, sigma_t)
+    }
+
+    /// [`ViewSegment::new`] with `exp` inlined for FMA-compiled callers (`FMA` true).
+    #[inline(always)]
+    pub(crate) fn new_with<const FMA: bool>(ray: &'r Ray, segment: &Segment, sigma_t: f64) -> Self {
         let (t0, t1) = (segment.t_enter, segment.t_exit);
-        let (weight, attenuation) = weight_and_attenuation(sigma_t, t1 - t0);
+        let (weight, attenuation) = weight_and_attenuation_with::<FMA>(sigma_t, t1 - t0);
         ViewSegment {
             ray,
             cell: segment.cell,
@@ -59,11 +65,17 @@ impl<'r> ViewSegment<'r> {
 /// relative error < τ⁴/120 ≈ 1e-14) to avoid cancellation in `1 − e^{−τ}`.
 #[inline]
 pub fn weight_and_attenuation(sigma: f64, length: f64) -> (f64, f64) {
+    weight_and_attenuation_with::<false>(sigma, length)
+}
+
+/// [`weight_and_attenuation`] with `exp` inlined for FMA-compiled callers (`FMA` true).
+#[inline(always)]
+pub(crate) fn weight_and_attenuation_with<const FMA: bool>(sigma: f64, length: f64) -> (f64, f64) {
     let tau = sigma * length;
     if tau <= 0.0 {
         return (length, 1.0);
     }
-    let attenuation = (-tau).exp();
+    let attenuation = crate::exponential::exp::<FMA>(-tau);
     let weight = if tau > 1e-3 {
         (1.0 - attenuation) / sigma
     } else {
