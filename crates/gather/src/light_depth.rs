@@ -418,7 +418,8 @@ pub struct LightAt {
 #[inline]
 fn piece_integral(f_a: f64, f_b: f64, x: f64, len: f64) -> f64 {
     if x.abs() > 1e-3 {
-        (f_a - f_b) * len / x
+        // len / x does not wait for f_b (an exp): the division overlaps with it.
+        (f_a - f_b) * (len / x)
     } else {
         f_a * len * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))))
     }
