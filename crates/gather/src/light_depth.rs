@@ -252,11 +252,85 @@ impl DepthLattice {
         seg: &ViewSegment,
         start: Option<LightAt>,
     ) -> (f64, LightAt) {
-        if self.refine == 1 {
-            self.whole_cell_segment::<FMA>(seg, start)
-        } else {
-            self.sub_cell_segment::<FMA>(seg, start)
+        match self.refine {
+            1 => self.whole_cell_segment::<FMA>(seg, start),
+            2 => self.halves_segment::<FMA>(seg, start),
+            _ => self.sub_cell_segment::<FMA>(seg, start),
         }
+    }
+
+    /// Refinement 2 (what [`LightDepth::Auto`] takes for coarse grids): each axis has one
+    /// mid-plane, so the pieces end where the segment crosses them, at most three times, sorted
+    /// by a three-element network; each piece's sub-cell is the side of every mid-plane its
+    /// midpoint lies on. The same pieces as [`DepthLattice::sub_cell_segment`]'s walk, without
+    /// its per-axis state in memory and its unpredictable choice of axis at every step.
+    #[inline(always)]
+    fn halves_segment<const FMA: bool>(
+        &self,
+        seg: &ViewSegment,
+        start: Option<LightAt>,
+    ) -> (f64, LightAt) {
+        let (ray, coords) = (seg.ray, seg.coords);
+        let (t0, t1) = (seg.t0, seg.t1);
+        let s = self.sub_size;
+        let mid = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * (2.0 * s) + s;
+        // Crossings strictly inside the segment; the others become t1 (sorted to the end).
+        let cross = |a: usize| {
+            let d = ray.direction[a];
+            let t = (mid[a] - ray.origin[a]) / d;
+            if d != 0.0 && t > t0 && t < t1 {
+                t
+            } else {
+                t1
+            }
+        };
+        let (x, y, z) = (cross(0), cross(1), cross(2));
+        let (x, y) = (x.min(y), x.max(y));
+        let (y, z) = (y.min(z), y.max(z));
+        let (x, y) = (x.min(y), x.max(y));
+        let ends = [x, y, z, t1];
+        let inner = usize::from(x < t1) + usize::from(y < t1) + usize::from(z < t1);
+        let first = coords.map(|c| 2 * c);
+        let sub_at = |p: DVec3| {
+            [
+                first[0] + usize::from(p.x >= mid.x),
+                first[1] + usize::from(p.y >= mid.y),
+                first[2] + usize::from(p.z >= mid.z),
+            ]
+        };
+        let sigma = seg.sigma_t;
+        let mut a = t0;
+        let mut depths = self.corners(sub_at(ray.at(0.5 * (t0 + ends[0]))));
+        let (mut d_a, mut f_a) = match start {
+            Some(light) => (light.depth, light.transmittance),
+            None => {
+                let d = depths.at::<FMA>(ray.at(a));
+                (d, exp::<FMA>(-d))
+            }
+        };
+        let mut total = 0.0;
+        for (k, &b) in ends[..inner].iter().enumerate() {
+            let d_b = depths.at::<FMA>(ray.at(b));
+            let f_b = exp::<FMA>(-(sigma * (b - t0) + d_b));
+            let len = b - a;
+            if len > 0.0 {
+                total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
+            }
+            (a, d_a, f_a) = (b, d_b, f_b);
+            depths = self.corners(sub_at(ray.at(0.5 * (b + ends[k + 1]))));
+        }
+        // The last piece ends the segment.
+        let d_b = depths.at::<FMA>(ray.at(t1));
+        let end = LightAt {
+            depth: d_b,
+            transmittance: exp::<FMA>(-d_b),
+        };
+        let len = t1 - a;
+        if len > 0.0 {
+            let f_b = seg.attenuation * end.transmittance;
+            total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
+        }
+        (total, end)
     }
 
     /// Refinement 1: the cell is one piece.
@@ -289,8 +363,9 @@ impl DepthLattice {
         (integral, end)
     }
 
-    /// Refinement > 1: the sub-cells the segment crosses are walked in order (a small DDA
-    /// inside the cell), one closed-form piece each.
+    /// Refinement 3 and 4 (any `r > 1`: the test of [`DepthLattice::halves_segment`] runs it
+    /// at 2): the sub-cells the segment crosses are walked in order (a small DDA inside the
+    /// cell), one closed-form piece each.
     #[inline(always)]
     fn sub_cell_segment<const FMA: bool>(
         &self,
@@ -558,5 +633,78 @@ impl LightDepthModel {
             .flatten()
             .map(DepthLattice::bytes)
             .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use medium::traversal::Ray;
+    use medium::{Medium, PhaseFunction};
+    use rand::{Rng, SeedableRng};
+    use rand_pcg::Pcg64Mcg;
+
+    fn close(a: f64, b: f64) -> bool {
+        (a - b).abs() <= 1e-10 * a.abs().max(b.abs()) + 1e-13
+    }
+
+    /// Refinement 2's mid-plane pieces give what the general sub-cell walk gives, on random
+    /// segments of a random medium: from scratch and continuing a ray, on oblique rays, rays
+    /// parallel to axes and rays lying in a cell's mid-plane (no crossing there, and the
+    /// sub-cell on either side of it).
+    #[test]
+    fn halves_match_the_sub_cell_walk() {
+        let mut rng = Pcg64Mcg::seed_from_u64(17);
+        let grid = Grid::new([6, 5, 4], 1.0).unwrap();
+        let mut medium =
+            Medium::homogeneous(grid, 1.0, 0.9, 0.0, PhaseFunction::Isotropic).unwrap();
+        for s in medium.channels[0].sigma_t.iter_mut() {
+            *s = rng.random::<f32>() * 3.0;
+        }
+        let light = Light::Directional {
+            direction: DVec3::new(0.4, -0.7, -0.6).normalize(),
+            irradiance: 1.0,
+        };
+        let pass = LightPass::compute(&grid, &medium.channels[0], &[light]).unwrap();
+        let lattice = DepthLattice::build(&pass, 0, 2).unwrap();
+        let mut segments = 0;
+        for n in 0..600 {
+            let mut origin = DVec3::new(rng.random::<f64>() * 6.0, rng.random::<f64>() * 5.0, -0.5);
+            let mut direction =
+                DVec3::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, 1.0);
+            match n % 4 {
+                // Along y only, in the mid-plane x = 2.5 of a column of cells.
+                1 => {
+                    origin = DVec3::new(2.5, -0.5, rng.random::<f64>() * 4.0);
+                    direction = DVec3::Y;
+                }
+                // In the mid-plane y = 1.5, oblique in x and z.
+                2 => {
+                    origin.y = 1.5;
+                    direction.y = 0.0;
+                }
+                _ => {}
+            }
+            let ray = Ray::new(origin, direction);
+            let mut carried: Option<LightAt> = None;
+            for seg in grid.traverse(&ray, 0.0, f64::INFINITY) {
+                let sigma = medium.channels[0].sigma_t[seg.cell] as f64;
+                let view = ViewSegment::new(&ray, &seg, sigma);
+                for start in [None, carried] {
+                    let (fast, fast_end) = lattice.halves_segment::<false>(&view, start);
+                    let (walk, walk_end) = lattice.sub_cell_segment::<false>(&view, start);
+                    assert!(
+                        close(fast, walk)
+                            && close(fast_end.depth, walk_end.depth)
+                            && close(fast_end.transmittance, walk_end.transmittance),
+                        "ray {n}, cell {:?}: halves {fast:e} {fast_end:?}, walk {walk:e} {walk_end:?}",
+                        seg.coords
+                    );
+                    segments += 1;
+                }
+                carried = Some(lattice.sub_cell_segment::<false>(&view, carried).1);
+            }
+        }
+        assert!(segments > 3000, "{segments} segments");
     }
 }
