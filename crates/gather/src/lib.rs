@@ -13,8 +13,8 @@
 
 pub mod camera;
 mod empty_space;
-mod exponential;
 pub mod error;
+mod exponential;
 pub mod image_io;
 pub mod light_depth;
 pub mod render;
