@@ -298,39 +298,13 @@ impl DepthLattice {
                 first[2] + usize::from(p.z >= mid.z),
             ]
         };
-        let sigma = seg.sigma_t;
-        let mut a = t0;
         let mut depths = self.corners(sub_at(ray.at(0.5 * (t0 + ends[0]))));
-        let (mut d_a, mut f_a) = match start {
-            Some(light) => (light.depth, light.transmittance),
-            None => {
-                let d = depths.at::<FMA>(ray.at(a));
-                (d, exp::<FMA>(-d))
-            }
-        };
-        let mut total = 0.0;
+        let mut walk = PieceWalk::start::<FMA>(&depths, seg, start);
         for (k, &b) in ends[..inner].iter().enumerate() {
-            let d_b = depths.at::<FMA>(ray.at(b));
-            let f_b = exp::<FMA>(-(sigma * (b - t0) + d_b));
-            let len = b - a;
-            if len > 0.0 {
-                total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
-            }
-            (a, d_a, f_a) = (b, d_b, f_b);
+            walk.piece_to::<FMA>(&depths, seg, b);
             depths = self.corners(sub_at(ray.at(0.5 * (b + ends[k + 1]))));
         }
-        // The last piece ends the segment.
-        let d_b = depths.at::<FMA>(ray.at(t1));
-        let end = LightAt {
-            depth: d_b,
-            transmittance: exp::<FMA>(-d_b),
-        };
-        let len = t1 - a;
-        if len > 0.0 {
-            let f_b = seg.attenuation * end.transmittance;
-            total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
-        }
-        (total, end)
+        walk.finish::<FMA>(&depths, seg)
     }
 
     /// Refinement 1: the cell is one piece.
@@ -341,26 +315,7 @@ impl DepthLattice {
         start: Option<LightAt>,
     ) -> (f64, LightAt) {
         let depths = self.corners(seg.coords);
-        let (d_a, f_a) = match start {
-            Some(light) => (light.depth, light.transmittance),
-            None => {
-                let d = depths.at::<FMA>(seg.ray.at(seg.t0));
-                (d, exp::<FMA>(-d))
-            }
-        };
-        let d_b = depths.at::<FMA>(seg.ray.at(seg.t1));
-        let end = LightAt {
-            depth: d_b,
-            transmittance: exp::<FMA>(-d_b),
-        };
-        let len = seg.t1 - seg.t0;
-        let f_b = seg.attenuation * end.transmittance;
-        let integral = if len > 0.0 {
-            piece_integral(f_a, f_b, seg.sigma_t * len + d_b - d_a, len)
-        } else {
-            0.0
-        };
-        (integral, end)
+        PieceWalk::start::<FMA>(&depths, seg, start).finish::<FMA>(&depths, seg)
     }
 
     /// Refinement 3 and 4 (any `r > 1`: the test of [`DepthLattice::halves_segment`] runs it
@@ -402,17 +357,8 @@ impl DepthLattice {
             }
         }
         let first = coords.map(|c| c * r);
-        let sigma = seg.sigma_t;
-        let mut a = seg.t0;
         let mut depths = self.corners(sub);
-        let (mut d_a, mut f_a) = match start {
-            Some(light) => (light.depth, light.transmittance),
-            None => {
-                let d = depths.at::<FMA>(ray.at(a));
-                (d, exp::<FMA>(-d))
-            }
-        };
-        let mut total = 0.0;
+        let mut walk = PieceWalk::start::<FMA>(&depths, seg, start);
         loop {
             let axis = if t_next[0] < t_next[1] {
                 if t_next[0] < t_next[2] {
@@ -426,27 +372,9 @@ impl DepthLattice {
                 2
             };
             if t_next[axis] >= seg.t1 {
-                // The last piece ends the segment.
-                let d_b = depths.at::<FMA>(ray.at(seg.t1));
-                let end = LightAt {
-                    depth: d_b,
-                    transmittance: exp::<FMA>(-d_b),
-                };
-                let len = seg.t1 - a;
-                if len > 0.0 {
-                    let f_b = seg.attenuation * end.transmittance;
-                    total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
-                }
-                return (total, end);
+                return walk.finish::<FMA>(&depths, seg);
             }
-            let b = t_next[axis].max(a);
-            let d_b = depths.at::<FMA>(ray.at(b));
-            let f_b = exp::<FMA>(-(sigma * (b - seg.t0) + d_b));
-            let len = b - a;
-            if len > 0.0 {
-                total += piece_integral(f_a, f_b, sigma * len + d_b - d_a, len);
-            }
-            (a, d_a, f_a) = (b, d_b, f_b);
+            walk.piece_to::<FMA>(&depths, seg, t_next[axis].max(walk.a));
             // Into the neighbouring sub-cell (always inside this cell: a face on the cell's
             // boundary has no crossing scheduled).
             if step_up[axis] {
@@ -476,6 +404,73 @@ fn mul_add<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
         a.mul_add(b, c)
     } else {
         a * b + c
+    }
+}
+
+/// A segment's walk over its pieces: where the next piece starts, the depth and
+/// `F = e^{−σt (t−t0)} T_L` there, and the integral so far. Each piece's depth is linear
+/// between its ends' trilinear values, so it integrates in closed form from `F` at both ends.
+struct PieceWalk {
+    a: f64,
+    d_a: f64,
+    f_a: f64,
+    total: f64,
+}
+
+impl PieceWalk {
+    /// At the segment's start, with the light carried from the previous segment if known.
+    #[inline(always)]
+    fn start<const FMA: bool>(
+        depths: &SubCellDepths,
+        seg: &ViewSegment,
+        start: Option<LightAt>,
+    ) -> Self {
+        let (d_a, f_a) = match start {
+            Some(light) => (light.depth, light.transmittance),
+            None => {
+                let d = depths.at::<FMA>(seg.ray.at(seg.t0));
+                (d, exp::<FMA>(-d))
+            }
+        };
+        PieceWalk {
+            a: seg.t0,
+            d_a,
+            f_a,
+            total: 0.0,
+        }
+    }
+
+    /// The piece from where the walk stands to `b`, inside the segment, in `depths`' sub-cell.
+    #[inline(always)]
+    fn piece_to<const FMA: bool>(&mut self, depths: &SubCellDepths, seg: &ViewSegment, b: f64) {
+        let sigma = seg.sigma_t;
+        let d_b = depths.at::<FMA>(seg.ray.at(b));
+        let f_b = exp::<FMA>(-(sigma * (b - seg.t0) + d_b));
+        let len = b - self.a;
+        if len > 0.0 {
+            self.total += piece_integral(self.f_a, f_b, sigma * len + d_b - self.d_a, len);
+        }
+        (self.a, self.d_a, self.f_a) = (b, d_b, f_b);
+    }
+
+    /// The last piece, to the segment's end: the integral and the light at `t1`.
+    #[inline(always)]
+    fn finish<const FMA: bool>(
+        mut self,
+        depths: &SubCellDepths,
+        seg: &ViewSegment,
+    ) -> (f64, LightAt) {
+        let d_b = depths.at::<FMA>(seg.ray.at(seg.t1));
+        let end = LightAt {
+            depth: d_b,
+            transmittance: exp::<FMA>(-d_b),
+        };
+        let len = seg.t1 - self.a;
+        if len > 0.0 {
+            let f_b = seg.attenuation * end.transmittance;
+            self.total += piece_integral(self.f_a, f_b, seg.sigma_t * len + d_b - self.d_a, len);
+        }
+        (self.total, end)
     }
 }
 
