@@ -19,7 +19,7 @@ pub struct Grid {
 
 impl Grid {
     pub fn new(dims: [usize; 3], cell_size: f64) -> Result<Self, MediumError> {
-        if dims.iter().any(|&d| d == 0) {
+        if dims.contains(&0) {
             return Err(MediumError::invalid(
                 "grid",
                 format!("dims {dims:?} must all be at least 1"),

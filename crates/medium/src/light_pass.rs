@@ -637,7 +637,7 @@ fn directional_deposit(
             for family in families.iter().skip(c).step_by(chunks) {
                 entering += family.power * (family.count[0] * family.count[1]) as f64;
                 leaving += sweep_family(
-                    &media[family.frame],
+                    media[family.frame],
                     family,
                     &mut transmitted,
                     &mut integrals[family.frame],

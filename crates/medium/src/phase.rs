@@ -14,9 +14,10 @@ use crate::MediumError;
 const INV_4PI: f64 = 1.0 / (4.0 * PI);
 
 /// The phase functions volrad supports, dispatched by `match` (no trait objects in hot loops).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum PhaseFunction {
+    #[default]
     Isotropic,
     /// Henyey–Greenstein with asymmetry `g ∈ (-1, 1)`.
     HenyeyGreenstein {
@@ -31,12 +32,6 @@ pub enum PhaseFunction {
         g1: f64,
         g2: f64,
     },
-}
-
-impl Default for PhaseFunction {
-    fn default() -> Self {
-        PhaseFunction::Isotropic
-    }
 }
 
 #[inline]

@@ -39,7 +39,7 @@ impl FaceRect {
     #[inline]
     pub fn frame(face: usize) -> (usize, f64, usize, usize) {
         let axis = face / 2;
-        let sign = if face % 2 == 0 { 1.0 } else { -1.0 };
+        let sign = if face.is_multiple_of(2) { 1.0 } else { -1.0 };
         (axis, sign, (axis + 1) % 3, (axis + 2) % 3)
     }
 
