@@ -87,7 +87,11 @@ fn bin_of_is_consistent_with_bin_boundaries() {
             let l = bins.bin_of(d * 3.7);
             let rect = bins.rect(l);
             let axis = rect.face / 2;
-            let sign = if rect.face.is_multiple_of(2) { 1.0 } else { -1.0 };
+            let sign = if rect.face.is_multiple_of(2) {
+                1.0
+            } else {
+                -1.0
+            };
             let a = d.to_array();
             assert!(a[axis] * sign > 0.0);
             let p = d / (a[axis] * sign);

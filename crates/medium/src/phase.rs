@@ -20,18 +20,12 @@ pub enum PhaseFunction {
     #[default]
     Isotropic,
     /// Henyey–Greenstein with asymmetry `g ∈ (-1, 1)`.
-    HenyeyGreenstein {
-        g: f64,
-    },
+    HenyeyGreenstein { g: f64 },
     /// Blinn's (1982) phase function of large diffuse (Lambertian) spheres (Max §V).
     LambertianSphere,
     /// Blasi & Wuethrich's two-lobe mix `r·HG(g1) + (1−r)·HG(g2)`, typically one forward and
     /// one backward lobe.
-    TwoLobe {
-        r: f64,
-        g1: f64,
-        g2: f64,
-    },
+    TwoLobe { r: f64, g1: f64, g2: f64 },
 }
 
 #[inline]
