@@ -52,6 +52,7 @@ impl Segment {
 impl Grid {
     /// The parametric interval where the ray is inside the grid's box, intersected with
     /// `[t_min, t_max]`; `None` when empty.
+    #[inline]
     pub fn clip(&self, ray: &Ray, t_min: f64, t_max: f64) -> Option<(f64, f64)> {
         let ext = self.extent();
         let (mut t0, mut t1) = (t_min, t_max);
@@ -75,6 +76,7 @@ impl Grid {
     }
 
     /// Walks the cells the ray crosses between `t_min` and `t_max`.
+    #[inline]
     pub fn traverse(&self, ray: &Ray, t_min: f64, t_max: f64) -> GridTraversal {
         GridTraversal::new(self, ray, t_min, t_max)
     }
@@ -104,6 +106,7 @@ pub struct GridTraversal {
 }
 
 impl GridTraversal {
+    #[inline]
     fn new(grid: &Grid, ray: &Ray, t_min: f64, t_max: f64) -> Self {
         let dims = grid.dims.map(|d| d as i64);
         let h = grid.cell_size;
