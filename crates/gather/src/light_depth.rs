@@ -75,8 +75,6 @@ pub struct DepthLattice {
     stride_y: usize,
     stride_z: usize,
     depth: Vec<f32>,
-    /// The CPU has FMA: segments run [`DepthLattice::segment_fma`].
-    fma: bool,
 }
 
 impl DepthLattice {
@@ -126,7 +124,6 @@ impl DepthLattice {
             stride_y,
             stride_z: stride_y * (grid.dims[1] * refine + 1),
             depth,
-            fma: fma_available(),
         })
     }
 
@@ -227,9 +224,11 @@ impl DepthLattice {
     /// the piece integrates in closed form from its end values `F = e^{−σt (t−t0)} T_L`.
     #[inline]
     pub fn segment(&self, seg: &ViewSegment, start: Option<LightAt>) -> (f64, LightAt) {
+        // Renders do not come here (the first bounce inlines `segment_body` into its own
+        // FMA-compiled path), so the standard library's cached check is cheap enough.
         #[cfg(target_arch = "x86_64")]
-        if self.fma {
-            // SAFETY: `fma` is set only where the CPU has FMA.
+        if fma_available() {
+            // SAFETY: the CPU has FMA, checked on the line above.
             return unsafe { self.segment_fma(seg, start) };
         }
         self.segment_body::<false>(seg, start)
