@@ -110,12 +110,11 @@ fn chamfer_pass(d: &mut [u8], px: usize, py: usize, pz: usize) {
                 }
             }
             let mut previous = d[row];
-            for i in 1..px - 1 {
-                let c = row + i;
-                let v = d[c]
-                    .min(before[i].saturating_add(1))
+            for (cell, &seen) in d[row + 1..row + px - 1].iter_mut().zip(&before[1..px - 1]) {
+                let v = (*cell)
+                    .min(seen.saturating_add(1))
                     .min(previous.saturating_add(1));
-                d[c] = v;
+                *cell = v;
                 previous = v;
             }
         }

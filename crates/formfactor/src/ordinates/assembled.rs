@@ -56,8 +56,8 @@ impl AssembledOrdinates {
             let l = piece.bin;
             let [fx, fy, fz] = piece.fractions;
             let s = piece.projected;
-            for src in 0..n {
-                if sigma_s[src] == 0.0 {
+            for (src, &sigma_s_src) in sigma_s.iter().enumerate() {
+                if sigma_s_src == 0.0 {
                     continue;
                 }
                 let [si, sj, sk] = grid.coords(src);
@@ -110,8 +110,8 @@ impl AssembledOrdinates {
                             let c = grid.index(i, j, k);
                             let f = piece.weight * response[c];
                             if f != 0.0 {
-                                for jb in 0..m {
-                                    let v = f * sigma_s[src] * matrix.get(l, jb) * omega[jb];
+                                for (jb, &omega_jb) in omega.iter().enumerate() {
+                                    let v = f * sigma_s_src * matrix.get(l, jb) * omega_jb;
                                     tri.add_triplet(c * m + l, src * m + jb, v);
                                 }
                             }

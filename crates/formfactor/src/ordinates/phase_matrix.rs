@@ -101,8 +101,8 @@ impl PhaseMatrix {
                 .zip(&mu)
                 .map(|(wl, ml)| wl * (beta * (ml - 1.0)).exp())
                 .sum();
-            for l in 0..m {
-                self.values[l * m + j] *= (beta * (mu[l] - 1.0)).exp() / z;
+            for (l, ml) in mu.iter().enumerate() {
+                self.values[l * m + j] *= (beta * (ml - 1.0)).exp() / z;
             }
         }
     }
