@@ -8,8 +8,8 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use gather::{render, Camera, RenderOptions};
 use glam::DVec3;
 use medium::generators::cloud;
-use medium::scene::OpticalModel;
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
+use scene::OpticalModel;
 
 /// σt = 0.4 × density (peak 0.4 per cell): column optical depths up to roughly 10, like the
 /// reference clouds.
@@ -67,7 +67,7 @@ fn bench_render(c: &mut Criterion) {
 fn bench_scattering_render(c: &mut Criterion) {
     use gather::single_scatter::{SingleScatter, SingleScatterOptions};
     use medium::light_pass::LightPass;
-    use medium::scene::Scene;
+    use scene::Scene;
 
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let scene = Scene::from_file(&root.join("data/cloud.toml")).unwrap();

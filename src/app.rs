@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use glam::DVec3;
-use medium::scene::{CameraSpec, Projection};
-use medium::Scene;
+use scene::Scene;
+use scene::{CameraSpec, Projection};
 
 use crate::cli::{Cli, Command, InfoArgs, ViewArgs};
 

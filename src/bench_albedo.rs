@@ -12,9 +12,10 @@ use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
 use medium::light_pass::LightPass;
 use medium::optical::CellValues;
-use medium::scene::SolveMethod;
-use medium::{ChannelMedium, Scene};
+use medium::ChannelMedium;
 use plotters::prelude::*;
+use scene::Scene;
+use scene::SolveMethod;
 use solver::{Method, RowAccess, SolveControl, SolveOptions, TransportOperator};
 
 use crate::cli::BenchAlbedoArgs;

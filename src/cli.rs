@@ -182,12 +182,14 @@ pub struct SolveArgs {
     /// Print the report as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
-    /// Override `[solve] method`.
+    /// Override `[solve] method` (discrete-ordinates, zonal, zonal-hierarchical,
+    /// single-scatter, two-pass, none); a new method brings its default iteration.
     #[arg(long)]
-    pub method: Option<String>,
-    /// Override `[solve] iteration` (jacobi, gauss-seidel, sor:1.5, gmres:30, bicgstab, ...).
+    pub method: Option<scene::SolveMethod>,
+    /// Override `[solve] iteration` (jacobi, gauss-seidel, sor:1.5, gmres:30, bicgstab, cg,
+    /// coarse-cg, two-level-cg[:N], dsa-cg, coarse-jacobi, coarse-gs, coarse-sor:OMEGA).
     #[arg(long)]
-    pub iteration: Option<String>,
+    pub iteration: Option<solver::Method>,
     /// Override `[solve] tolerance`.
     #[arg(long)]
     pub tolerance: Option<f64>,

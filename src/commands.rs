@@ -6,8 +6,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use medium::scene::SolveMethod;
-use medium::Scene;
+use scene::Scene;
 
 use crate::app::{choose_camera, load_scene, orbit_cameras, view_outputs};
 use crate::cli::{ExportArgs, ExportField, RenderArgs, RenderMethod, SolveArgs};
@@ -15,21 +14,9 @@ use crate::pipeline::{render_view, render_view_through, solve_scene, view_medium
 use crate::progress::SolveProgress;
 use crate::solution::Solution;
 
-/// The scene of `volrad` with no command: `data/cloud-backlit.toml`, compiled in — Max's
-/// cloud, forward scattering (g = 0.85) by discrete ordinates, lit from behind so that its
-/// edges glow (issue 5's silver lining). About 20 s on 2 cores.
-const DEFAULT_SCENE: &str = include_str!("../data/cloud-backlit.toml");
-
-/// The built-in default scene ([`DEFAULT_SCENE`]).
+/// The built-in default scene ([`Scene::builtin_default`]).
 pub fn default_scene() -> Result<Scene> {
-    let mut scene = Scene::from_toml_str(
-        DEFAULT_SCENE,
-        Path::new("."),
-        Path::new("<built-in backlit cloud>"),
-    )
-    .context("the built-in scene")?;
-    scene.origin = medium::scene::SceneOrigin::BuiltIn("backlit cloud");
-    Ok(scene)
+    Scene::builtin_default().context("the built-in scene")
 }
 
 /// `volrad` with no command: the built-in cloud, solved with its default method, rendered.
@@ -60,7 +47,7 @@ pub fn run_default(output: &Path, quiet: bool) -> Result<()> {
 /// Solves with a progress bar and Ctrl-C cancellation.
 pub fn solve_with_progress(
     scene: &Scene,
-    settings: &medium::scene::SolveSettings,
+    settings: &scene::SolveSettings,
     quiet: bool,
 ) -> Result<Solution> {
     let progress = SolveProgress::start(settings, quiet);
@@ -202,18 +189,13 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
 pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
     let scene = load_scene(&args.scene)?;
     let mut settings = scene.solve.clone();
-    if let Some(m) = &args.method {
-        settings.method = SolveMethod::parse(m).with_context(|| {
-            format!(
-                "--method `{m}`: expected one of {}",
-                medium::scene::SOLVE_METHOD_NAMES.join(", ")
-            )
-        })?;
+    if let Some(method) = args.method {
+        settings.method = method;
         // A new method brings its own default iteration unless --iteration says otherwise.
-        settings.iteration = medium::scene::IterationMethod::default_for(settings.method);
+        settings.iteration = method.default_iteration();
     }
-    if let Some(it) = &args.iteration {
-        crate::methods::set_iteration(&mut settings, it)?;
+    if let Some(iteration) = args.iteration {
+        settings.iteration = iteration;
     }
     if let Some(t) = args.tolerance {
         if !(t.is_finite() && t > 0.0) {

@@ -2,8 +2,8 @@
 
 use std::fmt;
 
-use medium::scene::{max_axis_optical_depth, SceneOrigin, SolveMethod};
-use medium::Scene;
+use scene::Scene;
+use scene::{SceneOrigin, SolveMethod};
 use serde::Serialize;
 
 /// A description of a scene for people (`Display`) and programs (`Serialize`).
@@ -73,7 +73,7 @@ impl SceneInfo {
             sigma_t_min: if lo.is_finite() { lo } else { 0.0 },
             sigma_t_max: hi,
             occupied_fraction: occupied as f64 / cells as f64,
-            max_axis_optical_depth: max_axis_optical_depth(m),
+            max_axis_optical_depth: m.max_axis_optical_depth(),
             albedo_max: m
                 .channels
                 .iter()

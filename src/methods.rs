@@ -12,10 +12,9 @@ use gather::single_scatter::{SingleScatter, SingleScatterOptions};
 use gather::{InScattering, RayCarry, ViewSegment};
 use glam::DVec3;
 use medium::light_pass::LightPass;
-use medium::scene::{IterationMethod, OpticalModel, SolveMethod, SolveSettings, ITERATION_NAMES};
-use medium::Scene;
+use scene::{OpticalModel, Scene, SolveMethod, SolveSettings};
 use serde::Serialize;
-use solver::{Method, Smoother, SolveOptions, SolveReport, TransportOperator};
+use solver::{Method, SolveOptions, SolveReport, TransportOperator};
 
 use crate::cli::ExportField;
 use crate::pipeline::{CellSource, SolveHooks};
@@ -25,26 +24,6 @@ use crate::solution::{ChannelSolution, ScatteredField, Solution, StoredBins};
 /// the cloud24 reference within 1 % (relative L2) of the exact operator's (0.77 % measured;
 /// the library default 3e-4 gives 2 %), at about twice the links.
 pub const HIERARCHY_TOLERANCE: f64 = 1e-4;
-
-/// The solver method for a scene's `[solve] iteration`.
-pub fn solver_method(it: IterationMethod) -> Method {
-    match it {
-        IterationMethod::Jacobi => Method::Jacobi,
-        IterationMethod::GaussSeidel => Method::GaussSeidel,
-        IterationMethod::Sor { omega } => Method::Sor { omega },
-        IterationMethod::Gmres { restart } => Method::Gmres { restart },
-        IterationMethod::BiCgStab => Method::BiCgStab,
-        IterationMethod::ConjugateGradient => Method::ConjugateGradient,
-        IterationMethod::CoarseJacobi => Method::CoarseCorrected {
-            inner: Smoother::Jacobi,
-        },
-        IterationMethod::CoarseGaussSeidel => Method::CoarseCorrected {
-            inner: Smoother::GaussSeidel,
-        },
-        IterationMethod::TwoLevelCg { smoothing } => Method::TwoLevelCg { smoothing },
-        IterationMethod::DsaCg => Method::DsaCg,
-    }
-}
 
 /// Refuses, before any operator is built, an iteration the solve method's operator cannot
 /// run: the conjugate-gradient family needs reciprocity (zonal operators only), and
@@ -60,15 +39,13 @@ pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
     let it = settings.iteration;
     let needs_symmetry = matches!(
         it,
-        IterationMethod::ConjugateGradient
-            | IterationMethod::TwoLevelCg { .. }
-            | IterationMethod::DsaCg
+        Method::ConjugateGradient | Method::CoarseCg | Method::TwoLevelCg { .. } | Method::DsaCg
     );
     let zonal = matches!(
         settings.method,
         SolveMethod::Zonal | SolveMethod::ZonalHierarchical
     );
-    if it == IterationMethod::DsaCg && settings.method != SolveMethod::ZonalHierarchical {
+    if it == Method::DsaCg && settings.method != SolveMethod::ZonalHierarchical {
         bail!(
             "[solve] iteration `dsa-cg` needs a diffusion approximation, which only method \
              `zonal-hierarchical` provides (not `{}`); use cg",
@@ -79,23 +56,16 @@ pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
         bail!(
             "[solve] iteration `{}` needs a symmetrisable (zonal) operator, which method `{}` \
              does not build; use gauss-seidel, sor:OMEGA, gmres or bicgstab",
-            solver_method(it),
+            it,
             settings.method.name()
         );
     }
     Ok(())
 }
 
-/// `--iteration TEXT` on top of the scene's setting.
-pub fn set_iteration(settings: &mut SolveSettings, text: &str) -> Result<()> {
-    settings.iteration = IterationMethod::parse(text)
-        .with_context(|| format!("--iteration `{text}`: expected one of {ITERATION_NAMES}"))?;
-    Ok(())
-}
-
 fn solve_options(settings: &SolveSettings) -> SolveOptions {
     SolveOptions {
-        method: solver_method(settings.iteration),
+        method: settings.iteration,
         tolerance: settings.tolerance,
         max_iterations: settings.max_iterations,
         record_history: true,
@@ -570,7 +540,7 @@ mod tests {
     #[test]
     fn iteration_checks_apply_only_to_methods_that_iterate() {
         let mut settings = SolveSettings::default_for(&medium::PhaseFunction::Isotropic);
-        settings.iteration = IterationMethod::ConjugateGradient;
+        settings.iteration = Method::ConjugateGradient;
         for method in [
             SolveMethod::SingleScatter,
             SolveMethod::TwoPass,

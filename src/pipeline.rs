@@ -8,8 +8,8 @@ use anyhow::{Context, Result};
 use gather::{Camera, Image, InScattering, RayCarry, RenderOptions, ViewSegment};
 use glam::DVec3;
 use medium::light_pass::LightPass;
-use medium::scene::{CameraSpec, SceneOrigin, SolveMethod, SolveSettings};
-use medium::{Medium, Scene};
+use medium::Medium;
+use scene::{CameraSpec, Scene, SceneOrigin, SolveMethod, SolveSettings};
 
 use crate::solution::{ChannelSolution, ScatteredField, Solution};
 
@@ -30,7 +30,23 @@ pub fn scene_hash(scene: &Scene) -> String {
     };
     feed(bincode::serde::encode_to_vec(&scene.medium, cfg).unwrap_or_default());
     feed(bincode::serde::encode_to_vec(&scene.lights, cfg).unwrap_or_default());
-    feed(bincode::serde::encode_to_vec(&scene.solve, cfg).unwrap_or_default());
+    // The solve settings by their scene-file spelling, so the hash depends on what they
+    // mean rather than on a derive's byte layout.
+    let solve = &scene.solve;
+    feed(
+        format!(
+            "method={} bins={} iteration={} tolerance={:e} max_iterations={} \
+             transport_refinement={} photons={}",
+            solve.method,
+            solve.bins,
+            solve.iteration,
+            solve.tolerance,
+            solve.max_iterations,
+            solve.transport_refinement,
+            solve.photons
+        )
+        .into_bytes(),
+    );
     feed(scene.background.to_le_bytes().to_vec());
     let digest = h.finalize();
     digest.iter().take(16).map(|b| format!("{b:02x}")).collect()

@@ -4,7 +4,7 @@ use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use medium::scene::SolveSettings;
+use scene::SolveSettings;
 use solver::SolveControl;
 
 /// A spinner that shows the iteration and residual of the running solve.

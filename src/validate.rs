@@ -15,9 +15,9 @@ use anyhow::{bail, Context, Result};
 use gather::image_io::tone_map;
 use gather::Image;
 use indicatif::{ProgressBar, ProgressStyle};
-use medium::scene::{IterationMethod, SolveMethod};
-use medium::Scene;
 use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions};
+use scene::Scene;
+use scene::SolveMethod;
 use serde::Serialize;
 
 use crate::compare::{block_means, compare, compare_noisy, Comparison};
@@ -503,7 +503,7 @@ struct MethodRun {
 
 fn run_method(
     scene: &Scene,
-    spec: &medium::scene::CameraSpec,
+    spec: &scene::CameraSpec,
     camera: &gather::Camera,
     method: ValidateMethod,
     settings: &ValidateSettings,
@@ -537,7 +537,7 @@ fn run_method(
     let mut solve = scene.solve.clone();
     if solve.method != solve_method {
         solve.method = solve_method;
-        solve.iteration = IterationMethod::default_for(solve_method);
+        solve.iteration = solve_method.default_iteration();
     }
     if settings.quick {
         // CI-sized like the rest of a quick run: 2¹⁸ photons instead of the default 2²¹.
@@ -586,12 +586,12 @@ fn run_method(
 
 fn scene_label(scene: &Scene) -> String {
     match &scene.origin {
-        medium::scene::SceneOrigin::File(p) => p
+        scene::SceneOrigin::File(p) => p
             .parent()
             .and_then(|d| d.file_name())
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| p.display().to_string()),
-        medium::scene::SceneOrigin::BuiltIn(n) => n.to_string(),
+        scene::SceneOrigin::BuiltIn(n) => n.to_string(),
     }
 }
 

@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
-use medium::{CellValues, Scene};
+use medium::CellValues;
+use scene::Scene;
 use solver::{Method, SolveControl, SolveOptions, TransportOperator};
 use volrad::bench_albedo::{
     residual_plot_path, run_albedo_bench, write_outputs, AlbedoBenchOptions, AlbedoRun,

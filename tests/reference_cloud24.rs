@@ -4,8 +4,8 @@
 
 use std::path::Path;
 
-use medium::scene::{IterationMethod, SolveMethod};
-use medium::Scene;
+use scene::Scene;
+use scene::SolveMethod;
 use volrad::compare::compare;
 use volrad::pipeline::{render_view, solve_scene, SolveHooks};
 use volrad::solution::ScatteredField;
@@ -34,7 +34,7 @@ fn zonal_render_matches_mitsuba_reference() {
     let scene = scene();
     let mut settings = scene.solve.clone();
     settings.method = SolveMethod::Zonal;
-    settings.iteration = IterationMethod::default_for(SolveMethod::Zonal);
+    settings.iteration = SolveMethod::Zonal.default_iteration();
     settings.tolerance = 1e-6;
     let solution = solve_scene(&scene, &settings, &SolveHooks::default()).unwrap();
     assert!(solution.channels[0].report.as_ref().unwrap().converged);
@@ -73,7 +73,7 @@ fn hierarchical_matches_exact_source_terms() {
     let solve = |method| {
         let mut settings = scene.solve.clone();
         settings.method = method;
-        settings.iteration = IterationMethod::default_for(method);
+        settings.iteration = method.default_iteration();
         settings.tolerance = 1e-7;
         let sol = solve_scene(&scene, &settings, &SolveHooks::default()).unwrap();
         match &sol.channels[0].scattered {

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 
 use anyhow::{Context, Result};
-use medium::Scene;
+use scene::Scene;
 use serde_json::{json, Value};
 
 use super::cache::{self, CacheDir};
@@ -93,7 +93,7 @@ pub fn scene_id(scene: &Scene) -> String {
 }
 
 /// Parses scene text the way the service stores it: volume files resolve inside `volumes/`.
-pub(crate) fn parse_scene(cache: &CacheDir, text: &str) -> Result<Scene, medium::MediumError> {
+pub(crate) fn parse_scene(cache: &CacheDir, text: &str) -> Result<Scene, scene::SceneError> {
     Scene::from_toml_str(text, &cache.volumes_dir(), Path::new("scene"))
 }
 

@@ -12,7 +12,7 @@ use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use glam::DVec3;
-use medium::scene::{CameraSpec, Projection};
+use scene::{CameraSpec, Projection};
 use serde_json::{json, Value};
 
 use super::cache::{self, is_id};

@@ -10,8 +10,8 @@ use std::path::Path;
 use gather::light_depth::{LightDepth, LightDepthModel};
 use gather::RenderIndex;
 use medium::light_pass::{LightEnergy, LightField, LightPass};
-use medium::scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
+use scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
 use serde::{Deserialize, Serialize};
 
 pub use container::{write_atomic, Container, ContainerError};

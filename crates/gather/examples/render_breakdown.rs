@@ -12,12 +12,13 @@ use std::time::Instant;
 
 use gather::light_depth::{LightDepth, LightDepthModel};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
+use gather::OpticalModel;
 use gather::{render, Camera, InScattering, RayCarry, RenderIndex, RenderOptions, ViewSegment};
 use glam::DVec3;
 use medium::generators::cloud;
 use medium::light_pass::LightPass;
-use medium::scene::{OpticalModel, Scene};
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
+use scene::Scene;
 
 /// A source that counts the segments it is asked about.
 struct Counted<'a> {

@@ -5,10 +5,36 @@
 //! the top-left pixel is `ray(0.5, 0.5)`.
 
 use glam::DVec3;
-use medium::scene::{CameraSpec, Projection};
 use medium::traversal::Ray;
+use serde::{Deserialize, Serialize};
 
 use crate::GatherError;
+
+/// The projection of a camera as a scene states it (degrees, world-space heights); a
+/// [`Camera`] turns it into a [`CameraProjection`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Projection {
+    Perspective {
+        fov_y_degrees: f64,
+    },
+    /// Orthographic with the given world-space image height.
+    Orthographic {
+        height: f64,
+    },
+}
+
+/// A camera as a scene or a request states it: unchecked; [`Camera::from_spec`] validates it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraSpec {
+    pub name: String,
+    pub eye: DVec3,
+    pub target: DVec3,
+    pub up: DVec3,
+    pub projection: Projection,
+    pub width: u32,
+    pub height: u32,
+}
 
 /// How rays leave the camera.
 #[derive(Clone, Copy, Debug, PartialEq)]

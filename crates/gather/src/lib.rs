@@ -2,7 +2,7 @@
 //! compositing through the grid, and image files.
 //!
 //! - [`Camera`] ([`camera`]): perspective and orthographic, built from a scene's
-//!   [`medium::scene::CameraSpec`].
+//!   [`CameraSpec`].
 //! - [`render`](render::render) / [`render_image`] ([`render`]): Max's optical models along
 //!   exact per-cell segments (`nearest`) or fixed steps (`trilinear`), parallel over tiles.
 //! - [`InScattering`] ([`scattering`]): the scattered source `Q_s`, plugged in from outside.
@@ -21,12 +21,12 @@ pub mod render;
 pub mod scattering;
 pub mod single_scatter;
 
-pub use camera::{Camera, CameraProjection};
+pub use camera::{Camera, CameraProjection, CameraSpec, Projection};
 pub use error::GatherError;
 pub use image_io::{read_pfm, Image, ImageFormat, ToneMap};
 pub use render::{
-    render, render_image, render_image_indexed, render_indexed, ImageChannel, RayIntegrator,
-    RenderIndex, RenderOptions,
+    render, render_image, render_image_indexed, render_indexed, ImageChannel, OpticalModel,
+    RayIntegrator, RenderIndex, RenderOptions, RenderSettings, OPTICAL_MODEL_NAMES,
 };
 pub use scattering::{
     segment_weight, InScattering, RayCarry, ScatteringSum, UniformSource, ViewSegment,

@@ -17,12 +17,12 @@
 
 use glam::DVec3;
 use medium::grid::Grid;
-use medium::scene::{OpticalModel, Scene};
 use medium::traversal::Ray;
 use medium::{CellValues, Interpolation, Medium};
 use std::borrow::Cow;
 
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use crate::empty_space::EmptySpace;
 use crate::image_io::Image;
@@ -36,6 +36,65 @@ pub const TILE: usize = 16;
 /// Rows per parallel task: small enough that the tasks of a frame whose cost is concentrated
 /// in a few rows (a cloud in mid-frame) still spread evenly over the threads.
 const BAND_ROWS: usize = 4;
+
+/// Which of Max's optical models a render uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OpticalModel {
+    /// `Q = 0`: the image is `I0 · T` (X-ray).
+    AbsorptionOnly,
+    /// `σt = 0` in the integral: emission adds up without attenuation (Max eq. 5).
+    EmissionOnly,
+    /// Max eq. 7 (the particle model of eq. 8 is emission = C·σt with this model).
+    EmissionAbsorption,
+    /// Single scattering with `T_L ≡ 1` ("Utah", no shadows), plus emission.
+    SingleScatterUnshadowed,
+    /// Emission plus scattered light: shadowed single scattering, and multiple scattering
+    /// when a solution is given.
+    Scattering,
+}
+
+/// Names of `[render] model`, in the scene's spelling.
+pub const OPTICAL_MODEL_NAMES: [&str; 5] = [
+    "absorption-only",
+    "emission-only",
+    "emission-absorption",
+    "single-scatter-unshadowed",
+    "scattering",
+];
+
+impl OpticalModel {
+    pub fn parse(name: &str) -> Option<OpticalModel> {
+        Some(match name {
+            "absorption-only" => OpticalModel::AbsorptionOnly,
+            "emission-only" => OpticalModel::EmissionOnly,
+            "emission-absorption" => OpticalModel::EmissionAbsorption,
+            "single-scatter-unshadowed" => OpticalModel::SingleScatterUnshadowed,
+            "scattering" => OpticalModel::Scattering,
+            _ => return None,
+        })
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            OpticalModel::AbsorptionOnly => "absorption-only",
+            OpticalModel::EmissionOnly => "emission-only",
+            OpticalModel::EmissionAbsorption => "emission-absorption",
+            OpticalModel::SingleScatterUnshadowed => "single-scatter-unshadowed",
+            OpticalModel::Scattering => "scattering",
+        }
+    }
+}
+
+/// A scene's `[render]` section: the optical model, the PNG exposure and samples per pixel.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RenderSettings {
+    pub model: OpticalModel,
+    /// PNG exposure: pixel value = 1 − exp(−exposure · radiance), then sRGB.
+    pub exposure: f64,
+    /// Stratified samples per pixel.
+    pub spp: u32,
+}
 
 /// What to render and how.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -65,12 +124,13 @@ impl Default for RenderOptions {
 }
 
 impl RenderOptions {
-    /// The model, spp and background of a scene; defaults for the rest.
-    pub fn from_scene(scene: &Scene) -> Self {
+    /// The model and spp of a scene's `[render]` section over the given background;
+    /// defaults for the rest.
+    pub fn from_settings(render: &RenderSettings, background: f64) -> Self {
         RenderOptions {
-            model: scene.render.model,
-            spp: scene.render.spp,
-            background: scene.background,
+            model: render.model,
+            spp: render.spp,
+            background,
             ..RenderOptions::default()
         }
     }

@@ -2,8 +2,8 @@
 //! degenerate specifications.
 
 use gather::{Camera, GatherError};
+use gather::{CameraSpec, Projection};
 use glam::DVec3;
-use medium::scene::{CameraSpec, Projection};
 
 fn spec(
     eye: DVec3,

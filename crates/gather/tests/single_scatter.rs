@@ -3,10 +3,10 @@
 //! in thick cells against brute force, and gradient shading.
 
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
+use gather::OpticalModel;
 use gather::{InScattering, RayCarry, RayIntegrator, RenderOptions, ViewSegment};
 use glam::DVec3;
 use medium::light_pass::LightPass;
-use medium::scene::OpticalModel;
 use medium::traversal::Ray;
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 use rand::{Rng, SeedableRng};

@@ -2,12 +2,12 @@
 //! (eqs. 5, 7, 8), a hand-computed two-cell ray, trilinear reconstruction, early termination,
 //! plugged-in scattering and per-pixel averaging.
 
+use gather::OpticalModel;
 use gather::{
     render, render_image, Camera, InScattering, RayCarry, RayIntegrator, RenderOptions,
     ScatteringSum, UniformSource, ViewSegment,
 };
 use glam::DVec3;
-use medium::scene::OpticalModel;
 use medium::traversal::Ray;
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 use rand::{Rng, SeedableRng};

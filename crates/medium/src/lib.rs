@@ -11,7 +11,6 @@
 //!   every multiple-scattering solve.
 //! - [`traversal`]: exact 3D-DDA traversal of a ray through the grid (Amanatides & Woo),
 //!   the basis of every per-cell analytic integral in volrad.
-//! - [`scene`]: the TOML scene file (`docs/scene-format.md`), validated into a [`Scene`].
 //!
 //! ```
 //! use medium::{Grid, traversal::Ray};
@@ -29,7 +28,6 @@ pub mod light;
 pub mod light_pass;
 pub mod optical;
 pub mod phase;
-pub mod scene;
 pub mod transfer;
 pub mod traversal;
 pub mod volume_io;
@@ -39,4 +37,3 @@ pub use grid::Grid;
 pub use light::Light;
 pub use optical::{CellValues, ChannelMedium, Interpolation, Medium};
 pub use phase::PhaseFunction;
-pub use scene::Scene;

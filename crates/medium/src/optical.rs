@@ -108,6 +108,34 @@ pub struct Medium {
 }
 
 impl Medium {
+    /// The largest optical depth `Σ σt h` along any row of cells parallel to an axis, over all
+    /// channels: how opaque the medium is "across the grid".
+    pub fn max_axis_optical_depth(&self) -> f64 {
+        let [nx, ny, nz] = self.grid.dims;
+        let h = self.grid.cell_size;
+        let mut best = 0.0f64;
+        for ch in &self.channels {
+            let s = &ch.sigma_t;
+            let mut along_x = vec![0.0f64; ny * nz];
+            let mut along_y = vec![0.0f64; nx * nz];
+            let mut along_z = vec![0.0f64; nx * ny];
+            for k in 0..nz {
+                for j in 0..ny {
+                    for i in 0..nx {
+                        let v = s[i + nx * (j + ny * k)] as f64;
+                        along_x[j + ny * k] += v;
+                        along_y[i + nx * k] += v;
+                        along_z[i + nx * j] += v;
+                    }
+                }
+            }
+            for v in along_x.iter().chain(&along_y).chain(&along_z) {
+                best = best.max(v * h);
+            }
+        }
+        best
+    }
+
     /// Builds and validates a medium.
     pub fn new(
         grid: Grid,

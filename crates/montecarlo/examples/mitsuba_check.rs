@@ -11,13 +11,13 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use gather::OpticalModel;
 use gather::{read_pfm, render, Camera, ImageChannel, RenderOptions};
-use medium::scene::OpticalModel;
-use medium::Scene;
 use montecarlo::{
     compare, energetize, path_trace_with_error, DirectionBins, EnergetizeOptions, NoisyImage,
     PathTraceOptions,
 };
+use scene::Scene;
 
 fn grey(path: PathBuf) -> ImageChannel {
     let img = read_pfm(&path).expect("reference image");

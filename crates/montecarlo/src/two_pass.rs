@@ -52,6 +52,12 @@ use crate::directions::DirectionBins;
 use crate::flight::{fly, Flight};
 use crate::{rng, MonteCarloError};
 
+/// Photons per light of the two-pass method when photons per light (a scene's `[solve] photons`) is absent.
+pub const DEFAULT_PHOTONS: u64 = 1 << 21;
+
+/// Bounds of photons per light (a scene's `[solve] photons`): fewer is noise, more is hours.
+pub const PHOTON_RANGE: std::ops::RangeInclusive<u64> = 1_000..=(1 << 30);
+
 /// Photons traced per task (one RNG stream each).
 const BATCH: u64 = 4096;
 /// Fixed number of accumulators the batches are spread over: parallelism without making

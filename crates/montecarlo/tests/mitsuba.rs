@@ -6,8 +6,8 @@
 use std::path::PathBuf;
 
 use gather::{read_pfm, Camera, ImageChannel};
-use medium::Scene;
 use montecarlo::{compare, path_trace_with_error, NoisyImage, PathTraceOptions};
+use scene::Scene;
 
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -3,9 +3,9 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use gather::OpticalModel;
 use gather::{render, Camera, RenderOptions};
 use glam::DVec3;
-use medium::scene::OpticalModel;
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 use montecarlo::{
     energetize, path_trace_with_error, DirectionBins, EnergetizeOptions, MonteCarloError,

@@ -10,6 +10,9 @@ use glam::DVec3;
 
 use super::OrdinatesError;
 
+/// Discrete-ordinates bin counts volrad supports: the `6 n²` faces of an `n³` block of cubes.
+pub const VALID_BINS: [usize; 8] = [6, 24, 54, 96, 150, 216, 294, 384];
+
 /// Largest face subdivision supported (`6·8² = 384` bins).
 pub const MAX_FACE_DIVISIONS: usize = 8;
 

@@ -16,9 +16,12 @@ pub mod phase_matrix;
 pub mod sweep;
 
 pub use assembled::AssembledOrdinates;
-pub use bins::DirectionBins;
+pub use bins::{DirectionBins, VALID_BINS};
 pub use phase_matrix::PhaseMatrix;
-pub use sweep::{EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve};
+pub use sweep::{
+    EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve,
+    MAX_TRANSPORT_REFINEMENT,
+};
 
 /// What was wrong with an ordinates set-up.
 #[derive(Debug, thiserror::Error, PartialEq)]

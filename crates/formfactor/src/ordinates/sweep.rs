@@ -22,7 +22,6 @@
 use std::sync::Mutex;
 
 use glam::DVec3;
-use medium::scene::MAX_TRANSPORT_REFINEMENT;
 use medium::{light_pass::LightPass, ChannelMedium, Grid, Light, Medium, PhaseFunction};
 use rayon::prelude::*;
 use solver::operator::TransportOperator;
@@ -30,6 +29,10 @@ use solver::operator::TransportOperator;
 use super::bins::{DirectionBins, FaceRect};
 use super::phase_matrix::{bin_averaged_phase, default_quadrature, PhaseMatrix};
 use super::OrdinatesError;
+
+/// Largest transport refinement (sub-cells per cell side of the sweep; a scene's
+/// `[solve] transport_refinement`).
+pub const MAX_TRANSPORT_REFINEMENT: usize = 4;
 
 /// Options of the ordinates operator.
 #[derive(Clone, Copy, Debug, PartialEq)]

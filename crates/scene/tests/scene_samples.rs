@@ -2,8 +2,9 @@
 
 use std::path::PathBuf;
 
-use medium::scene::{max_axis_optical_depth, OpticalModel, SolveMethod, VolumeSource};
-use medium::{PhaseFunction, Scene};
+use medium::PhaseFunction;
+use scene::Scene;
+use scene::{OpticalModel, SolveMethod, VolumeSource};
 
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -16,7 +17,7 @@ fn cloud_sample_is_an_optically_thick_generated_cloud() {
     let s = Scene::from_file(&data("cloud.toml")).unwrap();
     assert!(matches!(s.source, VolumeSource::Generator(_)));
     assert_eq!(s.medium.grid.dims, [64, 64, 48]);
-    let depth = max_axis_optical_depth(&s.medium);
+    let depth = s.medium.max_axis_optical_depth();
     assert!((depth - 10.0).abs() < 0.5, "optical depth {depth}");
     assert_eq!(s.solve.method, SolveMethod::ZonalHierarchical);
     assert_eq!(s.cameras.len(), 2);

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
-use medium::Scene;
+use scene::Scene;
 
 fn scene_with(solve_extra: &str) -> Result<Scene, String> {
     let text = format!(

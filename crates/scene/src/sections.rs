@@ -1,0 +1,460 @@
+//! Validation of each section of a scene file into the libraries' settings types; one
+//! function per section, called in file order by [`Ctx::scene`].
+
+use formfactor::ordinates::{MAX_TRANSPORT_REFINEMENT, VALID_BINS};
+use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
+use medium::generators::Generator;
+use medium::transfer::{PiecewiseLinear, SigmaTransfer, Transfer};
+use medium::volume_io::{load_volume, VolumeData, VolumeFormat};
+use medium::{ChannelMedium, Grid, Interpolation, Light, Medium, MediumError, PhaseFunction};
+
+use montecarlo::two_pass::PHOTON_RANGE;
+use solver::ParseMethodError;
+
+use crate::check::{broadcast, join, Channels, Ctx};
+use crate::raw::{RawBackground, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
+use crate::settings::UnknownSolveMethod;
+use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
+
+/// What `[volume]` gives: the data values on their grid and the σt transfer per channel.
+struct Volume {
+    source: VolumeSource,
+    data: VolumeData,
+    grid: Grid,
+    interpolation: Interpolation,
+    sigma_scales: Channels<f64>,
+    sigma_tables: Channels<Option<PiecewiseLinear>>,
+}
+
+impl Ctx<'_> {
+    fn missing(&self, key: &str) -> SceneError {
+        self.err(key, "required key is missing")
+    }
+
+    pub(crate) fn scene(&self, raw: RawScene) -> Result<Scene, SceneError> {
+        let volume = self.volume(raw.volume.ok_or_else(|| self.missing("volume"))?)?;
+        let source = volume.source.clone();
+        let medium = self.medium(raw.medium.ok_or_else(|| self.missing("medium"))?, volume)?;
+        let lights = self.lights(raw.light, &medium)?;
+        let background = self.background(raw.background)?;
+        let solve = self.solve(raw.solve, &medium.phase)?;
+        let render = self.render(raw.render, solve.method)?;
+        let cameras = self.cameras(raw.camera)?;
+        Ok(Scene {
+            medium,
+            lights,
+            background,
+            solve,
+            render,
+            cameras,
+            origin: SceneOrigin::File(self.file.to_path_buf()),
+            source,
+        })
+    }
+
+    fn volume(&self, volume: toml::Value) -> Result<Volume, SceneError> {
+        let vol: RawVolume = self.raw(volume, "volume")?;
+        let dims = vol
+            .dims
+            .as_ref()
+            .map(|d| self.dims(d, "volume.dims"))
+            .transpose()?;
+        let (source, data) = match (&vol.file, &vol.generator) {
+            (Some(_), Some(_)) => {
+                return Err(self.err(
+                    "volume.generator",
+                    "give either `file` or `generator`, not both",
+                ))
+            }
+            (None, None) => return Err(self.err(
+                "volume.file",
+                "required key is missing (or give `generator = { kind = \"cloud\", seed = 7 }`)",
+            )),
+            (Some(f), None) => {
+                let name = self.string(f, "volume.file")?;
+                let path = self.base_dir.join(name);
+                let format = VolumeFormat::from_path(&path);
+                if format == VolumeFormat::RawF32 && dims.is_none() {
+                    return Err(self.err(
+                        "volume.dims",
+                        "required key is missing (a raw f32 file has no header)",
+                    ));
+                }
+                let data = load_volume(&path, dims).map_err(|e| {
+                    let key = match (&e, format) {
+                        (MediumError::Volume { .. }, VolumeFormat::RawF32) => "volume.dims",
+                        _ => "volume.file",
+                    };
+                    self.err(key, e.to_string())
+                })?;
+                (VolumeSource::File(path), data)
+            }
+            (None, Some(g)) => {
+                let (kind, t) = self.kind_table(
+                    g,
+                    "volume.generator",
+                    &[("cloud", &[], &["seed"]), ("dipole", &[], &[])],
+                )?;
+                let generator = match kind {
+                    "cloud" => Generator::Cloud {
+                        seed: match t.get("seed") {
+                            Some(s) => self.integer(s, "volume.generator.seed", 0)? as u64,
+                            None => 7,
+                        },
+                    },
+                    _ => Generator::Dipole,
+                };
+                let dims = dims.ok_or_else(|| {
+                    self.err(
+                        "volume.dims",
+                        "required key is missing (the generator needs the grid size)",
+                    )
+                })?;
+                Grid::new(dims, 1.0).map_err(|e| self.err("volume.dims", e.to_string()))?;
+                let values = generator.generate(dims);
+                (
+                    VolumeSource::Generator(generator),
+                    VolumeData { dims, values },
+                )
+            }
+        };
+        let data_key = match source {
+            VolumeSource::File(_) => "volume.file",
+            VolumeSource::Generator(_) => "volume.generator",
+        };
+        if let Some(i) = data.values.iter().position(|v| !v.is_finite()) {
+            let [x, y, z] = Grid {
+                dims: data.dims,
+                cell_size: 1.0,
+            }
+            .coords(i);
+            return Err(self.err(
+                data_key,
+                format!(
+                    "cell ({x}, {y}, {z}) has value {}; expected finite values",
+                    data.values[i]
+                ),
+            ));
+        }
+        let cell_size = match &vol.cell_size {
+            Some(v) => self.positive(v, "volume.cell_size")?,
+            None => 1.0,
+        };
+        let grid =
+            Grid::new(data.dims, cell_size).map_err(|e| self.err("volume.dims", e.to_string()))?;
+        let interpolation = match &vol.interpolation {
+            None => Interpolation::Nearest,
+            Some(v) => match self.string(v, "volume.interpolation")? {
+                "nearest" => Interpolation::Nearest,
+                "trilinear" => Interpolation::Trilinear,
+                other => {
+                    return Err(self.err(
+                        "volume.interpolation",
+                        format!("unknown interpolation `{other}` (expected nearest or trilinear)"),
+                    ))
+                }
+            },
+        };
+        let scales = match &vol.sigma_t_scale {
+            Some(v) => self.grey_or_rgb(v, "volume.sigma_t_scale", &|x| {
+                if x >= 0.0 {
+                    Ok(())
+                } else {
+                    Err("expected a scale ≥ 0".into())
+                }
+            })?,
+            None => vec![1.0],
+        };
+        let sigma_tables: Channels<Option<PiecewiseLinear>> = match &vol.sigma_t {
+            None => vec![None],
+            Some(v) => {
+                let (kind, t) = self.kind_table(
+                    v,
+                    "volume.sigma_t",
+                    &[
+                        ("piecewise-linear", &["points"], &["scale"]),
+                        ("preset", &["name"], &["scale"]),
+                    ],
+                )?;
+                let tables = self.table_transfer(kind, t, "volume.sigma_t")?;
+                for table in &tables {
+                    let (lo, _) = table.range();
+                    if lo < 0.0 {
+                        return Err(self.err(
+                            "volume.sigma_t",
+                            format!("the table reaches {lo}; σt must be ≥ 0"),
+                        ));
+                    }
+                }
+                tables.into_iter().map(Some).collect()
+            }
+        };
+        if sigma_tables[0].is_none() {
+            if let Some(i) = data.values.iter().position(|&v| v < 0.0) {
+                let [x, y, z] = grid.coords(i);
+                return Err(self.err(
+                    data_key,
+                    format!(
+                        "cell ({x}, {y}, {z}) has value {}: σt = value × sigma_t_scale must be ≥ 0",
+                        data.values[i]
+                    ),
+                ));
+            }
+        }
+        Ok(Volume {
+            source,
+            data,
+            grid,
+            interpolation,
+            sigma_scales: scales,
+            sigma_tables,
+        })
+    }
+
+    fn medium(&self, medium: toml::Value, volume: Volume) -> Result<Medium, SceneError> {
+        let Volume {
+            data,
+            grid,
+            interpolation,
+            sigma_scales: scales,
+            sigma_tables,
+            ..
+        } = volume;
+        let med: RawMedium = self.raw(medium, "medium")?;
+        let albedo = self.transfer(&med.albedo, "medium.albedo", (0.0, 1.0), false)?;
+        let emission = match &med.emission {
+            Some(v) => self.transfer(v, "medium.emission", (0.0, f64::INFINITY), true)?,
+            None => vec![Transfer::Constant { value: 0.0 }],
+        };
+        let phase = match &med.phase {
+            Some(v) => self.phase(v, "medium.phase")?,
+            None => PhaseFunction::Isotropic,
+        };
+
+        let n_channels = [
+            scales.len(),
+            sigma_tables.len(),
+            albedo.len(),
+            emission.len(),
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(1);
+        let scales = broadcast(scales, n_channels);
+        let sigma_tables = broadcast(sigma_tables, n_channels);
+        let albedo = broadcast(albedo, n_channels);
+        let emission = broadcast(emission, n_channels);
+        let mut channels = Vec::with_capacity(n_channels);
+        for c in 0..n_channels {
+            let sigma = SigmaTransfer {
+                scale: scales[c],
+                table: sigma_tables[c].clone(),
+            };
+            let sigma_t = sigma.apply(&data.values);
+            if let Some(i) = sigma_t.iter().position(|s| !s.is_finite()) {
+                return Err(self.err(
+                    "volume.sigma_t_scale",
+                    format!("σt of cell {i} overflows f32"),
+                ));
+            }
+            let albedo_c = albedo[c].apply(&data.values, &sigma_t);
+            let emission_c = emission[c].apply(&data.values, &sigma_t);
+            channels.push(ChannelMedium {
+                sigma_t,
+                albedo: albedo_c,
+                emission: emission_c,
+            });
+        }
+        let medium = Medium::new(grid, channels, phase, interpolation, Some(data.values))
+            .map_err(|e| self.err("medium", e.to_string()))?;
+        Ok(medium)
+    }
+
+    fn lights(
+        &self,
+        light: Option<toml::Value>,
+        medium: &Medium,
+    ) -> Result<Vec<Light>, SceneError> {
+        let has_emission = medium.channels.iter().any(|c| !c.emission.is_zero());
+        let lights = match light {
+            None => Vec::new(),
+            Some(v) => {
+                let list = v
+                    .as_array()
+                    .ok_or_else(|| self.err("light", "expected an array of tables ([[light]])"))?;
+                list.iter()
+                    .enumerate()
+                    .map(|(i, l)| self.light(l, &format!("light[{i}]")))
+                    .collect::<Result<Vec<_>, _>>()?
+            }
+        };
+        if lights.is_empty() && !has_emission {
+            return Err(self.err(
+                "light",
+                "no light and no emission: add a [[light]] or a non-zero medium.emission",
+            ));
+        }
+        Ok(lights)
+    }
+
+    fn background(&self, background: Option<toml::Value>) -> Result<f64, SceneError> {
+        Ok(match background {
+            None => 0.0,
+            Some(v) => {
+                let b: RawBackground = self.raw(v, "background")?;
+                self.non_negative(&b.radiance, "background.radiance")?
+            }
+        })
+    }
+
+    fn solve(
+        &self,
+        solve: Option<toml::Value>,
+        phase: &PhaseFunction,
+    ) -> Result<SolveSettings, SceneError> {
+        Ok(match solve {
+            None => SolveSettings::default_for(phase),
+            Some(v) => {
+                let s: RawSolve = self.raw(v, "solve")?;
+                let mut out = SolveSettings::default_for(phase);
+                if let Some(m) = &s.method {
+                    let name = self.string(m, "solve.method")?;
+                    out.method = name
+                        .parse()
+                        .map_err(|e: UnknownSolveMethod| self.err("solve.method", e.to_string()))?;
+                    out.iteration = out.method.default_iteration();
+                }
+                if let Some(b) = &s.bins {
+                    let bins = self.integer(b, "solve.bins", 1)? as usize;
+                    if !VALID_BINS.contains(&bins) {
+                        return Err(self.err(
+                            "solve.bins",
+                            format!("{bins}: expected 6n² for n = 1..=8 ({VALID_BINS:?})"),
+                        ));
+                    }
+                    out.bins = bins;
+                }
+                if let Some(it) = &s.iteration {
+                    let text = self.string(it, "solve.iteration")?;
+                    out.iteration = text.parse().map_err(|e: ParseMethodError| {
+                        self.err("solve.iteration", e.to_string())
+                    })?;
+                }
+                if let Some(t) = &s.tolerance {
+                    out.tolerance = self.positive(t, "solve.tolerance")?;
+                }
+                if let Some(m) = &s.max_iterations {
+                    out.max_iterations = self.integer(m, "solve.max_iterations", 1)? as usize;
+                }
+                if let Some(r) = &s.transport_refinement {
+                    let key = "solve.transport_refinement";
+                    let r = self.integer(r, key, 1)?;
+                    if r > MAX_TRANSPORT_REFINEMENT as i64 {
+                        return Err(self.err(
+                            key,
+                            format!(
+                                "{r}: expected a whole number from 1 to {MAX_TRANSPORT_REFINEMENT} \
+                                 (sub-cells per cell side; the sweep costs r³ times more)"
+                            ),
+                        ));
+                    }
+                    out.transport_refinement = r as usize;
+                }
+                if let Some(n) = &s.photons {
+                    let key = "solve.photons";
+                    let n = self.integer(n, key, 1)? as u64;
+                    if !PHOTON_RANGE.contains(&n) {
+                        return Err(self.err(
+                            key,
+                            format!(
+                                "{n}: expected a whole number of photons per light from {} to {}",
+                                PHOTON_RANGE.start(),
+                                PHOTON_RANGE.end()
+                            ),
+                        ));
+                    }
+                    out.photons = n;
+                }
+                out
+            }
+        })
+    }
+
+    fn render(
+        &self,
+        render: Option<toml::Value>,
+        method: SolveMethod,
+    ) -> Result<RenderSettings, SceneError> {
+        let default_model = if method == SolveMethod::None {
+            OpticalModel::EmissionAbsorption
+        } else {
+            OpticalModel::Scattering
+        };
+        Ok(match render {
+            None => RenderSettings {
+                model: default_model,
+                exposure: 1.0,
+                spp: 1,
+            },
+            Some(v) => {
+                let r: RawRender = self.raw(v, "render")?;
+                let model = match &r.model {
+                    None => default_model,
+                    Some(m) => {
+                        let name = self.string(m, "render.model")?;
+                        OpticalModel::parse(name).ok_or_else(|| {
+                            self.err(
+                                "render.model",
+                                format!(
+                                    "unknown model `{name}` (expected one of: {})",
+                                    OPTICAL_MODEL_NAMES.join(", ")
+                                ),
+                            )
+                        })?
+                    }
+                };
+                let exposure = match &r.exposure {
+                    Some(e) => self.positive(e, "render.exposure")?,
+                    None => 1.0,
+                };
+                let spp = match &r.spp {
+                    Some(s) => {
+                        let n = self.integer(s, "render.spp", 1)?;
+                        u32::try_from(n)
+                            .map_err(|_| self.err("render.spp", format!("{n} is too large")))?
+                    }
+                    None => 1,
+                };
+                RenderSettings {
+                    model,
+                    exposure,
+                    spp,
+                }
+            }
+        })
+    }
+
+    fn cameras(&self, camera: Option<toml::Value>) -> Result<Vec<CameraSpec>, SceneError> {
+        let list = camera
+            .ok_or_else(|| self.missing("camera"))?
+            .as_array()
+            .ok_or_else(|| self.err("camera", "expected an array of tables ([[camera]])"))?
+            .clone();
+        if list.is_empty() {
+            return Err(self.err("camera", "expected at least one [[camera]]"));
+        }
+        let mut cameras: Vec<CameraSpec> = Vec::with_capacity(list.len());
+        for (i, c) in list.into_iter().enumerate() {
+            let key = format!("camera[{i}]");
+            let cam = self.camera(c, &key)?;
+            if cameras.iter().any(|o| o.name == cam.name) {
+                return Err(self.err(
+                    join(&key, "name"),
+                    format!("duplicate camera name `{}`", cam.name),
+                ));
+            }
+            cameras.push(cam);
+        }
+        Ok(cameras)
+    }
+}

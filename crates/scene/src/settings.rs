@@ -1,0 +1,138 @@
+//! What `[solve]` says: the multiple-scattering method and the settings of its solve. The
+//! linear iteration is the solver's own [`solver::Method`], spelled as its [`FromStr`] reads
+//! it, so scenes, the command line and the albedo bench accept the same names.
+
+use std::fmt;
+use std::str::FromStr;
+
+use medium::PhaseFunction;
+use serde::{Deserialize, Serialize};
+
+/// The multiple-scattering method of `[solve] method`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SolveMethod {
+    DiscreteOrdinates,
+    Zonal,
+    ZonalHierarchical,
+    SingleScatter,
+    /// Blasi & Wuethrich's Monte Carlo two-pass method (photons from the lights deposited in
+    /// the grid with their directions; the render adds the exact first bounce).
+    TwoPass,
+    None,
+}
+
+impl SolveMethod {
+    /// Every method, in the order messages list them.
+    pub const ALL: [SolveMethod; 6] = [
+        SolveMethod::DiscreteOrdinates,
+        SolveMethod::Zonal,
+        SolveMethod::ZonalHierarchical,
+        SolveMethod::SingleScatter,
+        SolveMethod::TwoPass,
+        SolveMethod::None,
+    ];
+
+    /// The scene file's spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            SolveMethod::DiscreteOrdinates => "discrete-ordinates",
+            SolveMethod::Zonal => "zonal",
+            SolveMethod::ZonalHierarchical => "zonal-hierarchical",
+            SolveMethod::SingleScatter => "single-scatter",
+            SolveMethod::TwoPass => "two-pass",
+            SolveMethod::None => "none",
+        }
+    }
+
+    /// The contract's "method that suits the medium": the hierarchical zonal method for an
+    /// isotropic phase function, discrete ordinates otherwise.
+    pub fn default_for(phase: &PhaseFunction) -> SolveMethod {
+        if phase.is_isotropic() {
+            SolveMethod::ZonalHierarchical
+        } else {
+            SolveMethod::DiscreteOrdinates
+        }
+    }
+
+    /// The fastest robust iteration for a method (`volrad bench albedo`, docs/albedo.md):
+    /// diffusion-synthetic CG for the hierarchical zonal system (6 iterations where Jacobi
+    /// needs 69 and CG 14 on the sample cloud at albedo 0.999, and the fastest from albedo
+    /// 0.5 to 1), conjugate gradients for the exact zonal system (symmetrisable by
+    /// reciprocity, but without the diffusion approximation DSA needs), Gauss–Seidel for
+    /// discrete ordinates (not symmetric, and Krylov vectors of cells × bins would cost
+    /// gigabytes).
+    pub fn default_iteration(self) -> solver::Method {
+        match self {
+            SolveMethod::ZonalHierarchical => solver::Method::DsaCg,
+            SolveMethod::Zonal => solver::Method::ConjugateGradient,
+            _ => solver::Method::GaussSeidel,
+        }
+    }
+}
+
+impl fmt::Display for SolveMethod {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A `[solve] method` (or `--method`) that names no method.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("unknown method `{0}` (expected one of: {names})", names = solve_method_names())]
+pub struct UnknownSolveMethod(pub String);
+
+/// The methods' spellings, comma-separated, for messages and help.
+pub fn solve_method_names() -> String {
+    SolveMethod::ALL.map(SolveMethod::name).join(", ")
+}
+
+impl FromStr for SolveMethod {
+    type Err = UnknownSolveMethod;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        SolveMethod::ALL
+            .into_iter()
+            .find(|m| m.name() == name)
+            .ok_or_else(|| UnknownSolveMethod(name.to_string()))
+    }
+}
+
+/// A scene's `[solve]` section.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolveSettings {
+    pub method: SolveMethod,
+    /// Direction bins (discrete ordinates only): one of
+    /// [`VALID_BINS`](formfactor::ordinates::VALID_BINS); 96 is Max's set.
+    pub bins: usize,
+    /// The linear iteration; [`SolveMethod::default_iteration`] unless the scene names one.
+    pub iteration: solver::Method,
+    /// Relative residual `‖g − E − aFg‖ / ‖E‖` at which to stop.
+    pub tolerance: f64,
+    pub max_iterations: usize,
+    /// Discrete ordinates only: each cell swept as `r × r × r` sub-cells (`r` in
+    /// 1..=[`MAX_TRANSPORT_REFINEMENT`](formfactor::ordinates::MAX_TRANSPORT_REFINEMENT)),
+    /// which shrinks the sweep's numerical diffusion at `r³` times the sweep cost; the
+    /// unknowns stay per cell.
+    pub transport_refinement: usize,
+    /// Two-pass only: photons per light of the energetization pass (its noise falls like
+    /// `1/√photons`; bounds [`PHOTON_RANGE`](montecarlo::two_pass::PHOTON_RANGE)).
+    pub photons: u64,
+}
+
+impl SolveSettings {
+    /// `[solve]` absent: the method for `phase`, its default iteration, tolerance 1e-5, 2000
+    /// iterations, 96 bins, no refinement, the two-pass method's default photon count.
+    pub fn default_for(phase: &PhaseFunction) -> SolveSettings {
+        let method = SolveMethod::default_for(phase);
+        SolveSettings {
+            method,
+            bins: 96,
+            iteration: method.default_iteration(),
+            tolerance: 1e-5,
+            max_iterations: 2000,
+            transport_refinement: 1,
+            photons: montecarlo::two_pass::DEFAULT_PHOTONS,
+        }
+    }
+}
