@@ -527,31 +527,6 @@ fn asymmetry_tilt_keeps_energy_and_matches_g() {
     }
 }
 
-/// Prints the phase-matrix error report (run with `--ignored --nocapture`).
-#[test]
-#[ignore]
-fn phase_matrix_error_report() {
-    for n in [2, 4, 6] {
-        let bins = DirectionBins::cube(n).unwrap();
-        for g in [0.0, 0.6, 0.85] {
-            let phase = PhaseFunction::HenyeyGreenstein { g };
-            let mut pm = PhaseMatrix::with_default_quadrature(&bins, &phase);
-            let raw = phase_matrix_error(&bins, &pm, &phase);
-            pm.match_asymmetry(&bins, g);
-            let tilted = phase_matrix_error(&bins, &pm, &phase);
-            println!(
-                "M {:3} g {g:.2}: mean cosine raw {:.4} tilted {:.4}; single-scatter max rel raw {:.3} tilted {:.3}; energy {:.1e}",
-                bins.len(),
-                raw.mean_cosine,
-                tilted.mean_cosine,
-                raw.single_scatter_max_rel,
-                tilted.single_scatter_max_rel,
-                tilted.energy
-            );
-        }
-    }
-}
-
 /// The renderer's interpolation between bin centres: weights sum to 1, a bin's centre (its
 /// square's midpoint) gets that bin alone, and a function linear in face coordinates is
 /// reproduced exactly everywhere on the face — also between the outer centres and the face

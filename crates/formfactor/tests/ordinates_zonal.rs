@@ -4,30 +4,16 @@
 
 use std::f64::consts::PI;
 
+// The refined-blob helpers serve examples/ordinates_zonal_gap.rs; the tests use `iterate`.
+#[path = "support/blob.rs"]
+#[allow(dead_code)]
+mod blob;
+
+use blob::iterate;
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix};
 use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
 use solver::operator::TransportOperator;
-
-/// Source iteration `x ← e + K x` to a relative change of 1e-10.
-fn iterate(op: &dyn TransportOperator, e: &[f64]) -> Vec<f64> {
-    let mut x = e.to_vec();
-    let mut y = vec![0.0; x.len()];
-    let norm: f64 = e.iter().map(|v| v * v).sum::<f64>().sqrt();
-    for _ in 0..5000 {
-        op.apply(&x, &mut y);
-        let mut change = 0.0;
-        for i in 0..x.len() {
-            let new = e[i] + y[i];
-            change += (new - x[i]) * (new - x[i]);
-            x[i] = new;
-        }
-        if change.sqrt() < 1e-10 * norm {
-            return x;
-        }
-    }
-    panic!("no convergence");
-}
 
 #[test]
 fn isotropic_ordinates_agree_with_zonal() {
@@ -127,107 +113,4 @@ fn isotropic_ordinates_agree_with_zonal() {
         refined < 0.7 * whole,
         "sub-cells {refined} vs whole cells {whole}"
     );
-}
-
-/// The blob of [`isotropic_ordinates_agree_with_zonal`] on a grid refined `r`× per axis
-/// (the same piecewise-constant medium), uniform emission 1.
-fn refined_blob(r: usize) -> (Grid, ChannelMedium) {
-    let coarse = Grid::new([7, 7, 7], 1.0).unwrap();
-    let grid = Grid::new([7 * r, 7 * r, 7 * r], 1.0 / r as f64).unwrap();
-    let c = coarse.center();
-    let sigma_t = (0..grid.cell_count())
-        .map(|i| {
-            let [x, y, z] = grid.coords(i);
-            let ci = coarse.index(x / r, y / r, z / r);
-            let d = (coarse.cell_center(ci) - c).length() / 3.5;
-            (0.15 + 0.6 * (1.0 - d * d).max(0.0)) as f32
-        })
-        .collect();
-    let channel = ChannelMedium {
-        sigma_t,
-        albedo: CellValues::Uniform(0.9),
-        emission: CellValues::Uniform(0.0),
-    };
-    (grid, channel)
-}
-
-/// Scattered source `σs ∫I dω / 4π` (ordinates) or `g − e` (zonal) averaged back onto the
-/// 7³ cells.
-fn coarse_average(grid: &Grid, r: usize, fine: &[f64]) -> Vec<f64> {
-    let mut out = vec![0.0; 343];
-    for (i, v) in fine.iter().enumerate() {
-        let [x, y, z] = grid.coords(i);
-        out[(x / r) + 7 * ((y / r) + 7 * (z / r))] += v / (r * r * r) as f64;
-    }
-    out
-}
-
-fn scattered_zonal(r: usize) -> Vec<f64> {
-    let (grid, channel) = refined_blob(r);
-    let e = vec![1.0; grid.cell_count()];
-    let zonal = FormFactorMatrix::build(&grid, &channel, &ExactOptions::default(), None).unwrap();
-    let g = iterate(&zonal, &e);
-    coarse_average(&grid, r, &g.iter().map(|v| v - 1.0).collect::<Vec<_>>())
-}
-
-fn scattered_ordinates(r: usize, n: usize) -> Vec<f64> {
-    let (grid, channel) = refined_blob(r);
-    let e = vec![1.0; grid.cell_count()];
-    let op = OrdinatesOperator::from_channel(
-        grid,
-        &channel,
-        PhaseFunction::Isotropic,
-        DirectionBins::cube(n).unwrap(),
-        OrdinatesOptions {
-            exact_transmission: std::env::var("ZONAL_EXACT_T").is_ok_and(|v| v == "1"),
-            transport_refinement: std::env::var("ZONAL_REFINE").map_or(1, |v| v.parse().unwrap()),
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let external = op.external_density(Some(&e), &[]).unwrap();
-    let mut t = vec![0.0; op.len()];
-    op.transport(&external, &mut t);
-    let radiance = iterate(&op, &t);
-    let fluence = op.fluence(&radiance);
-    let s: Vec<f64> = (0..grid.cell_count())
-        .map(|i| op.sigma_s()[i] * fluence[i] / (4.0 * PI))
-        .collect();
-    coarse_average(&grid, r, &s)
-}
-
-fn rms_against(reference: &[f64], x: &[f64]) -> (f64, f64) {
-    let num: f64 = x.iter().zip(reference).map(|(a, b)| (a - b).powi(2)).sum();
-    let den: f64 = reference.iter().map(|b| b * b).sum();
-    let mean = x.iter().sum::<f64>() / reference.iter().sum::<f64>() - 1.0;
-    ((num / den).sqrt(), mean)
-}
-
-/// Where the ordinates–zonal gap comes from: angular (bins `6 n²`, `ZONAL_N=4,6,8`) or
-/// spatial (both methods on grids refined `r`×, `ZONAL_R=1,2,3`; the 7³ zonal solution is the
-/// reference). `cargo test --release --test ordinates_zonal explore -- --ignored --nocapture`
-#[test]
-#[ignore]
-fn explore_ordinates_zonal_gap() {
-    let list = |key: &str, default: &str| -> Vec<usize> {
-        std::env::var(key)
-            .unwrap_or(default.into())
-            .split(',')
-            .map(|v| v.parse().unwrap())
-            .collect()
-    };
-    let reference = scattered_zonal(1);
-    for r in list("ZONAL_ZR", "1").into_iter().filter(|&r| r > 1) {
-        let (rms, mean) = rms_against(&reference, &scattered_zonal(r));
-        println!("zonal refined {r}x: RMS {rms:.4} mean {mean:+.4} vs zonal 7³");
-    }
-    for r in list("ZONAL_R", "1") {
-        for n in list("ZONAL_N", "4") {
-            let (rms, mean) = rms_against(&reference, &scattered_ordinates(r, n));
-            println!(
-                "ordinates refined {r}x, {} bins: RMS {rms:.4} mean {mean:+.4} vs zonal 7³",
-                6 * n * n
-            );
-        }
-    }
 }
