@@ -13,6 +13,7 @@ use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, Hierarchi
 use medium::light_pass::LightPass;
 use medium::optical::CellValues;
 use medium::ChannelMedium;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use scene::Scene;
 use scene::SolveMethod;
@@ -464,6 +465,32 @@ fn plot_error(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::anyhow!("plotting: {e}")
 }
 
+/// Width and height of every plot, in pixels.
+const PLOT_SIZE: (u32, u32) = (960, 640);
+
+/// Draws a plot in memory with `draw` (which fills the whole area) and replaces `path` with
+/// it as a PNG through [`medium::atomic_file`], so no half-drawn plot is ever left.
+fn write_plot(
+    path: &Path,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
+) -> Result<()> {
+    use image::codecs::png::PngEncoder;
+    use image::ImageEncoder;
+    let (width, height) = PLOT_SIZE;
+    let mut pixels = vec![0u8; width as usize * height as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, PLOT_SIZE).into_drawing_area();
+        draw(&root)?;
+        root.present().map_err(plot_error)?;
+    }
+    let mut png = Vec::new();
+    PngEncoder::new(&mut png)
+        .write_image(&pixels, width, height, image::ExtendedColorType::Rgb8)
+        .with_context(|| format!("encoding {}", path.display()))?;
+    medium::atomic_file::write_bytes(path, &png)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
 /// Series label: the method, plus the σ-scale when several are swept.
 fn series_label(method: &str, sigma_scale: f64, several_scales: bool) -> String {
     if several_scales {
@@ -477,6 +504,14 @@ fn series_label(method: &str, sigma_scale: f64, several_scales: bool) -> String 
 /// positive `1 − a` and its tick reads "a=1". Hollow markers: not converged.
 pub fn plot_iterations(path: &Path, runs: &[AlbedoRun], title: &str) -> Result<()> {
     register_font()?;
+    write_plot(path, |root| draw_iterations(root, runs, title))
+}
+
+fn draw_iterations(
+    root: &DrawingArea<BitMapBackend<'_>, Shift>,
+    runs: &[AlbedoRun],
+    title: &str,
+) -> Result<()> {
     let min_gap = runs
         .iter()
         .map(|r| 1.0 - r.albedo)
@@ -488,9 +523,8 @@ pub fn plot_iterations(path: &Path, runs: &[AlbedoRun], title: &str) -> Result<(
     let max_gap = runs.iter().map(|r| x_of(r.albedo)).fold(min_gap, f64::max);
     let max_iter = runs.iter().map(|r| r.iterations).max().unwrap_or(1).max(1) as f64;
 
-    let root = BitMapBackend::new(path, (960, 640)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_error)?;
-    let mut chart = ChartBuilder::on(&root)
+    let mut chart = ChartBuilder::on(root)
         .caption(title, (FONT, 22))
         .margin(16)
         .x_label_area_size(56)
@@ -583,13 +617,20 @@ pub fn plot_iterations(path: &Path, runs: &[AlbedoRun], title: &str) -> Result<(
         .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(plot_error)?;
-    root.present().map_err(plot_error)?;
     Ok(())
 }
 
 /// Relative residual against iteration, one line per method (and σ-scale), for one albedo.
 pub fn plot_residuals(path: &Path, runs: &[&AlbedoRun], title: &str) -> Result<()> {
     register_font()?;
+    write_plot(path, |root| draw_residuals(root, runs, title))
+}
+
+fn draw_residuals(
+    root: &DrawingArea<BitMapBackend<'_>, Shift>,
+    runs: &[&AlbedoRun],
+    title: &str,
+) -> Result<()> {
     let positive = |v: &f64| *v > 0.0 && v.is_finite();
     let max_len = runs
         .iter()
@@ -610,9 +651,8 @@ pub fn plot_residuals(path: &Path, runs: &[&AlbedoRun], title: &str) -> Result<(
         (1e-6, 1.0)
     };
 
-    let root = BitMapBackend::new(path, (960, 640)).into_drawing_area();
     root.fill(&WHITE).map_err(plot_error)?;
-    let mut chart = ChartBuilder::on(&root)
+    let mut chart = ChartBuilder::on(root)
         .caption(title, (FONT, 22))
         .margin(16)
         .x_label_area_size(56)
@@ -653,7 +693,6 @@ pub fn plot_residuals(path: &Path, runs: &[&AlbedoRun], title: &str) -> Result<(
         .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(plot_error)?;
-    root.present().map_err(plot_error)?;
     Ok(())
 }
 
@@ -695,7 +734,8 @@ pub fn write_outputs(
 ) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let csv = dir.join("albedo.csv");
-    std::fs::write(&csv, csv_text(runs)).with_context(|| format!("writing {}", csv.display()))?;
+    medium::atomic_file::write_bytes(&csv, csv_text(runs).as_bytes())
+        .with_context(|| format!("writing {}", csv.display()))?;
     plot_iterations(
         &dir.join("albedo.png"),
         runs,

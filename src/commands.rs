@@ -270,7 +270,7 @@ pub fn export(args: &ExportArgs) -> Result<()> {
                 "cell_size": solution.medium.grid.cell_size,
                 "channel": args.channel,
             });
-            crate::solution::write_atomic(
+            medium::atomic_file::write_bytes(
                 &sidecar,
                 serde_json::to_string_pretty(&meta)?.as_bytes(),
             )

@@ -764,12 +764,12 @@ fn write_png(path: &Path, picture: &Rgb) -> Result<()> {
             image::ExtendedColorType::Rgb8,
         )
         .with_context(|| format!("encoding {}", path.display()))?;
-    crate::solution::write_atomic(path, &bytes)
+    medium::atomic_file::write_bytes(path, &bytes)
         .with_context(|| format!("writing {}", path.display()))
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {
-    crate::solution::write_atomic(path, text.as_bytes())
+    medium::atomic_file::write_bytes(path, text.as_bytes())
         .with_context(|| format!("writing {}", path.display()))
 }
 

@@ -2,7 +2,6 @@
 //! evicted solution can be solved again), and `volumes/HEX.f32` uploaded raw volumes.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -87,28 +86,11 @@ pub fn is_id(s: &str) -> bool {
             .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
 
-/// Writes `bytes` to a temporary file beside `path`, then renames it into place.
+/// Replaces `path` with `bytes` atomically ([`medium::atomic_file`]: temp file beside it,
+/// sync, rename); the error names the file.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension(format!(
-        "tmp{}",
-        std::process::id() as u64 * 1_000_003 + rand_suffix()
-    ));
-    let result = (|| -> std::io::Result<()> {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("writing {}", path.display()))
-}
-
-fn rand_suffix() -> u64 {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    COUNTER.fetch_add(1, Ordering::Relaxed)
+    medium::atomic_file::write_bytes(path, bytes)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Size of a file, 0 when it cannot be read.

@@ -20,7 +20,6 @@
 //! crash never leaves a half-written file under that name.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -264,34 +263,11 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
                 path: path.to_path_buf(),
                 message,
             })?;
-        write_atomic(path, &bytes).map_err(|source| ContainerError::Io {
+        medium::atomic_file::write_bytes(path, &bytes).map_err(|source| ContainerError::Io {
             path: path.to_path_buf(),
             source,
         })
     }
-}
-
-/// Writes `bytes` to `path` so that readers see either the old file or the whole new one.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "solution".into());
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
 }
 
 #[cfg(test)]

@@ -14,7 +14,7 @@ use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, Phas
 use scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
 use serde::{Deserialize, Serialize};
 
-pub use container::{write_atomic, Container, ContainerError};
+pub use container::{Container, ContainerError};
 
 /// The solved scattered light of one colour channel.
 #[derive(Clone, Debug, PartialEq)]

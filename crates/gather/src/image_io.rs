@@ -5,7 +5,7 @@
 
 use std::fs;
 use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::GatherError;
 
@@ -319,26 +319,13 @@ pub fn srgb_encode(linear: f64) -> f64 {
     }
 }
 
-/// Runs `write` on a temporary path beside `path`, then renames it into place; the temporary
-/// file is removed if anything fails.
+/// Runs `write` on a temporary path beside `path`, then syncs it and renames it into place
+/// ([`medium::atomic_file`]); the temporary file is removed if anything fails.
 fn write_atomic(
     path: &Path,
     write: impl FnOnce(&Path) -> Result<(), GatherError>,
 ) -> Result<(), GatherError> {
-    let name = path
-        .file_name()
-        .ok_or_else(|| GatherError::format(path, "output path has no file name"))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".tmp-{}", std::process::id()));
-    let tmp: PathBuf = path.with_file_name(tmp_name);
-    match write(&tmp).and_then(|_| fs::rename(&tmp, path).map_err(|e| GatherError::io(path, e))) {
-        Ok(()) => Ok(()),
-        Err(e) => {
-            let _ = fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
+    medium::atomic_file::write_with(path, write, |e| GatherError::io(path, e))
 }
 
 /// Reads a PFM file ("Pf" grey or "PF" RGB, either byte order) into an [`Image`] with the top

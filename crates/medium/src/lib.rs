@@ -11,6 +11,8 @@
 //!   every multiple-scattering solve.
 //! - [`traversal`]: exact 3D-DDA traversal of a ray through the grid (Amanatides & Woo),
 //!   the basis of every per-cell analytic integral in volrad.
+//! - [`atomic_file`]: the one atomic file writer (temp file beside the target, sync, rename)
+//!   that every file volrad writes goes through, so no half-written file is ever left.
 //!
 //! ```
 //! use medium::{Grid, traversal::Ray};
@@ -21,6 +23,7 @@
 //! assert_eq!(cells, vec![0, 1, 2, 3]);
 //! ```
 
+pub mod atomic_file;
 pub mod error;
 pub mod generators;
 pub mod grid;

@@ -566,31 +566,8 @@ fn check_len(path: &Path, volume: &VolumeData) -> Result<(), MediumError> {
     Ok(())
 }
 
-/// Writes `bytes` to a temporary file in the target's directory, syncs it and renames it over
-/// `path`, so readers see the old file or the new one, never half of one.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), MediumError> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| vol_err(path, "output path has no file name"))?
-        .to_string_lossy()
-        .into_owned();
-    // Unique per process and per call, so concurrent writers never share a temp file.
-    static COUNTER: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let tmp = dir.join(format!(".{name}.tmp-{}-{n}", std::process::id()));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        return Err(io_err(path, e));
-    }
-    Ok(())
+/// Replaces `path` with `bytes` through [`atomic_file`](crate::atomic_file), so readers see
+/// the old file or the new one, never half of one.
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), MediumError> {
+    crate::atomic_file::write_bytes(path, bytes).map_err(|e| io_err(path, e))
 }
