@@ -8,7 +8,8 @@
 //! 12      8     payload length in bytes (u64 LE)
 //! 20      4     CRC-32 of the payload
 //! 24      ...   payload:
-//!               u64 LE metadata length, metadata (bincode 2, serde, standard config),
+//!               u64 LE metadata length, metadata (bincode 2, serde, standard config, of
+//!               the solution's record types and the array table),
 //!               zero padding to a multiple of 64 bytes from the file start,
 //!               then each array as raw little-endian f32 at the offset its table entry
 //!               gives (64-byte aligned, so the file can be memory-mapped).
@@ -25,8 +26,11 @@ use std::path::{Path, PathBuf};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 pub const MAGIC: &[u8; 8] = b"VOLRADSL";
-/// Bumped whenever the metadata or array layout changes (2: two-pass fields).
-pub const FORMAT_VERSION: u32 = 2;
+/// Bumped whenever the metadata or array layout changes (2: two-pass fields; 3: the metadata
+/// is the solution module's own record types, `super::records`, instead of serde derives of
+/// library types). Bumping it means refreshing the golden files in
+/// `tests/data/solution-golden/` (`VOLRAD_BLESS=1 cargo test --test solution_file`).
+pub const FORMAT_VERSION: u32 = 3;
 const FIXED_HEADER: usize = 24;
 const ALIGN: usize = 64;
 

@@ -1,18 +1,21 @@
 //! Solution files: the solved source terms plus everything a render needs (grid and σt, the
 //! light pass, the phase function, lights and background, the method and its report, a hash
 //! of the scene), so one solve serves many views. The byte layout lives in [`container`]
-//! alone; this module maps the domain types onto named arrays and metadata.
+//! alone and the metadata's shape in [`records`] (types owned by this module, so a change to
+//! a library type cannot change the file unnoticed); this module maps the domain types onto
+//! named arrays and those records.
 
 pub mod container;
+pub mod records;
 
 use std::path::Path;
 
 use gather::light_depth::{LightDepth, LightDepthModel};
 use gather::RenderIndex;
-use medium::light_pass::{LightEnergy, LightField, LightPass};
-use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
+use medium::light_pass::{LightField, LightPass};
+use medium::{CellValues, ChannelMedium, Light, Medium};
+use records::{ChannelRecord, FieldKind, MetaRecord};
 use scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
-use serde::{Deserialize, Serialize};
 
 pub use container::{Container, ContainerError};
 
@@ -40,8 +43,9 @@ pub enum ScatteredField {
     TwoPass(Box<montecarlo::two_pass::TwoPassSolution>),
 }
 
-/// Direction bins as stored: what a render needs to look radiance up by direction.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Direction bins as stored: what a render needs to look radiance up by direction (in the
+/// file as [`records::BinsRecord`]).
+#[derive(Clone, Debug, PartialEq)]
 pub struct StoredBins {
     /// `n` of the `6 n²` cube-face construction.
     pub face_resolution: usize,
@@ -164,44 +168,6 @@ pub enum SolutionError {
     Inconsistent { path: String, message: String },
 }
 
-#[derive(Serialize, Deserialize)]
-struct ChannelMeta {
-    albedo: Option<f32>,
-    emission: Option<f32>,
-    light_energy: Vec<LightEnergy>,
-    field: FieldKind,
-    report: Option<solver::SolveReport>,
-    /// The two-pass method's stored result (its arrays are small: one value per optical
-    /// voxel and direction bin).
-    two_pass: Option<montecarlo::two_pass::TwoPassSolution>,
-}
-
-#[derive(Serialize, Deserialize, PartialEq, Clone, Copy)]
-enum FieldKind {
-    None,
-    Isotropic,
-    Binned,
-    TwoPass,
-}
-
-#[derive(Serialize, Deserialize)]
-struct Meta {
-    volrad_version: String,
-    scene_hash: String,
-    scene_origin: String,
-    method: SolveMethod,
-    grid: Grid,
-    phase: PhaseFunction,
-    interpolation: Interpolation,
-    has_data: bool,
-    lights: Vec<Light>,
-    background: f64,
-    render: RenderSettings,
-    cameras: Vec<CameraSpec>,
-    bins: Option<StoredBins>,
-    channels: Vec<ChannelMeta>,
-}
-
 fn uniform_or_array(
     values: &CellValues,
     name: String,
@@ -217,7 +183,7 @@ fn uniform_or_array(
 }
 
 impl Solution {
-    fn to_container(&self) -> Container<Meta> {
+    fn to_container(&self) -> Container<MetaRecord> {
         let mut arrays = Vec::new();
         let mut channels = Vec::new();
         for (c, (ch, sol)) in self.medium.channels.iter().zip(&self.channels).enumerate() {
@@ -238,7 +204,7 @@ impl Solution {
             let field = match &sol.scattered {
                 ScatteredField::None => FieldKind::None,
                 ScatteredField::TwoPass(t) => {
-                    two_pass = Some((**t).clone());
+                    two_pass = Some(t.as_ref().into());
                     FieldKind::TwoPass
                 }
                 ScatteredField::Isotropic {
@@ -258,12 +224,17 @@ impl Solution {
                     FieldKind::Binned
                 }
             };
-            channels.push(ChannelMeta {
+            channels.push(ChannelRecord {
                 albedo,
                 emission,
-                light_energy: sol.light_pass.fields.iter().map(|f| f.energy).collect(),
+                light_energy: sol
+                    .light_pass
+                    .fields
+                    .iter()
+                    .map(|f| (&f.energy).into())
+                    .collect(),
                 field,
-                report: sol.report.clone(),
+                report: sol.report.as_ref().map(Into::into),
                 two_pass,
             });
         }
@@ -271,34 +242,50 @@ impl Solution {
             arrays.push(("data".into(), d.clone()));
         }
         Container {
-            meta: Meta {
+            meta: MetaRecord {
                 volrad_version: env!("CARGO_PKG_VERSION").into(),
                 scene_hash: self.scene_hash.clone(),
                 scene_origin: self.scene_origin.clone(),
-                method: self.method,
-                grid: self.medium.grid,
-                phase: self.medium.phase,
-                interpolation: self.medium.interpolation,
+                method: (&self.method).into(),
+                grid: (&self.medium.grid).into(),
+                phase: (&self.medium.phase).into(),
+                interpolation: (&self.medium.interpolation).into(),
                 has_data: self.medium.data.is_some(),
-                lights: self.lights.clone(),
+                lights: self.lights.iter().map(Into::into).collect(),
                 background: self.background,
-                render: self.render.clone(),
-                cameras: self.cameras.clone(),
-                bins: self.bins.clone(),
+                render: (&self.render).into(),
+                cameras: self.cameras.iter().map(Into::into).collect(),
+                bins: self.bins.as_ref().map(Into::into),
                 channels,
             },
             arrays,
         }
     }
 
-    fn from_container(mut c: Container<Meta>, path: &Path) -> Result<Solution, SolutionError> {
+    fn from_container(
+        mut c: Container<MetaRecord>,
+        path: &Path,
+    ) -> Result<Solution, SolutionError> {
         let bad = |message: String| SolutionError::Inconsistent {
             path: path.display().to_string(),
             message,
         };
         let meta = c.meta;
-        let grid =
-            Grid::new(meta.grid.dims, meta.grid.cell_size).map_err(|e| bad(e.to_string()))?;
+        let grid = meta.grid.into_library().map_err(bad)?;
+        let phase = meta.phase.into_library().map_err(bad)?;
+        let lights = meta
+            .lights
+            .into_iter()
+            .enumerate()
+            .map(|(l, r)| r.into_library().map_err(|e| bad(format!("light {l}: {e}"))))
+            .collect::<Result<Vec<Light>, _>>()?;
+        let render = meta.render.into_library().map_err(bad)?;
+        let cameras: Vec<CameraSpec> = meta.cameras.into_iter().map(|r| r.into_library()).collect();
+        let bins = meta
+            .bins
+            .map(|b| b.into_library())
+            .transpose()
+            .map_err(bad)?;
         let cells = grid.cell_count();
         let mut take = |name: String, len: usize| -> Result<Vec<f32>, SolutionError> {
             let pos = c
@@ -315,7 +302,7 @@ impl Solution {
             }
             Ok(v)
         };
-        let bins = meta.bins.as_ref().map_or(0, |b| b.directions.len());
+        let bin_count = bins.as_ref().map_or(0, |b| b.directions.len());
         let mut medium_channels = Vec::new();
         let mut channels = Vec::new();
         for (ci, cm) in meta.channels.into_iter().enumerate() {
@@ -328,15 +315,15 @@ impl Solution {
                 Some(v) => CellValues::Uniform(v),
                 None => CellValues::PerCell(take(format!("emission/{ci}"), cells)?),
             };
-            if cm.light_energy.len() != meta.lights.len() {
+            if cm.light_energy.len() != lights.len() {
                 return Err(bad(format!(
                     "channel {ci} has {} light fields for {} lights",
                     cm.light_energy.len(),
-                    meta.lights.len()
+                    lights.len()
                 )));
             }
             let mut fields = Vec::new();
-            for (l, (light, energy)) in meta.lights.iter().zip(cm.light_energy).enumerate() {
+            for (l, (light, energy)) in lights.iter().zip(cm.light_energy).enumerate() {
                 fields.push(LightField {
                     light: *light,
                     cell_irradiance: take(format!("light/{ci}/{l}/cell_irradiance"), cells)?,
@@ -344,7 +331,7 @@ impl Solution {
                         format!("light/{ci}/{l}/corner_optical_depth"),
                         grid.corner_count(),
                     )?,
-                    energy,
+                    energy: energy.into_library(),
                 });
             }
             let scattered = match cm.field {
@@ -356,17 +343,19 @@ impl Solution {
                 FieldKind::TwoPass => {
                     let t = cm
                         .two_pass
-                        .ok_or_else(|| bad("two-pass field without its stored result".into()))?;
+                        .ok_or_else(|| bad("two-pass field without its stored result".into()))?
+                        .into_library()
+                        .map_err(|e| bad(format!("channel {ci}: {e}")))?;
                     t.check_grid(&grid).map_err(|e| bad(e.to_string()))?;
                     ScatteredField::TwoPass(Box::new(t))
                 }
                 FieldKind::Binned => {
-                    if bins == 0 {
+                    if bin_count == 0 {
                         return Err(bad("binned radiance without direction bins".into()));
                     }
                     ScatteredField::Binned {
-                        radiance: take(format!("radiance/{ci}"), cells * bins)?,
-                        higher_order: take(format!("higher_order/{ci}"), cells * bins)?,
+                        radiance: take(format!("radiance/{ci}"), cells * bin_count)?,
+                        higher_order: take(format!("higher_order/{ci}"), cells * bin_count)?,
                     }
                 }
             };
@@ -377,7 +366,11 @@ impl Solution {
                     fields,
                 },
                 scattered,
-                report: cm.report,
+                report: cm
+                    .report
+                    .map(|r| r.into_library())
+                    .transpose()
+                    .map_err(|e| bad(format!("channel {ci}: {e}")))?,
                 render_cache: RenderCache::default(),
             });
             medium_channels.push(ChannelMedium {
@@ -391,18 +384,24 @@ impl Solution {
         } else {
             None
         };
-        let medium = Medium::new(grid, medium_channels, meta.phase, meta.interpolation, data)
-            .map_err(|e| bad(e.to_string()))?;
+        let medium = Medium::new(
+            grid,
+            medium_channels,
+            phase,
+            meta.interpolation.into_library(),
+            data,
+        )
+        .map_err(|e| bad(e.to_string()))?;
         Ok(Solution {
             scene_hash: meta.scene_hash,
             scene_origin: meta.scene_origin,
-            method: meta.method,
+            method: meta.method.into_library(),
             medium,
-            lights: meta.lights,
+            lights,
             background: meta.background,
-            render: meta.render,
-            cameras: meta.cameras,
-            bins: meta.bins,
+            render,
+            cameras,
+            bins,
             channels,
         })
     }
