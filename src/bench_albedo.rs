@@ -4,7 +4,6 @@
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 use std::sync::Once;
 
 use anyhow::{bail, Context, Result};
@@ -133,8 +132,8 @@ impl RowAccess for AlbedoScaled<'_> {
 #[derive(Clone, Debug)]
 pub struct AlbedoBenchOptions {
     pub albedos: Vec<f64>,
-    /// Method names as typed (`sor:1.5`), parsed with [`Method::from_str`].
-    pub methods: Vec<String>,
+    /// The iterations to compare.
+    pub iterations: Vec<Method>,
     pub sigma_scales: Vec<f64>,
     pub tolerance: f64,
     pub max_iterations: usize,
@@ -297,13 +296,9 @@ pub fn run_albedo_bench(
     progress: &mut dyn FnMut(&str),
 ) -> Result<Vec<AlbedoRun>> {
     check_albedos(&options.albedos)?;
-    let methods: Vec<Method> = options
-        .methods
-        .iter()
-        .map(|m| Method::from_str(m.trim()).with_context(|| format!("--method `{m}`")))
-        .collect::<Result<_>>()?;
+    let methods = &options.iterations;
     if methods.is_empty() {
-        bail!("--method: give at least one method");
+        bail!("--iteration: give at least one iteration");
     }
     for &s in &options.sigma_scales {
         if !(s.is_finite() && s > 0.0) {
@@ -344,7 +339,7 @@ pub fn run_albedo_bench(
                 .zip(&family.first_bounce)
                 .map(|(e, s)| e + albedo * s)
                 .collect();
-            for method in &methods {
+            for method in methods {
                 let solve_options = SolveOptions {
                     method: *method,
                     tolerance: options.tolerance,
@@ -367,7 +362,7 @@ pub fn run_albedo_bench(
                             method: report.method,
                             iterations: report.iterations,
                             converged: report.converged,
-                            stop_reason: format!("{:?}", report.stop_reason),
+                            stop_reason: report.stop_reason.name().to_string(),
                             final_residual: report.final_residual,
                             seconds: report.seconds,
                             seconds_per_iteration: report.seconds_per_iteration,
@@ -758,7 +753,7 @@ pub fn run(args: &BenchAlbedoArgs, quiet: bool) -> Result<()> {
         .with_context(|| format!("reading {}", args.scene.display()))?;
     let options = AlbedoBenchOptions {
         albedos: args.albedo.clone(),
-        methods: args.method.clone(),
+        iterations: args.iteration.clone(),
         sigma_scales: args.sigma_scale.clone(),
         tolerance: args.tolerance,
         max_iterations: args.max_iterations,
@@ -773,12 +768,12 @@ pub fn run(args: &BenchAlbedoArgs, quiet: bool) -> Result<()> {
         .scene
         .file_name()
         .map_or_else(|| "scene".to_string(), |n| n.to_string_lossy().into_owned());
-    write_outputs(&args.out, &runs, &name, args.tolerance)?;
+    write_outputs(&args.output, &runs, &name, args.tolerance)?;
     print!("{}", table_text(&runs));
     if !quiet {
         eprintln!(
             "wrote {}/albedo.csv, albedo.png, residuals_a*.png",
-            args.out.display()
+            args.output.display()
         );
     }
     Ok(())

@@ -66,8 +66,8 @@ pub struct ValidateArgs {
     #[arg(long, value_delimiter = ',')]
     pub methods: Vec<String>,
     /// Directory for report.md, report.json and the images.
-    #[arg(long, default_value = "docs/validation")]
-    pub out: PathBuf,
+    #[arg(short = 'o', long = "output", default_value = "docs/validation")]
+    pub output: PathBuf,
     /// Few samples (64-spp reference, 4 spp renders, 16-spp path tracing): CI-sized runs.
     #[arg(long)]
     pub quick: bool,
@@ -96,9 +96,11 @@ pub struct BenchAlbedoArgs {
         default_value = "0.5,0.8,0.9,0.95,0.99,0.999,1.0"
     )]
     pub albedo: Vec<f64>,
-    /// Solve methods, comma-separated (jacobi, gauss-seidel, sor:1.5, gmres:30, bicgstab, cg, coarse-cg, coarse-gs).
+    /// Iterations to compare, comma-separated (jacobi, gauss-seidel, sor:1.5, gmres:30,
+    /// bicgstab, cg, coarse-cg, two-level-cg[:N], dsa-cg, coarse-jacobi, coarse-gs,
+    /// coarse-sor:OMEGA), as `solve --iteration` reads them.
     #[arg(long, value_delimiter = ',', default_value = "jacobi,gauss-seidel")]
-    pub method: Vec<String>,
+    pub iteration: Vec<solver::Method>,
     /// Multipliers of the scene's σt, comma-separated (the operator is rebuilt for each).
     #[arg(long, value_delimiter = ',', default_value = "1")]
     pub sigma_scale: Vec<f64>,
@@ -109,8 +111,8 @@ pub struct BenchAlbedoArgs {
     #[arg(long, default_value_t = 2000)]
     pub max_iterations: usize,
     /// Directory for albedo.csv, albedo.png and residuals_a*.png.
-    #[arg(long, default_value = "bench-albedo")]
-    pub out: PathBuf,
+    #[arg(short = 'o', long = "output", default_value = "bench-albedo")]
+    pub output: PathBuf,
 }
 
 #[derive(Debug, Args)]
@@ -134,10 +136,10 @@ pub struct RenderArgs {
     pub exposure: Option<f64>,
     #[command(flatten)]
     pub view: ViewArgs,
-    /// How to compute the image: from the (stored or in-memory) solution, or by unbiased
-    /// Monte Carlo path tracing of the scene (no solve; `--spp` paths per pixel).
-    #[arg(long, value_enum, default_value_t = RenderMethod::Solution)]
-    pub method: RenderMethod,
+    /// Render by unbiased Monte Carlo path tracing of the scene instead of from a solution
+    /// (no solve; `--spp` paths per pixel, next-event estimation, unlimited depth).
+    #[arg(long)]
+    pub path_trace: bool,
     /// Seed of the path tracer's random streams.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -235,15 +237,6 @@ pub struct InfoArgs {
     /// Print as JSON.
     #[arg(long)]
     pub json: bool,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum RenderMethod {
-    /// The scene's `[solve]` method (or the stored solution): first bounce exact, higher
-    /// orders from the solution.
-    Solution,
-    /// Volumetric path tracing with next-event estimation, unlimited depth.
-    PathTrace,
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]

@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use scene::Scene;
 
 use crate::app::{choose_camera, load_scene, orbit_cameras, view_outputs};
-use crate::cli::{ExportArgs, ExportField, RenderArgs, RenderMethod, SolveArgs};
+use crate::cli::{ExportArgs, ExportField, RenderArgs, SolveArgs};
 use crate::pipeline::{render_view, render_view_through, solve_scene, view_medium, SolveHooks};
 use crate::progress::SolveProgress;
 use crate::solution::Solution;
@@ -63,7 +63,7 @@ pub fn solve_with_progress(
         if let Some(r) = &ch.report {
             if !r.converged && !quiet {
                 eprintln!(
-                    "warning: channel {c} did not converge: relative residual {:.3e} after {} iterations ({:?})",
+                    "warning: channel {c} did not converge: relative residual {:.3e} after {} iterations ({})",
                     r.final_residual, r.iterations, r.stop_reason
                 );
             }
@@ -73,7 +73,7 @@ pub fn solve_with_progress(
 }
 
 pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
-    if args.method == RenderMethod::PathTrace {
+    if args.path_trace {
         if args.extinction_scale.is_some() {
             bail!("--extinction-scale changes a render from a solution; the path tracer has none");
         }
@@ -130,7 +130,7 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
     Ok(())
 }
 
-/// `render --method path-trace`: unbiased Monte Carlo of the scene, no solve.
+/// `render --path-trace`: unbiased Monte Carlo of the scene, no solve.
 fn render_path_traced(args: &RenderArgs) -> Result<()> {
     let (medium, lights, background, cameras, exposure) = match (&args.scene, &args.solution) {
         (Some(path), _) => {
@@ -331,7 +331,7 @@ pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
     let options = ValidateOptions {
         scenes,
         methods,
-        out: args.out.clone(),
+        out: args.output.clone(),
         settings,
         quiet,
     };

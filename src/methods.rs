@@ -361,7 +361,7 @@ impl SolveSummary {
                     iterations: ch.report.as_ref().map_or(0, |r| r.iterations),
                     converged: ch.report.as_ref().is_none_or(|r| r.converged),
                     final_residual: ch.report.as_ref().map(|r| r.final_residual),
-                    stop_reason: ch.report.as_ref().map(|r| format!("{:?}", r.stop_reason)),
+                    stop_reason: ch.report.as_ref().map(|r| r.stop_reason.name().to_string()),
                     solve_seconds: ch.report.as_ref().map(|r| r.seconds),
                     light_energy_imbalance: ch
                         .light_pass

@@ -617,13 +617,8 @@ fn relative_noise(reference: &Image, stderr: &Image) -> f64 {
 /// Resets the process's peak resident set (Linux: `5` to /proc/self/clear_refs) and returns
 /// the resident set now; `None` where that is not possible.
 fn reset_peak_rss() -> Option<u64> {
-    // Freed memory the allocator keeps would be reused without showing in the peak: give it
-    // back first, so the baseline is the memory actually in use.
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: malloc_trim only releases free heap pages; it has no preconditions.
-    unsafe {
-        libc::malloc_trim(0);
-    }
+    // The baseline includes freed memory that the allocator (mimalloc) keeps for reuse: the
+    // peak above it is what the step added beyond that.
     std::fs::write("/proc/self/clear_refs", "5").ok()?;
     status_kib("VmRSS:").map(|k| k * 1024)
 }
@@ -803,7 +798,7 @@ impl ValidationReport {
         );
         let _ = writeln!(
             md,
-            "- **Reference:** volrad's own path tracer (`render --method path-trace`: exact \
+            "- **Reference:** volrad's own path tracer (`render --path-trace`: exact \
              per-cell free paths, next-event estimation, unlimited depth), {} paths per pixel. \
              Where the scene directory holds Mitsuba 3 images (`<camera>.pfm` with \
              `<camera>_stderr.pfm`), every image is also compared with those.",

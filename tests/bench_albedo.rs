@@ -56,7 +56,7 @@ fn scene(dir: &Path, method: &str, sigma_t_scale: f64) -> Scene {
 fn options(albedos: &[f64], methods: &[&str], sigma_scales: &[f64]) -> AlbedoBenchOptions {
     AlbedoBenchOptions {
         albedos: albedos.to_vec(),
-        methods: methods.iter().map(|m| m.to_string()).collect(),
+        iterations: methods.iter().map(|m| m.parse().unwrap()).collect(),
         sigma_scales: sigma_scales.to_vec(),
         tolerance: 1e-5,
         max_iterations: 2000,
@@ -291,8 +291,9 @@ fn per_cell_albedo_and_bad_albedos_are_refused() {
         );
     }
     let mut o = opts.clone();
-    o.methods = vec!["newton".into()];
+    o.iterations = Vec::new();
     assert!(run_albedo_bench(&scene, &o, &mut quiet).is_err());
+    assert!("newton".parse::<solver::Method>().is_err());
     scene.medium.channels[0].albedo =
         CellValues::PerCell((0..cells).map(|i| 0.5 + 0.4 * (i % 2) as f32).collect());
     let err = run_albedo_bench(&scene, &opts, &mut quiet)

@@ -70,7 +70,7 @@ fn quick_validation_reports_every_method_with_images() {
         "zonal,single-scatter",
         "--reference-spp",
         "256",
-        "--out",
+        "--output",
         s(&out),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -153,7 +153,7 @@ fn unknown_method_and_missing_scene_are_refused_by_name() {
         s(&scene),
         "--methods",
         "zonal,photon-mapping",
-        "--out",
+        "--output",
         s(&out),
     ]);
     assert!(!o.status.success());
@@ -171,7 +171,7 @@ fn unknown_method_and_missing_scene_are_refused_by_name() {
         "--quick",
         "--scene",
         s(&missing),
-        "--out",
+        "--output",
         s(&out),
     ]);
     assert!(!o.status.success());

@@ -562,7 +562,7 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
                         "converged": r.converged,
                         "final_residual": r.final_residual,
                         "seconds": r.seconds,
-                        "stop_reason": format!("{:?}", r.stop_reason),
+                        "stop_reason": r.stop_reason.name(),
                     });
                     if with_history {
                         rv["residual_history"] = json!(r

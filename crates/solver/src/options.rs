@@ -120,7 +120,7 @@ impl fmt::Display for Method {
 
 /// A method string that could not be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown solve method {input:?}: {reason} (expected one of jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-cg, two-level-cg[:SMOOTHING], dsa-cg, coarse-jacobi, coarse-gs, coarse-sor:OMEGA)")]
+#[error("unknown iteration {input:?}: {reason} (expected one of jacobi, gauss-seidel, sor:OMEGA, gmres[:RESTART], bicgstab, cg, coarse-cg, two-level-cg[:SMOOTHING], dsa-cg, coarse-jacobi, coarse-gs, coarse-sor:OMEGA)")]
 pub struct ParseMethodError {
     pub input: String,
     pub reason: String,

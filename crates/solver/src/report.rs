@@ -19,6 +19,26 @@ pub enum StopReason {
     Stagnated,
 }
 
+impl StopReason {
+    /// The name in JSON output and reports (`converged`, `max-iterations`, `cancelled`,
+    /// `diverged`, `stagnated`): an explicit spelling, independent of the Rust identifier.
+    pub fn name(self) -> &'static str {
+        match self {
+            StopReason::Converged => "converged",
+            StopReason::MaxIterations => "max-iterations",
+            StopReason::Cancelled => "cancelled",
+            StopReason::Diverged => "diverged",
+            StopReason::Stagnated => "stagnated",
+        }
+    }
+}
+
+impl std::fmt::Display for StopReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// The record of one solve (stored in solution files).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SolveReport {
