@@ -72,7 +72,7 @@ fn bench_scattering_render(c: &mut Criterion) {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let scene = Scene::from_file(&root.join("data/cloud.toml")).unwrap();
     let medium = &scene.medium;
-    let pass = LightPass::compute(&medium.grid, &medium.channels[0], &scene.lights).unwrap();
+    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &scene.lights).unwrap();
     let spec = scene.camera("front").unwrap();
     let cam = Camera::from_spec(spec).unwrap();
     let opts = RenderOptions {
@@ -83,7 +83,7 @@ fn bench_scattering_render(c: &mut Criterion) {
     };
     let first = SingleScatter::new(medium, 0, &pass, SingleScatterOptions::default()).unwrap();
     let higher: Vec<f32> = pass
-        .zonal_source(&medium.channels[0])
+        .zonal_source(&medium.channels()[0])
         .iter()
         .map(|&v| v as f32)
         .collect();
@@ -133,10 +133,10 @@ fn bench_service_render(c: &mut Criterion) {
         direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
         irradiance: 1.0,
     }];
-    let pass = LightPass::compute(&medium.grid, &medium.channels[0], &lights).unwrap();
+    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &lights).unwrap();
     let depth = LightDepthModel::build(&pass, LightDepth::Auto).unwrap();
     let higher: Vec<f32> = pass
-        .zonal_source(&medium.channels[0])
+        .zonal_source(&medium.channels()[0])
         .iter()
         .map(|&v| v as f32)
         .collect();
@@ -144,7 +144,7 @@ fn bench_service_render(c: &mut Criterion) {
         SingleScatter::with_depth_model(&medium, 0, &pass, SingleScatterOptions::default(), &depth)
             .unwrap();
     let solution = (first, volrad::pipeline::CellSource::new(&higher));
-    let centre = medium.grid.extent() * 0.5;
+    let centre = medium.grid().extent() * 0.5;
     let radius = 2.5 * 24.0;
     let angle = 0.5f64;
     let eye = centre + DVec3::new(radius * angle.sin(), -radius * angle.cos(), 0.3 * radius);

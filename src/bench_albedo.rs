@@ -201,8 +201,8 @@ struct Family {
 }
 
 fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
-    let grid = &scene.medium.grid;
-    let mut channel = scene.medium.channels[0].clone();
+    let grid = scene.medium.grid();
+    let mut channel = scene.medium.channels()[0].clone();
     channel.albedo = CellValues::Uniform(1.0);
     if sigma_scale != 1.0 {
         channel
@@ -222,7 +222,7 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
             let op = OrdinatesOperator::from_channel(
                 *grid,
                 &channel,
-                scene.medium.phase,
+                scene.medium.phase(),
                 DirectionBins::cube(n)?,
                 OrdinatesOptions::default(),
             )?;
@@ -305,8 +305,8 @@ pub fn run_albedo_bench(
             bail!("--sigma-scale {s}: must be positive and finite");
         }
     }
-    let scene_albedo = uniform_albedo(&scene.medium.channels[0])?;
-    if scene.medium.channels.len() > 1 {
+    let scene_albedo = uniform_albedo(&scene.medium.channels()[0])?;
+    if scene.medium.channels().len() > 1 {
         progress("note: colour scene; benchmarking channel 0 only");
     }
     progress(&format!(

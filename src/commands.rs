@@ -35,7 +35,7 @@ pub fn run_default(output: &Path, quiet: bool) -> Result<()> {
     if !quiet {
         eprintln!(
             "volrad: built-in cloud {:?} solved by {} and rendered in {:.1} s",
-            scene.medium.grid.dims,
+            scene.medium.grid().dims,
             scene.solve.method.name(),
             started.elapsed().as_secs_f64()
         );
@@ -92,7 +92,7 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         (Some(_), Some(scene_path)) => load_scene(scene_path)?.cameras,
         _ => solution.cameras.clone(),
     };
-    let center = solution.medium.grid.center();
+    let center = solution.medium.grid().center();
     let mut views = Vec::new();
     let all_cameras = args.camera.is_none() && args.orbit.is_none() && args.output.is_dir();
     if all_cameras {
@@ -162,7 +162,7 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
         &cameras,
         args.camera.as_deref(),
         &args.view,
-        medium.grid.center(),
+        medium.grid().center(),
     )?;
     let camera = gather::Camera::from_spec(&spec)?;
     let options = montecarlo::path_trace::PathTraceOptions {
@@ -177,7 +177,7 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
     let paths = camera.width as f64
         * camera.height as f64
         * options.spp as f64
-        * medium.channels.len() as f64;
+        * medium.channels().len() as f64;
     tracing::info!(seconds, paths_per_second = paths / seconds, "path traced");
     image
         .save(&args.output, args.exposure.unwrap_or(exposure))
@@ -224,7 +224,7 @@ pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
 pub fn export(args: &ExportArgs) -> Result<()> {
     let solution = Solution::read(&args.solution)?;
     let (values, units) = crate::methods::export_field(&solution, args.channel, args.field)?;
-    let dims = solution.medium.grid.dims;
+    let dims = solution.medium.grid().dims;
     let field_name = match args.field {
         ExportField::Fluence => "fluence",
         ExportField::Source => "source",
@@ -244,7 +244,7 @@ pub fn export(args: &ExportArgs) -> Result<()> {
         ("solution".to_string(), args.solution.display().to_string()),
         (
             "cell_size".to_string(),
-            solution.medium.grid.cell_size.to_string(),
+            solution.medium.grid().cell_size.to_string(),
         ),
     ];
     match ext.as_str() {
@@ -254,7 +254,7 @@ pub fn export(args: &ExportArgs) -> Result<()> {
             &medium::volume_io::NrrdWriteOptions {
                 comments,
                 units: Some("length".into()),
-                spacings: Some([solution.medium.grid.cell_size; 3]),
+                spacings: Some([solution.medium.grid().cell_size; 3]),
                 gzip: false,
             },
         )?,
@@ -267,7 +267,7 @@ pub fn export(args: &ExportArgs) -> Result<()> {
                 "dims": dims,
                 "order": "x fastest: index = i + nx * (j + ny * k)",
                 "dtype": "float32 little-endian",
-                "cell_size": solution.medium.grid.cell_size,
+                "cell_size": solution.medium.grid().cell_size,
                 "channel": args.channel,
             });
             medium::atomic_file::write_bytes(

@@ -33,16 +33,16 @@ pub struct SceneInfo {
 impl SceneInfo {
     pub fn of(scene: &Scene) -> SceneInfo {
         let m = &scene.medium;
-        let cells = m.grid.cell_count();
+        let cells = m.grid().cell_count();
         let (mut lo, mut hi, mut occupied) = (f64::INFINITY, 0.0f64, 0usize);
-        for ch in &m.channels {
+        for ch in m.channels() {
             for &s in &ch.sigma_t {
                 lo = lo.min(s as f64);
                 hi = hi.max(s as f64);
             }
         }
         for i in 0..cells {
-            if m.channels.iter().any(|c| c.sigma_t[i] > 0.0) {
+            if m.channels().iter().any(|c| c.sigma_t[i] > 0.0) {
                 occupied += 1;
             }
         }
@@ -66,20 +66,20 @@ impl SceneInfo {
                 SceneOrigin::File(p) => p.display().to_string(),
                 SceneOrigin::BuiltIn(name) => format!("<built-in {name}>"),
             },
-            dims: m.grid.dims,
+            dims: m.grid().dims,
             cells,
-            cell_size: m.grid.cell_size,
-            channels: m.channels.len(),
+            cell_size: m.grid().cell_size,
+            channels: m.channels().len(),
             sigma_t_min: if lo.is_finite() { lo } else { 0.0 },
             sigma_t_max: hi,
             occupied_fraction: occupied as f64 / cells as f64,
             max_axis_optical_depth: m.max_axis_optical_depth(),
             albedo_max: m
-                .channels
+                .channels()
                 .iter()
                 .map(|c| c.albedo.max() as f64)
                 .fold(0.0, f64::max),
-            phase: format!("{:?}", m.phase),
+            phase: format!("{:?}", m.phase()),
             lights: scene.lights.len(),
             cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
             method: scene.solve.method.name().to_string(),

@@ -100,8 +100,8 @@ pub fn solve_zonal(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
-    let grid = &scene.medium.grid;
-    let channel = &scene.medium.channels[c];
+    let grid = scene.medium.grid();
+    let channel = &scene.medium.channels()[c];
     let source = light_pass.zonal_source(channel);
     let (g, report) = match settings.method {
         SolveMethod::Zonal => {
@@ -170,11 +170,11 @@ pub fn solve_ordinates(
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     let bins = DirectionBins::cube(face_divisions(settings.bins)?)?;
-    let channel = &scene.medium.channels[c];
+    let channel = &scene.medium.channels()[c];
     let op = OrdinatesOperator::from_channel(
-        scene.medium.grid,
+        *scene.medium.grid(),
         channel,
-        scene.medium.phase,
+        scene.medium.phase(),
         bins,
         ordinates_options(settings),
     )?;
@@ -206,7 +206,7 @@ pub fn solve_two_pass(
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     use montecarlo::two_pass::{energetize, EnergetizeOptions};
-    let bins = if scene.medium.phase.is_isotropic() {
+    let bins = if scene.medium.phase().is_isotropic() {
         montecarlo::DirectionBins::ISOTROPIC
     } else {
         montecarlo::DirectionBins {
@@ -412,8 +412,8 @@ pub fn export_field(
             solution.channels.len()
         );
     };
-    let medium = &solution.medium.channels[channel];
-    let cells = solution.medium.grid.cell_count();
+    let medium = &solution.medium.channels()[channel];
+    let cells = solution.medium.grid().cell_count();
     Ok(match field {
         ExportField::SigmaT => (medium.sigma_t.clone(), "1/length"),
         ExportField::Source => match &ch.scattered {
@@ -444,7 +444,7 @@ pub fn export_field(
 /// `∫ I dω` per cell of channel `c`, including the unscattered light.
 pub fn fluence(solution: &Solution, c: usize) -> Vec<f64> {
     let ch = &solution.channels[c];
-    let m = &solution.medium.channels[c];
+    let m = &solution.medium.channels()[c];
     let unscattered = ch.light_pass.total_cell_irradiance();
     match (&ch.scattered, &solution.bins) {
         (ScatteredField::Isotropic { source, .. }, _) => (0..unscattered.len())

@@ -68,11 +68,11 @@ pub fn solve_scene(
     // Before any light pass or operator: an iteration the method cannot run is refused now.
     crate::methods::check_iteration(settings)?;
     let medium = &scene.medium;
-    let mut channels = Vec::with_capacity(medium.channels.len());
-    for (c, channel) in medium.channels.iter().enumerate() {
+    let mut channels = Vec::with_capacity(medium.channels().len());
+    for (c, channel) in medium.channels().iter().enumerate() {
         let span = tracing::info_span!("channel", c);
         let _enter = span.enter();
-        let light_pass = LightPass::compute(&medium.grid, channel, &scene.lights)
+        let light_pass = LightPass::compute(medium.grid(), channel, &scene.lights)
             .with_context(|| format!("light pass of channel {c}"))?;
         let (scattered, report) = match settings.method {
             SolveMethod::None | SolveMethod::SingleScatter => (ScatteredField::None, None),
@@ -176,15 +176,15 @@ pub fn render_view_through(
     spp: Option<u32>,
 ) -> Result<Image> {
     // The sources index cells of the solution's grid: another grid would read the wrong cells.
-    if view_medium.grid != solution.medium.grid
-        || view_medium.channels.len() != solution.medium.channels.len()
+    if view_medium.grid() != solution.medium.grid()
+        || view_medium.channels().len() != solution.medium.channels().len()
     {
         anyhow::bail!(
             "the view medium ({:?} cells, {} channels) does not match the solution's ({:?} cells, {} channels)",
-            view_medium.grid.dims,
-            view_medium.channels.len(),
-            solution.medium.grid.dims,
-            solution.medium.channels.len()
+            view_medium.grid().dims,
+            view_medium.channels().len(),
+            solution.medium.grid().dims,
+            solution.medium.channels().len()
         );
     }
     let camera = Camera::from_spec(camera)?;

@@ -480,8 +480,8 @@ fn validate_scene(
     Ok(SceneResult {
         name: name.to_string(),
         path: path.display().to_string(),
-        dims: scene.medium.grid.dims,
-        phase: format!("{:?}", scene.medium.phase),
+        dims: scene.medium.grid().dims,
+        phase: format!("{:?}", scene.medium.phase()),
         camera: spec.name.clone(),
         width: spec.width,
         height: spec.height,

@@ -73,8 +73,8 @@ fn runs_of<'a>(runs: &'a [AlbedoRun], method: &str) -> Vec<&'a AlbedoRun> {
 fn scaled_operator_equals_operator_built_at_that_albedo() {
     let dir = tempfile::tempdir().unwrap();
     let scene = scene(dir.path(), "zonal", 2.0);
-    let grid = &scene.medium.grid;
-    let mut unit = scene.medium.channels[0].clone();
+    let grid = &scene.medium.grid();
+    let mut unit = scene.medium.channels()[0].clone();
     unit.albedo = CellValues::Uniform(1.0);
     let mut at = unit.clone();
     at.albedo = CellValues::Uniform(0.7);
@@ -107,10 +107,10 @@ fn scaled_sweeps_without_rows_reach_the_jacobi_solution() {
     // with the shifted source and relaxation. A wrong shift converges to a different g.
     let dir = tempfile::tempdir().unwrap();
     let scene = scene(dir.path(), "zonal-hierarchical", 2.0);
-    let mut unit = scene.medium.channels[0].clone();
+    let mut unit = scene.medium.channels()[0].clone();
     unit.albedo = CellValues::Uniform(1.0);
     let k1 =
-        HierarchicalOperator::build(&scene.medium.grid, &unit, &HierarchicalOptions::default())
+        HierarchicalOperator::build(scene.medium.grid(), &unit, &HierarchicalOptions::default())
             .unwrap();
     assert!(k1.rows().is_none());
     let op = AlbedoScaled::new(&k1, 0.8);
@@ -280,7 +280,7 @@ fn albedo_one_every_method_converges_or_says_it_did_not() {
 fn per_cell_albedo_and_bad_albedos_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let mut scene = scene(dir.path(), "zonal", 1.0);
-    let cells = scene.medium.grid.cell_count();
+    let cells = scene.medium.grid().cell_count();
     let opts = options(&[0.5], &["jacobi"], &[1.0]);
     for bad in [0.0, -0.1, 1.5, f64::NAN] {
         let mut o = opts.clone();
@@ -294,8 +294,9 @@ fn per_cell_albedo_and_bad_albedos_are_refused() {
     o.iterations = Vec::new();
     assert!(run_albedo_bench(&scene, &o, &mut quiet).is_err());
     assert!("newton".parse::<solver::Method>().is_err());
-    scene.medium.channels[0].albedo =
-        CellValues::PerCell((0..cells).map(|i| 0.5 + 0.4 * (i % 2) as f32).collect());
+    let mut channel = scene.medium.channels()[0].clone();
+    channel.albedo = CellValues::PerCell((0..cells).map(|i| 0.5 + 0.4 * (i % 2) as f32).collect());
+    scene.medium = scene.medium.clone().with_channel(0, channel).unwrap();
     let err = run_albedo_bench(&scene, &opts, &mut quiet)
         .unwrap_err()
         .to_string();

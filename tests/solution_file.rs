@@ -350,10 +350,10 @@ fn golden_small_decodes() {
     let s = read_golden(SMALL.file);
     assert_eq!(s.method, SolveMethod::Zonal);
     assert_eq!(s.scene_origin, "solution-golden/small.toml");
-    assert_eq!(s.medium.grid.dims, [4, 3, 2]);
-    assert_eq!(s.medium.grid.cell_size, 0.5);
-    assert_eq!(s.medium.phase, PhaseFunction::Isotropic);
-    assert_eq!(s.medium.interpolation, Interpolation::Nearest);
+    assert_eq!(s.medium.grid().dims, [4, 3, 2]);
+    assert_eq!(s.medium.grid().cell_size, 0.5);
+    assert_eq!(s.medium.phase(), PhaseFunction::Isotropic);
+    assert_eq!(s.medium.interpolation(), Interpolation::Nearest);
     assert_eq!(s.background, 0.25);
     assert_eq!(s.render.model, OpticalModel::Scattering);
     assert_eq!((s.render.exposure, s.render.spp), (1.5, 4));
@@ -381,8 +381,8 @@ fn golden_small_decodes() {
     assert_eq!(irradiance, 1.0);
 
     let cells = 24;
-    assert_eq!(s.medium.channels.len(), 1);
-    let m = &s.medium.channels[0];
+    assert_eq!(s.medium.channels().len(), 1);
+    let m = &s.medium.channels()[0];
     assert_eq!(m.sigma_t.len(), cells);
     assert_eq!(m.sigma_t[..4], SMALL_SIGMA_T);
     let CellValues::PerCell(albedo) = &m.albedo else {
@@ -390,7 +390,7 @@ fn golden_small_decodes() {
     };
     assert_eq!(albedo[..4], SMALL_ALBEDO);
     assert_eq!(m.emission, CellValues::Uniform(0.0));
-    assert_eq!(s.medium.data.as_ref().map(Vec::len), Some(cells));
+    assert_eq!(s.medium.data().map(<[f32]>::len), Some(cells));
 
     let ch = &s.channels[0];
     assert_eq!(ch.light_pass.fields.len(), 1);
@@ -424,12 +424,12 @@ fn golden_small_decodes() {
 fn golden_ordinates_decodes() {
     let s = read_golden(ORDINATES.file);
     assert_eq!(s.method, SolveMethod::DiscreteOrdinates);
-    assert_eq!(s.medium.grid.dims, [3, 3, 2]);
-    assert_eq!(s.medium.phase, PhaseFunction::HenyeyGreenstein { g: 0.6 });
-    assert_eq!(s.medium.interpolation, Interpolation::Trilinear);
-    assert_eq!(s.medium.channels.len(), 3);
-    assert_eq!(s.medium.channels[1].albedo, CellValues::Uniform(0.8));
-    assert_eq!(s.medium.channels[2].emission, CellValues::Uniform(0.05));
+    assert_eq!(s.medium.grid().dims, [3, 3, 2]);
+    assert_eq!(s.medium.phase(), PhaseFunction::HenyeyGreenstein { g: 0.6 });
+    assert_eq!(s.medium.interpolation(), Interpolation::Trilinear);
+    assert_eq!(s.medium.channels().len(), 3);
+    assert_eq!(s.medium.channels()[1].albedo, CellValues::Uniform(0.8));
+    assert_eq!(s.medium.channels()[2].emission, CellValues::Uniform(0.05));
     assert_eq!(
         s.cameras[0].projection,
         Projection::Orthographic { height: 4.0 }
@@ -477,7 +477,7 @@ fn golden_two_pass_decodes() {
     let s = read_golden(TWO_PASS.file);
     assert_eq!(s.method, SolveMethod::TwoPass);
     assert_eq!(
-        s.medium.phase,
+        s.medium.phase(),
         PhaseFunction::TwoLobe {
             r: 0.7,
             g1: 0.6,
@@ -496,7 +496,7 @@ fn golden_two_pass_decodes() {
     let ScatteredField::TwoPass(t) = &ch.scattered else {
         panic!("{:?}", ch.scattered);
     };
-    assert_eq!(t.grid, s.medium.grid);
+    assert_eq!(t.grid, *s.medium.grid());
     assert_eq!(t.storage_factor, 1);
     assert_eq!(t.optical_dims, [3, 2, 2]);
     assert_eq!((t.bins.n_theta, t.bins.n_phi), (12, 24));

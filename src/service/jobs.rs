@@ -542,8 +542,8 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
     let dims = job
         .solution
         .as_ref()
-        .map(|s| s.medium.grid.dims)
-        .or_else(|| job.scene.as_ref().map(|s| s.medium.grid.dims));
+        .map(|s| s.medium.grid().dims)
+        .or_else(|| job.scene.as_ref().map(|s| s.medium.grid().dims));
     if let Some(d) = dims {
         v["dims"] = json!(d);
     }
@@ -576,7 +576,7 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
                 None => Value::Null,
             })
             .collect();
-        let g = &sol.medium.grid;
+        let g = sol.medium.grid();
         let extent: Vec<f64> = g.dims.iter().map(|&n| n as f64 * g.cell_size).collect();
         v["method"] = json!(sol.method.name());
         v["report"] = json!({

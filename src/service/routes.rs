@@ -142,7 +142,7 @@ async fn post_scene(
             let dir = format!("{}/", service.inner.cache.volumes_dir().display());
             ApiError::bad(e.to_string().replace(&dir, ""))
         })?;
-    let cells: usize = scene.medium.grid.dims.iter().product();
+    let cells: usize = scene.medium.grid().dims.iter().product();
     if cells > service.inner.limits.max_cells {
         return Err(ApiError::bad(format!(
             "volume.dims: {cells} cells exceed the server's limit of {}",
@@ -487,7 +487,7 @@ fn request_camera(
     q: &HashMap<String, String>,
     service: &Service,
 ) -> ApiResult<CameraSpec> {
-    let g = &sol.medium.grid;
+    let g = sol.medium.grid();
     let extent = DVec3::new(g.dims[0] as f64, g.dims[1] as f64, g.dims[2] as f64) * g.cell_size;
     let center = extent * 0.5;
     let mut cam = sol.cameras.first().cloned().unwrap_or(CameraSpec {

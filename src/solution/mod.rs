@@ -186,7 +186,13 @@ impl Solution {
     fn to_container(&self) -> Container<MetaRecord> {
         let mut arrays = Vec::new();
         let mut channels = Vec::new();
-        for (c, (ch, sol)) in self.medium.channels.iter().zip(&self.channels).enumerate() {
+        for (c, (ch, sol)) in self
+            .medium
+            .channels()
+            .iter()
+            .zip(&self.channels)
+            .enumerate()
+        {
             arrays.push((format!("sigma_t/{c}"), ch.sigma_t.clone()));
             let albedo = uniform_or_array(&ch.albedo, format!("albedo/{c}"), &mut arrays);
             let emission = uniform_or_array(&ch.emission, format!("emission/{c}"), &mut arrays);
@@ -238,8 +244,8 @@ impl Solution {
                 two_pass,
             });
         }
-        if let Some(d) = &self.medium.data {
-            arrays.push(("data".into(), d.clone()));
+        if let Some(d) = self.medium.data() {
+            arrays.push(("data".into(), d.to_vec()));
         }
         Container {
             meta: MetaRecord {
@@ -247,10 +253,10 @@ impl Solution {
                 scene_hash: self.scene_hash.clone(),
                 scene_origin: self.scene_origin.clone(),
                 method: (&self.method).into(),
-                grid: (&self.medium.grid).into(),
-                phase: (&self.medium.phase).into(),
-                interpolation: (&self.medium.interpolation).into(),
-                has_data: self.medium.data.is_some(),
+                grid: (self.medium.grid()).into(),
+                phase: (&self.medium.phase()).into(),
+                interpolation: (&self.medium.interpolation()).into(),
+                has_data: self.medium.data().is_some(),
                 lights: self.lights.iter().map(Into::into).collect(),
                 background: self.background,
                 render: (&self.render).into(),

@@ -54,7 +54,7 @@ impl InScattering for Constant {
 }
 
 fn breakdown(name: &str, medium: &Medium, lights: &[Light], camera: &Camera, renders: usize) {
-    let pass = LightPass::compute(&medium.grid, &medium.channels[0], lights).unwrap();
+    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], lights).unwrap();
     let depth = LightDepthModel::build(&pass, LightDepth::Auto).unwrap();
     let first =
         SingleScatter::with_depth_model(medium, 0, &pass, SingleScatterOptions::default(), &depth)
@@ -90,7 +90,7 @@ fn breakdown(name: &str, medium: &Medium, lights: &[Light], camera: &Camera, ren
         .flat_map(|y| (0..camera.width).map(move |x| (x, y)))
         .filter(|&(x, y)| {
             let ray = camera.ray(x as f64 + 0.5, y as f64 + 0.5);
-            medium.grid.clip(&ray, 0.0, f64::INFINITY).is_some()
+            medium.grid().clip(&ray, 0.0, f64::INFINITY).is_some()
         })
         .count();
     // What a solution keeps and a one-off render builds first (serial in part).
@@ -142,7 +142,7 @@ fn main() {
         direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
         irradiance: 1.0,
     }];
-    let centre = medium.grid.extent() * 0.5;
+    let centre = medium.grid().extent() * 0.5;
     let (radius, angle) = (2.5 * 24.0, 0.5f64);
     let eye = centre + DVec3::new(radius * angle.sin(), -radius * angle.cos(), 0.3 * radius);
     let camera = Camera::perspective(eye, centre, DVec3::Z, 40.0, 512, 384).unwrap();

@@ -650,16 +650,17 @@ mod tests {
     fn halves_match_the_sub_cell_walk() {
         let mut rng = Pcg64Mcg::seed_from_u64(17);
         let grid = Grid::new([6, 5, 4], 1.0).unwrap();
-        let mut medium =
-            Medium::homogeneous(grid, 1.0, 0.9, 0.0, PhaseFunction::Isotropic).unwrap();
-        for s in medium.channels[0].sigma_t.iter_mut() {
+        let medium = Medium::homogeneous(grid, 1.0, 0.9, 0.0, PhaseFunction::Isotropic).unwrap();
+        let mut channel = medium.channels()[0].clone();
+        for s in channel.sigma_t.iter_mut() {
             *s = rng.random::<f32>() * 3.0;
         }
+        let medium = medium.with_channel(0, channel).unwrap();
         let light = Light::Directional {
             direction: DVec3::new(0.4, -0.7, -0.6).normalize(),
             irradiance: 1.0,
         };
-        let pass = LightPass::compute(&grid, &medium.channels[0], &[light]).unwrap();
+        let pass = LightPass::compute(&grid, &medium.channels()[0], &[light]).unwrap();
         let lattice = DepthLattice::build(&pass, 0, 2).unwrap();
         let mut segments = 0;
         for n in 0..600 {
@@ -682,7 +683,7 @@ mod tests {
             let ray = Ray::new(origin, direction);
             let mut carried: Option<LightAt> = None;
             for seg in grid.traverse(&ray, 0.0, f64::INFINITY) {
-                let sigma = medium.channels[0].sigma_t[seg.cell] as f64;
+                let sigma = medium.channels()[0].sigma_t[seg.cell] as f64;
                 let view = ViewSegment::new(&ray, &seg, sigma);
                 for start in [None, carried] {
                     let (fast, fast_end) = lattice.halves_segment::<false>(&view, start);

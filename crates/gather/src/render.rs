@@ -248,7 +248,7 @@ impl<'a> RayIntegrator<'a> {
         scattering: &'a dyn InScattering,
         index: Cow<'a, RenderIndex>,
     ) -> Result<Self, GatherError> {
-        let ch = &medium.channels[index.channel];
+        let ch = &medium.channels()[index.channel];
         use OpticalModel::*;
         let use_scattering =
             matches!(options.model, SingleScatterUnshadowed | Scattering) && !scattering.is_zero();
@@ -258,11 +258,11 @@ impl<'a> RayIntegrator<'a> {
             0.0
         };
         Ok(RayIntegrator {
-            grid: medium.grid,
+            grid: *medium.grid(),
             sigma_t: &ch.sigma_t,
             emission: &ch.emission,
             scattering,
-            interpolation: medium.interpolation,
+            interpolation: medium.interpolation(),
             use_sigma: index.use_sigma,
             use_emission: index.use_emission,
             use_scattering,
@@ -272,7 +272,7 @@ impl<'a> RayIntegrator<'a> {
             emission_ratio_max: index.emission_ratio_max,
             index,
             termination: options.termination,
-            step: options.trilinear_step * medium.grid.cell_size,
+            step: options.trilinear_step * medium.grid().cell_size,
             fma: crate::exponential::fma_available(),
         })
     }
@@ -551,10 +551,10 @@ pub struct RenderIndex {
 
 impl RenderIndex {
     pub fn new(medium: &Medium, channel: usize, model: OpticalModel) -> Result<Self, GatherError> {
-        let ch = medium.channels.get(channel).ok_or_else(|| {
+        let ch = medium.channels().get(channel).ok_or_else(|| {
             GatherError::Render(format!(
                 "channel {channel} requested of a medium with {}",
-                medium.channels.len()
+                medium.channels().len()
             ))
         })?;
         use OpticalModel::*;
@@ -572,16 +572,16 @@ impl RenderIndex {
         };
         let occupancy = occupancy(&ch.sigma_t, &ch.emission, use_sigma, use_emission);
         Ok(RenderIndex {
-            grid: medium.grid,
+            grid: *medium.grid(),
             channel,
             model,
-            interpolation: medium.interpolation,
+            interpolation: medium.interpolation(),
             use_sigma,
             use_emission,
             emission_max,
             emission_ratio_max,
-            occupied: occupied_box(&medium.grid, &occupancy, medium.interpolation),
-            empty: EmptySpace::new(&medium.grid, &occupancy),
+            occupied: occupied_box(medium.grid(), &occupancy, medium.interpolation()),
+            empty: EmptySpace::new(medium.grid(), &occupancy),
         })
     }
 
@@ -594,10 +594,10 @@ impl RenderIndex {
     /// interpolation than `medium` and `model` (the values themselves cannot be checked
     /// cheaply: an index is for the medium it was built from).
     fn check(&self, medium: &Medium, model: OpticalModel) -> Result<(), GatherError> {
-        if self.grid != medium.grid
-            || self.channel >= medium.channels.len()
+        if self.grid != *medium.grid()
+            || self.channel >= medium.channels().len()
             || self.model != model
-            || self.interpolation != medium.interpolation
+            || self.interpolation != medium.interpolation()
         {
             return Err(GatherError::Render(format!(
                 "render index built for channel {} of a {:?} grid, model {:?}, {:?} \
@@ -606,9 +606,9 @@ impl RenderIndex {
                 self.grid.dims,
                 self.model,
                 self.interpolation,
-                medium.grid.dims,
-                medium.channels.len(),
-                medium.interpolation
+                medium.grid().dims,
+                medium.channels().len(),
+                medium.interpolation()
             )));
         }
         Ok(())
@@ -799,11 +799,11 @@ pub fn render_image_indexed(
     scattering: &[&dyn InScattering],
     indices: &[&RenderIndex],
 ) -> Result<Image, GatherError> {
-    if indices.len() != medium.channels.len() {
+    if indices.len() != medium.channels().len() {
         return Err(GatherError::Render(format!(
             "{} render indices for a medium with {} channels",
             indices.len(),
-            medium.channels.len()
+            medium.channels().len()
         )));
     }
     render_image_with(medium, camera, options, scattering, indices)
@@ -816,7 +816,7 @@ fn render_image_with(
     scattering: &[&dyn InScattering],
     indices: &[&RenderIndex],
 ) -> Result<Image, GatherError> {
-    let n = medium.channels.len();
+    let n = medium.channels().len();
     if !scattering.is_empty() && scattering.len() != n {
         return Err(GatherError::Render(format!(
             "{} scattering sources for a medium with {n} channels",

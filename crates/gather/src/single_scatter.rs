@@ -179,13 +179,13 @@ impl<'a> SingleScatter<'a> {
         options: SingleScatterOptions,
         depth: Cow<'a, LightDepthModel>,
     ) -> Result<Self, GatherError> {
-        let ch = medium.channels.get(channel).ok_or_else(|| {
+        let ch = medium.channels().get(channel).ok_or_else(|| {
             GatherError::Render(format!(
                 "channel {channel} requested of a medium with {}",
-                medium.channels.len()
+                medium.channels().len()
             ))
         })?;
-        if pass.grid != medium.grid || pass.sigma_t.len() != ch.sigma_t.len() {
+        if pass.grid != *medium.grid() || pass.sigma_t.len() != ch.sigma_t.len() {
             return Err(GatherError::Render(
                 "the light pass was computed for a different grid".into(),
             ));
@@ -204,8 +204,8 @@ impl<'a> SingleScatter<'a> {
                     "gradient shading strength {s} must be finite and ≥ 0"
                 )))
             }
-            Some(_) => match &medium.data {
-                Some(data) => data_gradient(&medium.grid, data),
+            Some(_) => match &medium.data() {
+                Some(data) => data_gradient(medium.grid(), data),
                 None => {
                     return Err(GatherError::Render(
                         "gradient shading needs the medium's data values".into(),
@@ -219,7 +219,7 @@ impl<'a> SingleScatter<'a> {
         let max_irradiance: f64 = (0..pass.fields.len()).map(|l| pass.max_irradiance(l)).sum();
         let gradient_max = options.gradient_strength.unwrap_or(0.0)
             * gradient.iter().map(|g| g.length()).fold(0.0, f64::max);
-        let per_irradiance = max_sigma_s * phase_max(&medium.phase) + gradient_max;
+        let per_irradiance = max_sigma_s * phase_max(&medium.phase()) + gradient_max;
         // No scatterers means no source, even next to a point light (0 × ∞).
         let max_source = if per_irradiance == 0.0 {
             0.0
@@ -236,7 +236,7 @@ impl<'a> SingleScatter<'a> {
             pass,
             sigma_t: &ch.sigma_t,
             albedo: &ch.albedo,
-            phase: medium.phase,
+            phase: medium.phase(),
             options,
             depth,
             gradient,

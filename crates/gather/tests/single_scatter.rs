@@ -39,7 +39,7 @@ fn options() -> RenderOptions {
 
 /// Radiance of the slab seen along view flow direction `flow` through the point `target`.
 fn radiance(medium: &Medium, light: Light, shadows: bool, target: DVec3, flow: DVec3) -> f64 {
-    let pass = LightPass::compute(&medium.grid, &medium.channels[0], &[light]).unwrap();
+    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &[light]).unwrap();
     let ss = SingleScatter::new(
         medium,
         0,
@@ -156,7 +156,7 @@ fn segment_quadrature_matches_brute_force_in_thick_cells() {
             intensity: 30.0,
         },
     ];
-    let pass = LightPass::compute(&grid, &medium.channels[0], &lights).unwrap();
+    let pass = LightPass::compute(&grid, &medium.channels()[0], &lights).unwrap();
     let ss = SingleScatter::new(
         &medium,
         0,
@@ -178,7 +178,7 @@ fn segment_quadrature_matches_brute_force_in_thick_cells() {
             if seg.length() < 0.05 {
                 continue;
             }
-            let sigma = medium.channels[0].sigma_t[seg.cell] as f64;
+            let sigma = medium.channels()[0].sigma_t[seg.cell] as f64;
             let view = ViewSegment::new(&ray, &seg, sigma);
             let fast = ss.segment(&view, &mut RayCarry::default());
             let n = 20_000;
@@ -310,7 +310,7 @@ fn gradient_shading_follows_the_data_gradient() {
             direction,
             irradiance: 2.0,
         };
-        let pass = LightPass::compute(&grid, &medium.channels[0], &[light]).unwrap();
+        let pass = LightPass::compute(&grid, &medium.channels()[0], &[light]).unwrap();
         let ss = SingleScatter::new(
             &medium,
             0,
@@ -330,7 +330,7 @@ fn gradient_shading_follows_the_data_gradient() {
     }
     // Without data, gradient shading is refused.
     let plain = Medium::homogeneous(grid, 1.0, 0.5, 0.0, PhaseFunction::Isotropic).unwrap();
-    let pass = LightPass::compute(&grid, &plain.channels[0], &[]).unwrap();
+    let pass = LightPass::compute(&grid, &plain.channels()[0], &[]).unwrap();
     let opts = SingleScatterOptions {
         gradient_strength: Some(1.0),
         ..Default::default()
@@ -355,9 +355,9 @@ impl InScattering for ExactShadowRays<'_> {
         else {
             unreachable!("directional lights only")
         };
-        let ch = &self.medium.channels[0];
+        let ch = &self.medium.channels()[0];
         let sigma_s = ch.sigma_s(seg.cell) as f64;
-        let q = sigma_s * self.medium.phase.eval(direction.dot(-seg.ray.direction)) * irradiance;
+        let q = sigma_s * self.medium.phase().eval(direction.dot(-seg.ray.direction)) * irradiance;
         let n = 48;
         let dt = seg.length() / n as f64;
         let sigma = seg.sigma_t;
@@ -368,7 +368,7 @@ impl InScattering for ExactShadowRays<'_> {
                 let shadow = Ray::new(x, -direction);
                 let depth =
                     self.medium
-                        .grid
+                        .grid()
                         .optical_depth(&ch.sigma_t, &shadow, 0.0, f64::INFINITY);
                 q * (-sigma * k as f64 * dt).exp() * piece * (-depth).exp()
             })
@@ -412,8 +412,8 @@ fn auto_light_depth_is_within_one_and_a_half_percent_of_exact_shadow_rays() {
         .unwrap()
     };
     let image = |medium: &Medium, pass: &LightPass, light_depth: LightDepth| {
-        let centre = medium.grid.extent() * 0.5;
-        let size = medium.grid.extent().length();
+        let centre = medium.grid().extent() * 0.5;
+        let size = medium.grid().extent().length();
         let camera = Camera::perspective(
             centre + DVec3::new(-0.5, -0.7, 0.5) * size,
             centre,
@@ -446,10 +446,10 @@ fn auto_light_depth_is_within_one_and_a_half_percent_of_exact_shadow_rays() {
     };
     let check = |dims: [usize; 3], peak: f32| -> LightDepth {
         let medium = cloud(dims, peak);
-        let pass = LightPass::compute(&medium.grid, &medium.channels[0], &lights).unwrap();
+        let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &lights).unwrap();
         let reference = {
-            let centre = medium.grid.extent() * 0.5;
-            let size = medium.grid.extent().length();
+            let centre = medium.grid().extent() * 0.5;
+            let size = medium.grid().extent().length();
             let camera = Camera::perspective(
                 centre + DVec3::new(-0.5, -0.7, 0.5) * size,
                 centre,
@@ -537,7 +537,7 @@ fn lattice_models_handle_one_cell_grids_axis_lights_and_point_lights() {
             None,
         )
         .unwrap();
-        let pass = LightPass::compute(&grid, &medium.channels[0], lights).unwrap();
+        let pass = LightPass::compute(&grid, &medium.channels()[0], lights).unwrap();
         let centre = grid.extent() * 0.5;
         let camera = Camera::perspective(
             centre + DVec3::new(-1.0, -2.0, 1.5) * grid.extent().length(),

@@ -86,7 +86,7 @@ fn cameras_around(extent: DVec3, orthographic: bool) -> Vec<Camera> {
 fn check_transmittance(orthographic: bool) {
     let sigma_t = 0.8f32;
     let medium = homogeneous([5, 4, 3], 0.7, sigma_t, 0.0);
-    let extent = medium.grid.extent();
+    let extent = medium.grid().extent();
     let opts = options(OpticalModel::AbsorptionOnly, 1.0);
     let mut inside = 0;
     for cam in cameras_around(extent, orthographic) {
@@ -123,7 +123,7 @@ fn homogeneous_box_transmittance_perspective() {
 fn transmittance_of_random_rays_in_f64() {
     let sigma_t = 1.3f32;
     let medium = homogeneous([6, 3, 4], 0.5, sigma_t, 0.0);
-    let extent = medium.grid.extent();
+    let extent = medium.grid().extent();
     let opts = options(OpticalModel::AbsorptionOnly, 2.0);
     let integ = RayIntegrator::new(&medium, 0, &opts, &()).unwrap();
     let mut rng = Pcg64::seed_from_u64(11);
@@ -151,7 +151,7 @@ fn transmittance_of_random_rays_in_f64() {
 fn emission_absorption_matches_closed_form() {
     let (sigma_t, e, i0) = (0.9f32, 0.35f32, 0.2);
     let medium = homogeneous([4, 5, 3], 1.0, sigma_t, e);
-    let extent = medium.grid.extent();
+    let extent = medium.grid().extent();
     let opts = options(OpticalModel::EmissionAbsorption, i0);
     let (s, e) = (sigma_t as f64, e as f64);
     for cam in cameras_around(extent, false).iter().step_by(3) {
@@ -172,7 +172,7 @@ fn emission_only_is_emission_times_length() {
     // σt is ignored by the emission-only model (Max eq. 5): nothing is attenuated, not even
     // the background.
     let medium = homogeneous([3, 3, 3], 0.8, 5.0, 0.6);
-    let extent = medium.grid.extent();
+    let extent = medium.grid().extent();
     let opts = options(OpticalModel::EmissionOnly, 0.1);
     let integ = RayIntegrator::new(&medium, 0, &opts, &()).unwrap();
     let mut rng = Pcg64::seed_from_u64(5);
@@ -308,7 +308,7 @@ fn two_cell_ray_matches_hand_computation() {
 
 #[test]
 fn trilinear_equals_nearest_in_a_homogeneous_medium() {
-    let mut medium = homogeneous([5, 5, 5], 0.5, 1.7, 0.4);
+    let medium = homogeneous([5, 5, 5], 0.5, 1.7, 0.4);
     let nearest = RayIntegrator::new(
         &medium,
         0,
@@ -333,7 +333,7 @@ fn trilinear_equals_nearest_in_a_homogeneous_medium() {
         })
         .collect();
     let want: Vec<f64> = rays.iter().map(|r| nearest.radiance(r)).collect();
-    medium.interpolation = Interpolation::Trilinear;
+    let medium = medium.with_interpolation(Interpolation::Trilinear);
     let tri = RayIntegrator::new(
         &medium,
         0,
@@ -352,10 +352,10 @@ fn trilinear_interpolates_between_cell_centres() {
     // the way from the centre at 0.5 to the centre at 1.5), so a ray along y there collects
     // 0.5 · 1 under emission only; nearest would give 0.
     let medium = two_cell_medium(Interpolation::Trilinear);
-    let mut ch = medium.channels[0].clone();
+    let mut ch = medium.channels()[0].clone();
     ch.emission = CellValues::PerCell(vec![0.0, 2.0]);
     let medium = Medium::new(
-        medium.grid,
+        *medium.grid(),
         vec![ch],
         PhaseFunction::Isotropic,
         Interpolation::Trilinear,
@@ -425,14 +425,14 @@ impl InScattering for FlowsUp {
 #[test]
 fn plugged_in_scattering_adds_to_emission() {
     let (s, e, q) = (0.6f32, 0.2, 0.3);
-    let mut medium = homogeneous([3, 3, 3], 1.0, s, e);
+    let medium = homogeneous([3, 3, 3], 1.0, s, e);
     let s = s as f64;
     let ray = Ray::new(DVec3::new(1.5, 1.5, 5.0), -DVec3::Z);
     let closed = |q: f64| (e as f64 + q) / s * (1.0 - (-3.0 * s).exp());
     let (a, b) = (UniformSource(q), UniformSource(2.0 * q));
     let sum = ScatteringSum::new(vec![&a, &b]);
     for interp in [Interpolation::Nearest, Interpolation::Trilinear] {
-        medium.interpolation = interp;
+        let medium = medium.clone().with_interpolation(interp);
         let run = |model, src: &dyn InScattering| {
             RayIntegrator::new(&medium, 0, &options(model, 0.0), src)
                 .unwrap()
@@ -845,7 +845,7 @@ fn a_shared_render_index_gives_the_same_images_and_refuses_another_medium() {
             ..RenderOptions::default()
         };
         let index = RenderIndex::new(&medium, 0, model).unwrap();
-        for cam in cameras_around(medium.grid.extent(), false) {
+        for cam in cameras_around(medium.grid().extent(), false) {
             let fresh = render(&medium, 0, &cam, &opts, &source).unwrap();
             let shared = render_indexed(&medium, &cam, &opts, &source, &index).unwrap();
             assert_eq!(fresh.pixels, shared.pixels, "{model:?}");
@@ -855,7 +855,7 @@ fn a_shared_render_index_gives_the_same_images_and_refuses_another_medium() {
         } else {
             OpticalModel::AbsorptionOnly
         };
-        let cam = &cameras_around(medium.grid.extent(), false)[0];
+        let cam = &cameras_around(medium.grid().extent(), false)[0];
         let wrong = RenderOptions {
             model: other_model,
             ..opts
@@ -864,7 +864,7 @@ fn a_shared_render_index_gives_the_same_images_and_refuses_another_medium() {
     }
     let other_grid = homogeneous([7, 6, 4], 1.0, 0.5, 0.0);
     let index = RenderIndex::new(&medium, 0, OpticalModel::AbsorptionOnly).unwrap();
-    let cam = &cameras_around(other_grid.grid.extent(), false)[0];
+    let cam = &cameras_around(other_grid.grid().extent(), false)[0];
     let opts = options(OpticalModel::AbsorptionOnly, 0.0);
     assert!(render_indexed(&other_grid, cam, &opts, &(), &index).is_err());
 }

@@ -95,19 +95,89 @@ pub enum Interpolation {
 }
 
 /// A grid with its optical properties and phase function.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+///
+/// # Invariants
+/// One or three channels; every channel's arrays match the grid's cell count with
+/// `σt ≥ 0`, `albedo ∈ [0, 1]`, `emission ≥ 0`, all finite; the phase function is valid; the
+/// data values, if kept, match the cell count. [`Medium::new`] checks them, the fields are
+/// private and the `with_*` methods rebuild through it, so a `Medium` that exists is valid
+/// and code that receives one need not check it again. (A [`ChannelMedium`] on its own has no
+/// such guarantee; inside a `Medium` it is only handed out by shared reference.)
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Medium {
-    pub grid: Grid,
+    grid: Grid,
     /// One entry for grey scenes, three (R, G, B) for colour.
-    pub channels: Vec<ChannelMedium>,
-    pub phase: PhaseFunction,
-    pub interpolation: Interpolation,
+    channels: Vec<ChannelMedium>,
+    phase: PhaseFunction,
+    interpolation: Interpolation,
     /// The raw data values the optical properties were mapped from, kept for gradient
     /// shading (Max eq. 11). `None` when the medium was given directly.
-    pub data: Option<Vec<f32>>,
+    data: Option<Vec<f32>>,
 }
 
 impl Medium {
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// One entry for grey scenes, three (R, G, B) for colour.
+    pub fn channels(&self) -> &[ChannelMedium] {
+        &self.channels
+    }
+
+    pub fn phase(&self) -> PhaseFunction {
+        self.phase
+    }
+
+    pub fn interpolation(&self) -> Interpolation {
+        self.interpolation
+    }
+
+    /// The raw data values the optical properties were mapped from (for gradient shading,
+    /// Max eq. 11); `None` when the medium was given directly.
+    pub fn data(&self) -> Option<&[f32]> {
+        self.data.as_deref()
+    }
+
+    /// The parts, for building a changed medium through [`Medium::new`].
+    pub fn into_parts(
+        self,
+    ) -> (
+        Grid,
+        Vec<ChannelMedium>,
+        PhaseFunction,
+        Interpolation,
+        Option<Vec<f32>>,
+    ) {
+        (
+            self.grid,
+            self.channels,
+            self.phase,
+            self.interpolation,
+            self.data,
+        )
+    }
+
+    /// The same medium reconstructed between cell centres by `interpolation`.
+    pub fn with_interpolation(mut self, interpolation: Interpolation) -> Medium {
+        self.interpolation = interpolation;
+        self
+    }
+
+    /// The same medium with channel `c` replaced, checked as [`Medium::new`] checks.
+    pub fn with_channel(self, c: usize, channel: ChannelMedium) -> Result<Medium, MediumError> {
+        let (grid, mut channels, phase, interpolation, data) = self.into_parts();
+        let count = channels.len();
+        let slot = channels.get_mut(c).ok_or_else(|| {
+            MediumError::invalid(
+                "channel",
+                format!("channel {c} of a {count}-channel medium"),
+            )
+        })?;
+        *slot = channel;
+        Medium::new(grid, channels, phase, interpolation, data)
+    }
+
     /// The largest optical depth `Σ σt h` along any row of cells parallel to an axis, over all
     /// channels: how opaque the medium is "across the grid".
     pub fn max_axis_optical_depth(&self) -> f64 {

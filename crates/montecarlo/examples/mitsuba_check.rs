@@ -75,7 +75,7 @@ fn main() {
         }
         let mut candidates = vec![("path trace", x)];
         if photons > 0 {
-            let bins = if scene.medium.phase.is_isotropic() {
+            let bins = if scene.medium.phase().is_isotropic() {
                 DirectionBins::ISOTROPIC
             } else {
                 DirectionBins {

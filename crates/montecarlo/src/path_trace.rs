@@ -103,11 +103,11 @@ impl<'a> PathTracer<'a> {
         options: &PathTraceOptions,
     ) -> Result<Self, MonteCarloError> {
         let ch = medium
-            .channels
+            .channels()
             .get(channel)
             .ok_or(MonteCarloError::Channel {
                 channel,
-                channels: medium.channels.len(),
+                channels: medium.channels().len(),
             })?;
         if options.spp == 0 {
             return Err(MonteCarloError::Options("spp must be at least 1".into()));
@@ -119,11 +119,11 @@ impl<'a> PathTracer<'a> {
         }
         check_lights(lights)?;
         Ok(PathTracer {
-            grid: medium.grid,
+            grid: *medium.grid(),
             sigma_t: &ch.sigma_t,
             albedo: &ch.albedo,
             emission: (!ch.emission.is_zero()).then_some(&ch.emission),
-            phase: medium.phase,
+            phase: medium.phase(),
             lights,
             background,
             max_depth: options.max_depth.unwrap_or(u32::MAX),
@@ -288,7 +288,7 @@ pub fn path_trace_image(
     camera: &Camera,
     options: &PathTraceOptions,
 ) -> Result<Image, MonteCarloError> {
-    let n = medium.channels.len();
+    let n = medium.channels().len();
     let mut pixels = vec![0.0f32; camera.width as usize * camera.height as usize * n];
     for c in 0..n {
         let ch = path_trace(medium, c, lights, background, camera, options)?;

@@ -333,11 +333,11 @@ pub fn energetize(
     progress: Option<&(dyn Fn(u64, u64) + Sync)>,
 ) -> Result<TwoPassSolution, MonteCarloError> {
     let ch = medium
-        .channels
+        .channels()
         .get(channel)
         .ok_or(MonteCarloError::Channel {
             channel,
-            channels: medium.channels.len(),
+            channels: medium.channels().len(),
         })?;
     if options.photons_per_light == 0 {
         return Err(MonteCarloError::Options(
@@ -365,19 +365,19 @@ pub fn energetize(
             message: e.to_string(),
         })?;
     }
-    let grid = medium.grid;
+    let grid = medium.grid();
     let factor = options.storage_factor;
     let odims = grid.dims.map(|d| d.div_ceil(factor));
     let optical_count = odims[0] * odims[1] * odims[2];
     let m = options.bins.count();
     let voxel_of: Vec<u32> = (0..grid.cell_count())
-        .map(|c| optical_index(&grid, factor, odims, c) as u32)
+        .map(|c| optical_index(grid, factor, odims, c) as u32)
         .collect();
 
     let batches_per_light = options.photons_per_light.div_ceil(BATCH);
     let total_batches = batches_per_light * lights.len() as u64;
     let total_photons = options.photons_per_light * lights.len() as u64;
-    let emitters: Vec<(Emitter, f64)> = lights.iter().map(|l| Emitter::new(l, &grid)).collect();
+    let emitters: Vec<(Emitter, f64)> = lights.iter().map(|l| Emitter::new(l, grid)).collect();
     let done = AtomicU64::new(0);
     let groups = GROUPS.min(total_batches.max(1) as usize);
 
@@ -401,7 +401,7 @@ pub fn energetize(
             let mut depth = 0u32;
             loop {
                 let target = -(1.0 - rng.random::<f64>()).ln();
-                let (flight, _) = fly(&grid, &ch.sigma_t, None, &ray, f64::INFINITY, target);
+                let (flight, _) = fly(grid, &ch.sigma_t, None, &ray, f64::INFINITY, target);
                 let Flight::Collision { t, cell } = flight else {
                     tally.energy.escaped += w;
                     break;
@@ -431,7 +431,7 @@ pub fn energetize(
                 let x = ray.at(t);
                 ray = Ray {
                     origin: x,
-                    direction: medium.phase.sample(ray.direction, &mut rng),
+                    direction: medium.phase().sample(ray.direction, &mut rng),
                 };
             }
         }
@@ -483,7 +483,7 @@ pub fn energetize(
         })
         .collect();
 
-    let p = phase_matrix(&medium.phase, options.bins, options.phase_quadrature);
+    let p = phase_matrix(&medium.phase(), options.bins, options.phase_quadrature);
     let mut voxel_source = vec![0.0f32; optical_count * m];
     voxel_source
         .par_chunks_mut(m)
@@ -502,7 +502,7 @@ pub fn energetize(
         .map(|c| cell_share[c] as f64 * voxel_max[voxel_of[c] as usize] as f64)
         .fold(0.0, f64::max);
     Ok(TwoPassSolution {
-        grid,
+        grid: *grid,
         storage_factor: factor,
         optical_dims: odims,
         bins: options.bins,
@@ -585,11 +585,12 @@ pub fn with_extinction_scale(medium: &Medium, scale: f32) -> Result<Medium, Mont
             "extinction scale {scale} must be finite and ≥ 0"
         )));
     }
-    let mut out = medium.clone();
-    for ch in &mut out.channels {
+    let (grid, mut channels, phase, interpolation, data) = medium.clone().into_parts();
+    for ch in &mut channels {
         for s in &mut ch.sigma_t {
             *s *= scale;
         }
     }
-    Ok(out)
+    Medium::new(grid, channels, phase, interpolation, data)
+        .map_err(|e| MonteCarloError::Options(format!("extinction scale {scale}: {e}")))
 }

@@ -48,13 +48,13 @@ fn absorption_only_is_the_transmittance_image() {
         ..Default::default()
     };
     let out = path_trace_with_error(&medium, 0, &[], 1.0, &top_camera(), &options).unwrap();
-    let ch = &medium.channels[0];
+    let ch = &medium.channels()[0];
     let mut checked_se = 0;
     for py in 0..8u32 {
         for px in 0..8u32 {
             let (i, j) = (px as usize, 7 - py as usize);
             let tau: f64 = (0..4)
-                .map(|k| ch.sigma_t[medium.grid.index(i, j, k)] as f64)
+                .map(|k| ch.sigma_t[medium.grid().index(i, j, k)] as f64)
                 .sum();
             let t = (-tau).exp();
             // Each path is a Bernoulli trial with mean T: its exact standard error.

@@ -70,7 +70,7 @@ fn energy_balance_to_one_percent() {
     else {
         unreachable!()
     };
-    let ext = medium.grid.extent();
+    let ext = medium.grid().extent();
     let projected =
         d.x.abs() * ext.y * ext.z + d.y.abs() * ext.x * ext.z + d.z.abs() * ext.x * ext.y;
     let exact = irradiance * projected;
@@ -335,7 +335,7 @@ fn bad_inputs_are_refused() {
     ));
     let other = Grid::new([4, 4, 4], 1.0).unwrap();
     let sol = run(base).unwrap();
-    assert!(sol.check_grid(&medium.grid).is_ok());
+    assert!(sol.check_grid(medium.grid()).is_ok());
     assert!(matches!(
         sol.check_grid(&other),
         Err(MonteCarloError::Mismatch(_))

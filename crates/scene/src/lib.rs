@@ -114,9 +114,9 @@ impl Scene {
     /// The raw data values with their dims (what `volrad export` writes), when the medium
     /// was loaded from data.
     pub fn volume_data(&self) -> Option<VolumeData> {
-        self.medium.data.as_ref().map(|values| VolumeData {
-            dims: self.medium.grid.dims,
-            values: values.clone(),
+        self.medium.data().map(|values| VolumeData {
+            dims: self.medium.grid().dims,
+            values: values.to_vec(),
         })
     }
 

@@ -37,7 +37,7 @@ impl Ctx<'_> {
         let medium = self.medium(raw.medium.ok_or_else(|| self.missing("medium"))?, volume)?;
         let lights = self.lights(raw.light, &medium)?;
         let background = self.background(raw.background)?;
-        let solve = self.solve(raw.solve, &medium.phase)?;
+        let solve = self.solve(raw.solve, &medium.phase())?;
         let render = self.render(raw.render, solve.method)?;
         let cameras = self.cameras(raw.camera)?;
         Ok(Scene {
@@ -275,7 +275,7 @@ impl Ctx<'_> {
         light: Option<toml::Value>,
         medium: &Medium,
     ) -> Result<Vec<Light>, SceneError> {
-        let has_emission = medium.channels.iter().any(|c| !c.emission.is_zero());
+        let has_emission = medium.channels().iter().any(|c| !c.emission.is_zero());
         let lights = match light {
             None => Vec::new(),
             Some(v) => {

@@ -74,16 +74,16 @@ fn minimal_scene_gets_the_contract_defaults() {
     write_volume(&dir);
     let s = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA])).unwrap();
     let m = &s.medium;
-    assert_eq!(m.grid.dims, [4, 3, 2]);
-    assert_eq!(m.grid.cell_size, 1.0);
-    assert_eq!(m.interpolation, Interpolation::Nearest);
-    assert_eq!(m.phase, PhaseFunction::Isotropic);
-    assert_eq!(m.channels.len(), 1);
+    assert_eq!(m.grid().dims, [4, 3, 2]);
+    assert_eq!(m.grid().cell_size, 1.0);
+    assert_eq!(m.interpolation(), Interpolation::Nearest);
+    assert_eq!(m.phase(), PhaseFunction::Isotropic);
+    assert_eq!(m.channels().len(), 1);
     // σt = value × 1.0, x fastest.
-    assert_eq!(m.channels[0].sigma_t[5], 5.0 / 24.0);
-    assert_eq!(m.channels[0].albedo, CellValues::Uniform(0.9));
-    assert!(m.channels[0].emission.is_zero());
-    assert_eq!(m.data.as_ref().unwrap().len(), 24);
+    assert_eq!(m.channels()[0].sigma_t[5], 5.0 / 24.0);
+    assert_eq!(m.channels()[0].albedo, CellValues::Uniform(0.9));
+    assert!(m.channels()[0].emission.is_zero());
+    assert_eq!(m.data().as_ref().unwrap().len(), 24);
     assert_eq!(s.background, 0.0);
     assert_eq!(s.solve.method, SolveMethod::ZonalHierarchical);
     // The fastest robust iteration for the hierarchical zonal system (docs/albedo.md).
@@ -159,11 +159,11 @@ width = 256
 height = 192
 "#;
     let s = parse_in(&dir, text).unwrap();
-    assert_eq!(s.medium.channels[0].sigma_t[3], 2.0 * 3.0 / 24.0);
-    assert_eq!(s.medium.grid.cell_size, 0.5);
-    assert_eq!(s.medium.interpolation, Interpolation::Trilinear);
-    assert_eq!(s.medium.phase, PhaseFunction::HenyeyGreenstein { g: 0.6 });
-    assert_eq!(s.medium.channels[0].emission, CellValues::Uniform(0.25));
+    assert_eq!(s.medium.channels()[0].sigma_t[3], 2.0 * 3.0 / 24.0);
+    assert_eq!(s.medium.grid().cell_size, 0.5);
+    assert_eq!(s.medium.interpolation(), Interpolation::Trilinear);
+    assert_eq!(s.medium.phase(), PhaseFunction::HenyeyGreenstein { g: 0.6 });
+    assert_eq!(s.medium.channels()[0].emission, CellValues::Uniform(0.25));
     assert_eq!(s.background, 0.1);
     assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
     assert_eq!(s.solve.bins, 54);
@@ -728,9 +728,9 @@ fn transfer_tables_particle_emission_and_rgb_channels() {
         CAMERA,
     ]);
     let s = parse_in(&dir, &text).unwrap();
-    assert_eq!(s.medium.channels.len(), 3);
+    assert_eq!(s.medium.channels().len(), 3);
     for (c, scale) in [1.0f32, 2.0, 4.0].iter().enumerate() {
-        let ch = &s.medium.channels[c];
+        let ch = &s.medium.channels()[c];
         for cell in [0, 7, 23] {
             let value = cell as f32 / 24.0;
             assert!((ch.sigma_t[cell] - scale * value).abs() < 1e-6);
@@ -748,12 +748,12 @@ fn transfer_tables_particle_emission_and_rgb_channels() {
         CAMERA,
     ]);
     let s = parse_in(&dir, &text).unwrap();
-    assert_eq!(s.medium.channels.len(), 3);
-    let ch = &s.medium.channels[1];
+    assert_eq!(s.medium.channels().len(), 3);
+    let ch = &s.medium.channels()[1];
     assert_eq!(ch.sigma_t[0], 0.0); // value 0 < 0.2
     assert_eq!(ch.sigma_t[23], 3.0); // value 0.958 > 0.3
     assert!((ch.sigma_t[6] - 3.0 * 0.5).abs() < 1e-6); // value 0.25, halfway up the ramp
-    assert!((s.medium.channels[2].albedo.get(0) - 0.6).abs() < 1e-6);
+    assert!((s.medium.channels()[2].albedo.get(0) - 0.6).abs() < 1e-6);
     assert_refused(
         "preset-name",
         &scene_text(&[
@@ -778,7 +778,7 @@ fn generators_headered_files_lights_and_orthographic_cameras() {
         s.source,
         VolumeSource::Generator(medium::generators::Generator::Cloud { seed: 3 })
     );
-    let peak = s.medium.channels[0].max_sigma_t();
+    let peak = s.medium.channels()[0].max_sigma_t();
     assert!((peak - 2.0).abs() < 1e-6, "{peak}");
     assert_eq!(s.lights.len(), 2);
     match s.lights[0] {
@@ -857,8 +857,8 @@ fn generators_headered_files_lights_and_orthographic_cameras() {
             ]),
         )
         .unwrap();
-        assert_eq!(s.medium.grid.dims, [2, 3, 4]);
-        assert_eq!(s.medium.channels[0].sigma_t[23], 23.0);
+        assert_eq!(s.medium.grid().dims, [2, 3, 4]);
+        assert_eq!(s.medium.channels()[0].sigma_t[23], 23.0);
         let err = parse_in(
             &dir,
             &scene_text(&[
@@ -889,8 +889,8 @@ fn builtin_default_is_the_backlit_cloud_sample_and_its_camera_sees_all_of_it() {
     assert_eq!(s.medium, sample.medium);
     assert_eq!(s.solve, sample.solve);
     assert_eq!(s.cameras, sample.cameras);
-    assert_eq!(s.medium.grid.dims, [48, 48, 36]);
-    assert_eq!(s.medium.channels[0].albedo, CellValues::Uniform(0.99));
+    assert_eq!(s.medium.grid().dims, [48, 48, 36]);
+    assert_eq!(s.medium.channels()[0].albedo, CellValues::Uniform(0.99));
     assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
     assert_eq!(s.render.model, OpticalModel::Scattering);
     // The camera sees the whole cloud: every occupied cell projects inside the image.
@@ -900,10 +900,10 @@ fn builtin_default_is_the_backlit_cloud_sample_and_its_camera_sees_all_of_it() {
     let up = right.cross(forward);
     let half = (20f64).to_radians().tan();
     let aspect = f64::from(cam.width) / f64::from(cam.height);
-    let sigma = &s.medium.channels[0].sigma_t;
+    let sigma = &s.medium.channels()[0].sigma_t;
     let mut seen = 0;
     for (cell, _) in sigma.iter().enumerate().filter(|(_, &x)| x > 0.0) {
-        let p = s.medium.grid.cell_center(cell) - cam.eye;
+        let p = s.medium.grid().cell_center(cell) - cam.eye;
         let z = p.dot(forward);
         assert!(
             z > 0.0 && (p.dot(up) / z).abs() < half && (p.dot(right) / z).abs() < half * aspect
@@ -919,7 +919,7 @@ fn from_toml_str_resolves_paths_against_base_dir() {
     write_volume(&dir);
     let text = scene_text(&[VOLUME, MEDIUM, LIGHT, CAMERA]);
     let s = Scene::from_toml_str(&text, &dir, Path::new("inline.toml")).unwrap();
-    assert_eq!(s.medium.grid.dims, [4, 3, 2]);
+    assert_eq!(s.medium.grid().dims, [4, 3, 2]);
     let err = Scene::from_toml_str(&text, Path::new("/nonexistent"), Path::new("inline.toml"))
         .unwrap_err();
     assert!(err.to_string().starts_with("inline.toml"), "{err}");
@@ -975,5 +975,5 @@ fn sections_of_the_wrong_shape_are_refused_and_volume_data_is_kept() {
     assert_eq!(data.dims, [4, 3, 2]);
     // The raw values, not σt.
     assert_eq!(data.values[12], 12.0 / 24.0);
-    assert_eq!(s.medium.channels[0].sigma_t[12], 5.0 * 12.0 / 24.0);
+    assert_eq!(s.medium.channels()[0].sigma_t[12], 5.0 * 12.0 / 24.0);
 }

@@ -16,7 +16,7 @@ fn data(name: &str) -> PathBuf {
 fn cloud_sample_is_an_optically_thick_generated_cloud() {
     let s = Scene::from_file(&data("cloud.toml")).unwrap();
     assert!(matches!(s.source, VolumeSource::Generator(_)));
-    assert_eq!(s.medium.grid.dims, [64, 64, 48]);
+    assert_eq!(s.medium.grid().dims, [64, 64, 48]);
     let depth = s.medium.max_axis_optical_depth();
     assert!((depth - 10.0).abs() < 0.5, "optical depth {depth}");
     assert_eq!(s.solve.method, SolveMethod::ZonalHierarchical);
@@ -27,7 +27,7 @@ fn cloud_sample_is_an_optically_thick_generated_cloud() {
 fn dipole_sample_uses_blasi_two_lobe_phase_and_a_sigma_table() {
     let s = Scene::from_file(&data("dipole.toml")).unwrap();
     assert_eq!(
-        s.medium.phase,
+        s.medium.phase(),
         PhaseFunction::TwoLobe {
             r: 0.12,
             g1: -0.5,
@@ -36,7 +36,7 @@ fn dipole_sample_uses_blasi_two_lobe_phase_and_a_sigma_table() {
     );
     assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
     // The table makes a haze: a good part of the grid has some extinction, none is negative.
-    let sigma = &s.medium.channels[0].sigma_t;
+    let sigma = &s.medium.channels()[0].sigma_t;
     let hazy = sigma.iter().filter(|&&x| x > 0.0).count() as f64 / sigma.len() as f64;
     assert!((0.1..0.9).contains(&hazy), "{hazy}");
 }
@@ -46,10 +46,10 @@ fn smoke_sample_is_rgb_particle_emission_without_lights() {
     let path = data("smoke-emission.toml");
     let s = Scene::from_file(&path).unwrap();
     assert!(s.lights.is_empty());
-    assert_eq!(s.medium.channels.len(), 3);
+    assert_eq!(s.medium.channels().len(), 3);
     assert_eq!(s.render.model, OpticalModel::EmissionAbsorption);
     assert_eq!(s.solve.method, SolveMethod::None);
-    let ch = &s.medium.channels[1];
+    let ch = &s.medium.channels()[1];
     let cell = ch.sigma_t.iter().position(|&x| x > 0.1).unwrap();
     assert!((ch.emission.get(cell) - 0.55 * ch.sigma_t[cell]).abs() < 1e-6);
     let size = std::fs::metadata(data("smoke32.nrrd")).unwrap().len();

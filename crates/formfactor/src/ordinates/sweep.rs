@@ -519,13 +519,13 @@ impl OrdinatesOperator {
         options: OrdinatesOptions,
     ) -> Result<Self, OrdinatesError> {
         let ch = medium
-            .channels
+            .channels()
             .get(channel)
             .ok_or(OrdinatesError::Channel {
                 channel,
-                channels: medium.channels.len(),
+                channels: medium.channels().len(),
             })?;
-        Self::from_channel(medium.grid, ch, medium.phase, bins, options)
+        Self::from_channel(*medium.grid(), ch, medium.phase(), bins, options)
     }
 
     /// The operator for one channel's optical properties.
