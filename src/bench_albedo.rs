@@ -19,7 +19,7 @@ use scene::SolveMethod;
 use solver::{Method, RowAccess, SolveControl, SolveOptions, TransportOperator};
 
 use crate::cli::BenchAlbedoArgs;
-use crate::methods::HIERARCHY_TOLERANCE;
+use crate::engine::methods::HIERARCHY_TOLERANCE;
 
 /// Power-iteration steps at most, and the relative agreement that stops it.
 const SPECTRAL_MAX_ITERATIONS: usize = 500;

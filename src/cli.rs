@@ -3,7 +3,9 @@
 
 use std::path::PathBuf;
 
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use crate::engine::methods::ExportField;
+use clap::builder::TypedValueParser;
+use clap::{Args, Parser, Subcommand};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -239,20 +241,13 @@ pub struct InfoArgs {
     pub json: bool,
 }
 
-#[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum ExportField {
-    /// ∫ I dω per cell, including unscattered light.
-    Fluence,
-    /// The solved source g per cell (radiance per unit length).
-    Source,
-    /// Extinction coefficient per cell.
-    SigmaT,
-}
-
 #[derive(Debug, Args)]
 pub struct ExportArgs {
     pub solution: PathBuf,
-    #[arg(long, value_enum)]
+    /// fluence (∫ I dω per cell, including unscattered light), source (the solved source
+    /// per cell, radiance per unit length) or sigma-t (extinction per cell).
+    #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(ExportField::NAMES)
+        .map(|s| s.parse::<ExportField>().expect("a listed name parses")))]
     pub field: ExportField,
     /// Output .raw (with a .json sidecar) or .nrrd.
     #[arg(short = 'o', long = "output")]

@@ -1,5 +1,5 @@
 //! The commands behind the command line: each validates its inputs, does the work through
-//! [`crate::pipeline`], and reports what it wrote.
+//! [`crate::engine::pipeline`], and reports what it wrote.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -8,11 +8,12 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use scene::Scene;
 
-use crate::app::{choose_camera, load_scene, orbit_cameras, view_outputs};
-use crate::cli::{ExportArgs, ExportField, RenderArgs, SolveArgs};
-use crate::pipeline::{render_view, render_view_through, solve_scene, view_medium, SolveHooks};
+use crate::cli::{ExportArgs, InfoArgs, RenderArgs, SolveArgs};
+use crate::engine::pipeline::{render_view, render_view_through, solve_scene, view_medium};
+use crate::engine::solution::Solution;
+use crate::engine::SolveHooks;
 use crate::progress::SolveProgress;
-use crate::solution::Solution;
+use crate::views::{choose_camera, orbit_cameras, view_outputs};
 
 /// The built-in default scene ([`Scene::builtin_default`]).
 pub fn default_scene() -> Result<Scene> {
@@ -58,7 +59,7 @@ pub fn solve_with_progress(
     let solution = solve_scene(scene, settings, &hooks);
     progress.finish();
     let solution = solution?;
-    crate::methods::refuse_cancelled(&solution)?;
+    crate::engine::methods::refuse_cancelled(&solution)?;
     for (c, ch) in solution.channels.iter().enumerate() {
         if let Some(r) = &ch.report {
             if !r.converged && !quiet {
@@ -99,7 +100,7 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         views.extend(
             cameras
                 .iter()
-                .map(|c| crate::app::apply_view(c.clone(), &args.view)),
+                .map(|c| crate::views::apply_view(c.clone(), &args.view)),
         );
     } else {
         let base = choose_camera(&cameras, args.camera.as_deref(), &args.view, center)?;
@@ -211,7 +212,8 @@ pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
     solution
         .write(&args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
-    let summary = crate::methods::SolveSummary::of(&solution, started.elapsed().as_secs_f64());
+    let summary =
+        crate::engine::methods::SolveSummary::of(&solution, started.elapsed().as_secs_f64());
     if args.json {
         println!("{}", serde_json::to_string(&summary)?);
     } else {
@@ -223,13 +225,10 @@ pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
 
 pub fn export(args: &ExportArgs) -> Result<()> {
     let solution = Solution::read(&args.solution)?;
-    let (values, units) = crate::methods::export_field(&solution, args.channel, args.field)?;
+    let (values, units) =
+        crate::engine::methods::export_field(&solution, args.channel, args.field)?;
     let dims = solution.medium.grid().dims;
-    let field_name = match args.field {
-        ExportField::Fluence => "fluence",
-        ExportField::Source => "source",
-        ExportField::SigmaT => "sigma-t",
-    };
+    let field_name = args.field.name();
     let volume = medium::volume_io::VolumeData::new(dims, values)?;
     let ext = args
         .output
@@ -351,5 +350,21 @@ pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
         eprintln!("validated in {:.1} s", started.elapsed().as_secs_f64());
     }
     println!("wrote {}", options.out.join("report.md").display());
+    Ok(())
+}
+
+pub fn load_scene(path: &Path) -> Result<Scene> {
+    Ok(Scene::from_file(path)?)
+}
+
+/// `volrad info`.
+pub fn info(args: &InfoArgs) -> Result<()> {
+    let scene = load_scene(&args.scene)?;
+    let report = crate::info::SceneInfo::of(&scene);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{report}");
+    }
     Ok(())
 }

@@ -21,7 +21,8 @@ use scene::SolveMethod;
 use serde::Serialize;
 
 use crate::compare::{block_means, compare, compare_noisy, Comparison};
-use crate::pipeline::{render_view, solve_scene, SolveHooks};
+use crate::engine::pipeline::{render_view, solve_scene};
+use crate::engine::SolveHooks;
 
 /// Pixels count in an error figure when the reference exceeds this fraction of its maximum
 /// (the convention of docs/validation.md).
@@ -557,7 +558,7 @@ fn run_method(
     let started = Instant::now();
     let solution = solve_scene(scene, &solve, &hooks)?;
     let solve_seconds = started.elapsed().as_secs_f64();
-    crate::methods::refuse_cancelled(&solution)?;
+    crate::engine::methods::refuse_cancelled(&solution)?;
     let report = solution.channels[0].report.as_ref();
     if let Some(r) = report {
         if !r.converged {

@@ -422,14 +422,14 @@ fn orbit_with_extinction_scale_matches_one_view_renders() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
 
-    let solution = volrad::solution::Solution::read(&sol).unwrap();
-    let views = volrad::app::orbit_cameras(&solution.cameras[0], 3);
+    let solution = volrad::engine::solution::Solution::read(&sol).unwrap();
+    let views = volrad::views::orbit_cameras(&solution.cameras[0], 3);
     assert_eq!(views.len(), 3);
     for view in &views {
         let from_cli = gather::read_pfm(&dir.path().join(format!("orbit_{}.pfm", view.name)))
             .unwrap_or_else(|e| panic!("orbit view {}: {e}", view.name));
         let one_view =
-            volrad::pipeline::render_view_scaled(&solution, view, None, Some(0.5)).unwrap();
+            volrad::engine::pipeline::render_view_scaled(&solution, view, None, Some(0.5)).unwrap();
         assert_eq!(
             (from_cli.width, from_cli.height, from_cli.channels),
             (one_view.width, one_view.height, one_view.channels),
@@ -445,7 +445,7 @@ fn orbit_with_extinction_scale_matches_one_view_renders() {
             "{}: orbit image differs from the one-view render",
             view.name
         );
-        let unscaled = volrad::pipeline::render_view(&solution, view, None).unwrap();
+        let unscaled = volrad::engine::pipeline::render_view(&solution, view, None).unwrap();
         let sum = |p: &[f32]| p.iter().map(|&v| v as f64).sum::<f64>();
         assert!(
             sum(&from_cli.pixels) > 1.05 * sum(&unscaled.pixels),

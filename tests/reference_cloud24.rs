@@ -7,8 +7,9 @@ use std::path::Path;
 use scene::Scene;
 use scene::SolveMethod;
 use volrad::compare::compare;
-use volrad::pipeline::{render_view, solve_scene, SolveHooks};
-use volrad::solution::ScatteredField;
+use volrad::engine::pipeline::{render_view, solve_scene};
+use volrad::engine::solution::ScatteredField;
+use volrad::engine::SolveHooks;
 
 fn reference(name: &str) -> gather::Image {
     gather::read_pfm(

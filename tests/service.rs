@@ -465,7 +465,7 @@ fn restart_serves_cached_solutions_and_never_corrupt_ones() {
     }
     std::fs::remove_file(dir.path().join(format!("{orphan}.toml"))).unwrap();
     let reference =
-        volrad::solution::Solution::read(&dir.path().join(format!("{kept}.vrs"))).unwrap();
+        volrad::engine::solution::Solution::read(&dir.path().join(format!("{kept}.vrs"))).unwrap();
 
     let server = start(dir.path());
     let addr = server.addr;
@@ -499,7 +499,7 @@ fn restart_serves_cached_solutions_and_never_corrupt_ones() {
         v["note"].as_str().unwrap_or_default().contains("corrupt"),
         "{v}"
     );
-    volrad::solution::Solution::read(&dir.path().join(format!("{resolved}.vrs")))
+    volrad::engine::solution::Solution::read(&dir.path().join(format!("{resolved}.vrs")))
         .expect("re-solved file is valid");
     assert_eq!(
         get(
@@ -526,8 +526,9 @@ fn restart_prepares_cached_solutions_for_rendering() {
         server.stop();
         id
     };
-    let read = volrad::solution::Solution::read(&dir.path().join(format!("{id}.vrs"))).unwrap();
-    let unprepared = |sol: &volrad::solution::Solution| {
+    let read =
+        volrad::engine::solution::Solution::read(&dir.path().join(format!("{id}.vrs"))).unwrap();
+    let unprepared = |sol: &volrad::engine::solution::Solution| {
         sol.channels
             .iter()
             .filter(|ch| format!("{:?}", ch.render_cache).contains("light_depth: None"))

@@ -15,10 +15,11 @@ use medium::{CellValues, Interpolation, Light, PhaseFunction};
 use scene::{OpticalModel, Projection, Scene, SolveMethod};
 use serde_json::Value;
 use solver::StopReason;
-use volrad::pipeline::{solve_scene, SolveHooks};
-use volrad::solution::container::FORMAT_VERSION;
-use volrad::solution::records::MetaRecord;
-use volrad::solution::{Container, ScatteredField, Solution};
+use volrad::engine::pipeline::solve_scene;
+use volrad::engine::solution::container::FORMAT_VERSION;
+use volrad::engine::solution::records::MetaRecord;
+use volrad::engine::solution::{Container, ScatteredField, Solution};
+use volrad::engine::SolveHooks;
 
 /// A golden file and the scene it is solved from.
 struct Case {

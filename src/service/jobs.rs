@@ -13,8 +13,9 @@ use serde_json::{json, Value};
 
 use super::cache::{self, CacheDir};
 use super::{Limits, ServiceConfig};
-use crate::pipeline::{scene_hash, solve_scene, SolveHooks};
-use crate::solution::Solution;
+use crate::engine::pipeline::{scene_hash, solve_scene};
+use crate::engine::solution::Solution;
+use crate::engine::SolveHooks;
 
 /// Where a scene is in its life.
 #[derive(Clone, Debug, PartialEq)]

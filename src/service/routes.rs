@@ -17,7 +17,7 @@ use serde_json::{json, Value};
 
 use super::cache::{self, is_id};
 use super::jobs::{describe, parse_scene, JobState, Service, SubmitError};
-use crate::solution::Solution;
+use crate::engine::solution::Solution;
 
 /// The OpenAPI description served at `/v1/openapi.json`.
 pub const OPENAPI: &str = include_str!("openapi.json");
@@ -617,7 +617,7 @@ async fn render(
             let _permit = permit;
             let t0 = std::time::Instant::now();
             let wait_ms = (t0 - queued_at).as_secs_f64() * 1e3;
-            let image = crate::pipeline::render_view(&solution, &camera, spp)
+            let image = crate::engine::pipeline::render_view(&solution, &camera, spp)
                 .map_err(|e| format!("{e:#}"))?;
             let t1 = std::time::Instant::now();
             let bytes = match format {

@@ -5,20 +5,15 @@ use std::f64::consts::PI;
 use std::fmt;
 
 use anyhow::{bail, Context, Result};
-use formfactor::ordinates::bins::face_bilinear;
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
-use gather::single_scatter::{SingleScatter, SingleScatterOptions};
-use gather::{InScattering, RayCarry, ViewSegment};
-use glam::DVec3;
 use medium::light_pass::LightPass;
-use scene::{OpticalModel, Scene, SolveMethod, SolveSettings};
+use scene::{Scene, SolveMethod, SolveSettings};
 use serde::Serialize;
 use solver::{Method, SolveOptions, SolveReport, TransportOperator};
 
-use crate::cli::ExportField;
-use crate::pipeline::{CellSource, SolveHooks};
-use crate::solution::{ChannelSolution, ScatteredField, Solution, StoredBins};
+use crate::engine::solution::{ScatteredField, Solution, StoredBins};
+use crate::engine::SolveHooks;
 
 /// Link tolerance of the hierarchical zonal operator. 1e-4 keeps the solved source terms of
 /// the cloud24 reference within 1 % (relative L2) of the exact operator's (0.77 % measured;
@@ -247,86 +242,6 @@ pub fn stored_bins(settings: &SolveSettings) -> Option<StoredBins> {
     })
 }
 
-/// A per-cell, per-bin source looked up by direction: bilinear between the bin centres of one
-/// cube face, extrapolated towards its edges (`formfactor::ordinates::bins::face_bilinear`;
-/// the layout of `formfactor::ordinates::bins`: bin `f n² + i n + j`).
-pub struct BinnedSource<'a> {
-    values: &'a [f32],
-    n: usize,
-    max: f64,
-}
-
-impl<'a> BinnedSource<'a> {
-    pub fn new(values: &'a [f32], n: usize) -> Self {
-        let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
-        BinnedSource { values, n, max }
-    }
-
-    #[inline]
-    fn lookup(&self, cell: usize, w: DVec3) -> f64 {
-        let base = cell * 6 * self.n * self.n;
-        let value: f64 = face_bilinear(self.n, w)
-            .iter()
-            .map(|&(l, weight)| weight * self.values[base + l] as f64)
-            .sum();
-        // Past a face's outer bin centres the extrapolation weights go negative; scattered
-        // radiance cannot, however peaked the field.
-        value.max(0.0)
-    }
-}
-
-impl InScattering for BinnedSource<'_> {
-    #[inline]
-    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
-        self.lookup(seg.cell, -seg.ray.direction) * seg.weight
-    }
-    #[inline]
-    fn at(&self, _x: DVec3, cell: usize, w: DVec3) -> f64 {
-        self.lookup(cell, w)
-    }
-    fn max_source(&self) -> f64 {
-        self.max
-    }
-    fn is_zero(&self) -> bool {
-        self.max == 0.0
-    }
-}
-
-/// All scattered light of channel `c` for a render with `model`: the exact first bounce
-/// (true phase function, shadowed or "Utah") plus the solved higher orders.
-pub fn channel_scattering<'a>(
-    solution: &'a Solution,
-    c: usize,
-    ch: &'a ChannelSolution,
-    model: OpticalModel,
-) -> Result<Box<dyn InScattering + 'a>> {
-    let shadows = match model {
-        OpticalModel::Scattering => true,
-        OpticalModel::SingleScatterUnshadowed => false,
-        _ => return Ok(Box::new(())),
-    };
-    let options = SingleScatterOptions {
-        shadows,
-        ..SingleScatterOptions::default()
-    };
-    let depth = ch.render_cache.light_depth(&ch.light_pass)?;
-    let first =
-        SingleScatter::with_depth_model(&solution.medium, c, &ch.light_pass, options, depth)?;
-    if !shadows {
-        return Ok(Box::new(first));
-    }
-    Ok(match (&ch.scattered, &solution.bins) {
-        (ScatteredField::Isotropic { higher_order, .. }, _) => {
-            Box::new((first, CellSource::new(higher_order)))
-        }
-        (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
-            Box::new((first, BinnedSource::new(higher_order, bins.face_resolution)))
-        }
-        (ScatteredField::TwoPass(t), _) => Box::new((first, t.as_ref())),
-        _ => Box::new(first),
-    })
-}
-
 /// What `volrad solve` prints: per channel, the method, iterations and residual.
 #[derive(Debug, Serialize)]
 pub struct SolveSummary {
@@ -397,6 +312,50 @@ impl fmt::Display for SolveSummary {
             "total       {:.2} s, scene hash {}",
             self.seconds, self.scene_hash
         )
+    }
+}
+
+/// A per-cell field of a solution that `volrad export` writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExportField {
+    /// ∫ I dω per cell, including unscattered light.
+    Fluence,
+    /// The solved source g per cell (radiance per unit length).
+    Source,
+    /// Extinction coefficient per cell.
+    SigmaT,
+}
+
+impl ExportField {
+    /// The spellings `--field` accepts, in the order of [`ExportField::name`].
+    pub const NAMES: [&'static str; 3] = ["fluence", "source", "sigma-t"];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ExportField::Fluence => Self::NAMES[0],
+            ExportField::Source => Self::NAMES[1],
+            ExportField::SigmaT => Self::NAMES[2],
+        }
+    }
+}
+
+impl std::str::FromStr for ExportField {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Self, String> {
+        [
+            ExportField::Fluence,
+            ExportField::Source,
+            ExportField::SigmaT,
+        ]
+        .into_iter()
+        .find(|f| f.name() == name)
+        .ok_or_else(|| {
+            format!(
+                "unknown field `{name}` (expected one of: {})",
+                Self::NAMES.join(", ")
+            )
+        })
     }
 }
 
@@ -504,7 +463,8 @@ mod tests {
         let mut settings = scene.solve.clone();
         settings.method = SolveMethod::SingleScatter;
         let mut solution =
-            crate::pipeline::solve_scene(&scene, &settings, &SolveHooks::default()).unwrap();
+            crate::engine::pipeline::solve_scene(&scene, &settings, &SolveHooks::default())
+                .unwrap();
         let report = |cancelled| SolveReport {
             method: "jacobi".into(),
             iterations: 3,
@@ -563,24 +523,5 @@ mod tests {
         assert_eq!(ordinates_options(&settings).transport_refinement, 1);
         settings.transport_refinement = 3;
         assert_eq!(ordinates_options(&settings).transport_refinement, 3);
-    }
-
-    /// A field peaked in one bin, looked up towards the far corner of its face, where the
-    /// extrapolation weight of that bin is negative: the source is 0 there, not negative, and
-    /// still the bin's value at its centre.
-    #[test]
-    fn binned_source_never_goes_negative_past_the_outer_centres() {
-        let n = 2;
-        let mut values = vec![0.0f32; 6 * n * n];
-        // Face +x, bin (i = 0 along y, j = 1 along z).
-        values[1] = 1.0;
-        let source = BinnedSource::new(&values, n);
-        let corner = DVec3::new(1.0, 0.95, 0.95).normalize();
-        let weights = face_bilinear(n, corner);
-        let raw: f64 = weights.iter().map(|&(l, w)| w * values[l] as f64).sum();
-        assert!(raw < 0.0, "the case must extrapolate below zero ({raw})");
-        assert_eq!(source.at(DVec3::ZERO, 0, corner), 0.0);
-        let centre = DVec3::new(1.0, -0.5, 0.5).normalize();
-        assert!((source.at(DVec3::ZERO, 0, centre) - 1.0).abs() < 1e-12);
     }
 }

@@ -2,22 +2,15 @@
 //! solve → [`Solution`]; solution + camera → image.
 
 use std::borrow::Cow;
-use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use gather::{Camera, Image, InScattering, RayCarry, RenderOptions, ViewSegment};
-use glam::DVec3;
+use gather::{Camera, Image, InScattering, RenderOptions};
 use medium::light_pass::LightPass;
 use medium::Medium;
 use scene::{CameraSpec, Scene, SceneOrigin, SolveMethod, SolveSettings};
 
-use crate::solution::{ChannelSolution, ScatteredField, Solution};
-
-/// Progress and cancellation for a solve, shared with whoever started it.
-#[derive(Clone, Default)]
-pub struct SolveHooks {
-    pub control: Arc<solver::SolveControl>,
-}
+use crate::engine::solution::{ChannelSolution, ScatteredField, Solution};
+use crate::engine::SolveHooks;
 
 /// A stable hash of everything that determines a solution (medium, lights, solve settings).
 pub fn scene_hash(scene: &Scene) -> String {
@@ -66,7 +59,7 @@ pub fn solve_scene(
     hooks: &SolveHooks,
 ) -> Result<Solution> {
     // Before any light pass or operator: an iteration the method cannot run is refused now.
-    crate::methods::check_iteration(settings)?;
+    crate::engine::methods::check_iteration(settings)?;
     let medium = &scene.medium;
     let mut channels = Vec::with_capacity(medium.channels().len());
     for (c, channel) in medium.channels().iter().enumerate() {
@@ -77,12 +70,14 @@ pub fn solve_scene(
         let (scattered, report) = match settings.method {
             SolveMethod::None | SolveMethod::SingleScatter => (ScatteredField::None, None),
             SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
-                crate::methods::solve_zonal(scene, c, &light_pass, settings, hooks)?
+                crate::engine::methods::solve_zonal(scene, c, &light_pass, settings, hooks)?
             }
             SolveMethod::DiscreteOrdinates => {
-                crate::methods::solve_ordinates(scene, c, &light_pass, settings, hooks)?
+                crate::engine::methods::solve_ordinates(scene, c, &light_pass, settings, hooks)?
             }
-            SolveMethod::TwoPass => crate::methods::solve_two_pass(scene, c, settings, hooks)?,
+            SolveMethod::TwoPass => {
+                crate::engine::methods::solve_two_pass(scene, c, settings, hooks)?
+            }
         };
         channels.push(ChannelSolution {
             light_pass,
@@ -100,39 +95,9 @@ pub fn solve_scene(
         background: scene.background,
         render: scene.render.clone(),
         cameras: scene.cameras.clone(),
-        bins: crate::methods::stored_bins(settings),
+        bins: crate::engine::methods::stored_bins(settings),
         channels,
     })
-}
-
-/// Higher-order isotropic source per cell (zonal `g − E`): constant in each cell and direction.
-pub struct CellSource<'a> {
-    pub values: &'a [f32],
-    pub max: f64,
-}
-
-impl<'a> CellSource<'a> {
-    pub fn new(values: &'a [f32]) -> Self {
-        let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
-        CellSource { values, max }
-    }
-}
-
-impl InScattering for CellSource<'_> {
-    #[inline]
-    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
-        self.values[seg.cell] as f64 * seg.weight
-    }
-    #[inline]
-    fn at(&self, _x: DVec3, cell: usize, _w: DVec3) -> f64 {
-        self.values[cell] as f64
-    }
-    fn max_source(&self) -> f64 {
-        self.max
-    }
-    fn is_zero(&self) -> bool {
-        self.max == 0.0
-    }
 }
 
 /// Renders one view of a solution.
@@ -198,7 +163,7 @@ pub fn render_view_through(
         .channels
         .iter()
         .enumerate()
-        .map(|(c, ch)| crate::methods::channel_scattering(solution, c, ch, options.model))
+        .map(|(c, ch)| crate::engine::sources::channel_scattering(solution, c, ch, options.model))
         .collect::<Result<Vec<Box<dyn InScattering + '_>>>>()?;
     let refs: Vec<&dyn InScattering> = sources.iter().map(|b| b.as_ref()).collect();
     // The solved medium's render indices are kept with the solution; a rescaled view medium

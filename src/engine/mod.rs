@@ -1,0 +1,18 @@
+//! The engine: everything between a validated scene and a stored solution or an image —
+//! the solve of every method ([`methods`]), the orchestration shared by the command line and
+//! the service ([`pipeline`]), the scattered-light sources a render adds ([`sources`]) and the
+//! solution file ([`solution`]). It knows no command line and no HTTP: the front ends
+//! (`cli`, `commands`, `service`, `validate`, `bench_albedo`) sit above it.
+
+pub mod methods;
+pub mod pipeline;
+pub mod solution;
+pub mod sources;
+
+use std::sync::Arc;
+
+/// Progress and cancellation for a solve, shared with whoever started it.
+#[derive(Clone, Default)]
+pub struct SolveHooks {
+    pub control: Arc<solver::SolveControl>,
+}
