@@ -145,8 +145,8 @@ pub struct RenderArgs {
     /// Seed of the path tracer's random streams.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Render N views on a circle around the volume (one solve or solution read for all).
-    /// OUT names a directory, or a file stem to which _000, _001, ... are appended.
+    /// Render N views on a circle around the camera's target (one solve or solution read for
+    /// all). OUT names a folder (FOLDER/CAMERA_000.png, …) or a file (STEM_CAMERA_000.EXT, …).
     #[arg(long)]
     pub orbit: Option<u32>,
     /// Separate absorption for rendering (Blasi & Wuethrich §4.3): σt times S along the view
@@ -161,17 +161,21 @@ pub struct ViewArgs {
     /// Eye position "x,y,z".
     #[arg(long, value_parser = parse_vec3)]
     pub eye: Option<[f64; 3]>,
-    /// Look-at point "x,y,z" (default: the volume's centre).
+    /// Look-at point "x,y,z" (default: the scene camera's; the volume's centre when the
+    /// scene has no camera).
     #[arg(long, value_parser = parse_vec3)]
     pub target: Option<[f64; 3]>,
-    /// Up vector "x,y,z" (default 0,0,1).
+    /// Up vector "x,y,z" (default: the scene camera's; 0,0,1 when the scene has no camera).
+    /// It must not be parallel to the view direction.
     #[arg(long, value_parser = parse_vec3)]
     pub up: Option<[f64; 3]>,
-    /// Vertical field of view in degrees.
+    /// Vertical field of view in degrees (default: the scene camera's; 40 without one).
     #[arg(long)]
     pub fov: Option<f64>,
+    /// Image width in pixels (default: the scene camera's; 512 without one).
     #[arg(long)]
     pub width: Option<u32>,
+    /// Image height in pixels (default: the scene camera's; 384 without one).
     #[arg(long)]
     pub height: Option<u32>,
 }

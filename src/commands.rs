@@ -1,12 +1,12 @@
 //! The commands behind the command line: each validates its inputs, does the work through
 //! [`crate::engine::pipeline`], and reports what it wrote.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use scene::Scene;
+use scene::{CameraSpec, Scene};
 
 use crate::cli::{ExportArgs, InfoArgs, RenderArgs, SolveArgs};
 use crate::engine::pipeline::{render_view, render_view_through, solve_scene, view_medium};
@@ -80,53 +80,151 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         }
         return render_path_traced(args);
     }
-    let solution = match (&args.solution, &args.scene) {
-        (Some(path), _) => Solution::read(path)?,
-        (None, Some(scene_path)) => {
-            let scene = load_scene(scene_path)?;
-            solve_with_progress(&scene, &scene.solve, quiet)?
-        }
+    // Everything that can be refused is refused before the solve: the scene, whether the
+    // solution belongs to it, the cameras and every output path.
+    let scene = args.scene.as_deref().map(load_scene).transpose()?;
+    let stored = match &args.solution {
+        Some(path) => Some(Solution::read(path)?),
+        None => None,
+    };
+    if let (Some(scene), Some(solution), Some(scene_path), Some(solution_path)) =
+        (&scene, &stored, &args.scene, &args.solution)
+    {
+        refuse_foreign_solution(scene, scene_path, solution, solution_path)?;
+    }
+    // A scene given together with its solution supplies the cameras.
+    let (cameras, center) = match (&scene, &stored) {
+        (Some(s), _) => (s.cameras.clone(), s.medium.grid().center()),
+        (None, Some(s)) => (s.cameras.clone(), s.medium.grid().center()),
         (None, None) => bail!("render needs a scene file or --solution FILE"),
     };
-    // A scene given together with a solution supplies cameras only.
-    let cameras = match (&args.solution, &args.scene) {
-        (Some(_), Some(scene_path)) => load_scene(scene_path)?.cameras,
-        _ => solution.cameras.clone(),
-    };
-    let center = solution.medium.grid().center();
-    let mut views = Vec::new();
-    let all_cameras = args.camera.is_none() && args.orbit.is_none() && args.output.is_dir();
-    if all_cameras {
-        views.extend(
-            cameras
-                .iter()
-                .map(|c| crate::views::apply_view(c.clone(), &args.view)),
-        );
-    } else {
-        let base = choose_camera(&cameras, args.camera.as_deref(), &args.view, center)?;
-        match args.orbit {
-            Some(0) => bail!("--orbit needs at least one view"),
-            Some(n) => views.extend(orbit_cameras(&base, n)),
-            None => views.push(base),
-        }
-    }
-    let outputs = if views.len() == 1 && !all_cameras {
-        vec![args.output.clone()]
-    } else {
-        let names: Vec<String> = views.iter().map(|v| v.name.clone()).collect();
-        view_outputs(&args.output, &names)
+    let plan = plan_views(args, &cameras, center)?;
+    let solution = match (stored, &scene) {
+        (Some(s), _) => s,
+        (None, Some(scene)) => solve_with_progress(scene, &scene.solve, quiet)?,
+        (None, None) => unreachable!("refused above"),
     };
     let exposure = args.exposure.unwrap_or(solution.render.exposure);
     // One rescaled copy of the whole grid for every view, not one per view.
     let medium = view_medium(&solution, args.extinction_scale)?;
-    for (view, out) in views.iter().zip(&outputs) {
-        let started = Instant::now();
+    let started = Instant::now();
+    for (view, out) in plan.views.iter().zip(&plan.outputs) {
+        let view_started = Instant::now();
         let image = render_view_through(&solution, &medium, view, args.spp)?;
         image
             .save(out, exposure)
             .with_context(|| format!("writing {}", out.display()))?;
-        tracing::info!(camera = %view.name, seconds = started.elapsed().as_secs_f64(), "rendered");
-        println!("wrote {}", out.display());
+        tracing::debug!(camera = %view.name, seconds = view_started.elapsed().as_secs_f64(), "rendered");
+    }
+    match plan.outputs.as_slice() {
+        [one] => println!("wrote {}", one.display()),
+        [first, .., last] => println!(
+            "wrote {} views, {} … {} ({:.1} s)",
+            plan.outputs.len(),
+            first.display(),
+            last.display(),
+            started.elapsed().as_secs_f64()
+        ),
+        [] => {}
+    }
+    Ok(())
+}
+
+/// Refuses a solution that was solved from another scene than the one given with it, naming
+/// both (the solution stores its scene's content hash).
+fn refuse_foreign_solution(
+    scene: &Scene,
+    scene_path: &Path,
+    solution: &Solution,
+    solution_path: &Path,
+) -> Result<()> {
+    let hash = crate::engine::pipeline::scene_hash(scene);
+    if hash != solution.scene_hash {
+        bail!(
+            "{} was solved from {} (scene hash {}), not from {} (scene hash {}): solve {} \
+             again, or render the solution alone with `volrad render --solution {}`",
+            solution_path.display(),
+            solution.scene_origin,
+            solution.scene_hash,
+            scene_path.display(),
+            hash,
+            scene_path.display(),
+            solution_path.display()
+        );
+    }
+    Ok(())
+}
+
+/// The views of a render and the file each goes to, checked before any work.
+struct ViewPlan {
+    views: Vec<CameraSpec>,
+    outputs: Vec<PathBuf>,
+}
+
+fn plan_views(args: &RenderArgs, cameras: &[CameraSpec], center: glam::DVec3) -> Result<ViewPlan> {
+    let into_directory = is_directory_target(&args.output);
+    let all_cameras = args.camera.is_none() && args.orbit.is_none() && into_directory;
+    let views: Vec<CameraSpec> = if all_cameras {
+        if cameras.is_empty() {
+            bail!("no camera: the scene has none; give --eye (and --target, --fov)");
+        }
+        cameras
+            .iter()
+            .map(|c| crate::views::apply_view(c.clone(), &args.view))
+            .collect()
+    } else {
+        let base = choose_camera(cameras, args.camera.as_deref(), &args.view, center)?;
+        match args.orbit {
+            Some(0) => bail!("--orbit needs at least one view"),
+            Some(n) => orbit_cameras(&base, n),
+            None => vec![base],
+        }
+    };
+    for view in &views {
+        gather::Camera::from_spec(view).map_err(|e| {
+            anyhow::anyhow!(
+                "camera `{}`: {e}{}",
+                view.name,
+                if args.view.eye.is_some() || args.view.target.is_some() {
+                    " (give --up X,Y,Z across the view direction)"
+                } else {
+                    ""
+                }
+            )
+        })?;
+    }
+    let outputs = if views.len() == 1 && !into_directory {
+        vec![args.output.clone()]
+    } else {
+        let names: Vec<String> = views.iter().map(|v| v.name.clone()).collect();
+        view_outputs(&args.output, &names, into_directory)
+    };
+    for out in &outputs {
+        check_image_output(out)?;
+    }
+    Ok(ViewPlan { views, outputs })
+}
+
+/// Whether `-o` names a directory: an existing one, or a path ending in a separator.
+fn is_directory_target(out: &Path) -> bool {
+    out.is_dir()
+        || out
+            .as_os_str()
+            .to_string_lossy()
+            .ends_with(['/', std::path::MAIN_SEPARATOR])
+}
+
+/// Refuses an image path whose extension names no format volrad writes, and creates its
+/// folder, so that a render never fails after the work.
+fn check_image_output(out: &Path) -> Result<()> {
+    gather::ImageFormat::from_path(out).map_err(|_| {
+        anyhow::anyhow!(
+            "-o {}: expected an image file ending in .png, .pfm or .exr, or a folder ending in /",
+            out.display()
+        )
+    })?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     Ok(())
 }
@@ -166,6 +264,7 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
         medium.grid().center(),
     )?;
     let camera = gather::Camera::from_spec(&spec)?;
+    check_image_output(&args.output)?;
     let options = montecarlo::path_trace::PathTraceOptions {
         spp: args.spp.unwrap_or(64),
         seed: args.seed,
@@ -206,6 +305,16 @@ pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
     }
     if let Some(n) = args.max_iterations {
         settings.max_iterations = n;
+    }
+    // Refused before the solve, not after it: a folder as output, or a folder that cannot be made.
+    if is_directory_target(&args.output) {
+        bail!(
+            "-o {}: expected a solution file name (e.g. cloud.volrad), not a folder",
+            args.output.display()
+        );
+    }
+    if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let started = Instant::now();
     let solution = solve_with_progress(&scene, &settings, quiet || args.json)?;

@@ -20,11 +20,14 @@ pub struct SceneInfo {
     pub occupied_fraction: f64,
     /// Largest optical depth along an axis-parallel row of cells.
     pub max_axis_optical_depth: f64,
-    pub albedo_max: f64,
+    /// Largest single-scattering albedo, as stored (f32).
+    pub albedo_max: f32,
     pub phase: String,
     pub lights: usize,
     pub cameras: Vec<String>,
     pub method: String,
+    /// The linear iteration, as `[solve] iteration` spells it.
+    pub iteration: String,
     pub medium_bytes: usize,
     /// Rough memory a solve needs with the scene's method (unknowns, work vectors, operator).
     pub solve_memory_estimate_bytes: usize,
@@ -77,12 +80,13 @@ impl SceneInfo {
             albedo_max: m
                 .channels()
                 .iter()
-                .map(|c| c.albedo.max() as f64)
-                .fold(0.0, f64::max),
-            phase: format!("{:?}", m.phase()),
+                .map(|c| c.albedo.max())
+                .fold(0.0, f32::max),
+            phase: scene::phase_spelling(&m.phase()),
             lights: scene.lights.len(),
             cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
             method: scene.solve.method.name().to_string(),
+            iteration: scene.solve.iteration.to_string(),
             medium_bytes: m.memory_bytes(),
             solve_memory_estimate_bytes: vectors + operator,
         }
@@ -119,6 +123,7 @@ impl fmt::Display for SceneInfo {
         writeln!(f, "lights           {}", self.lights)?;
         writeln!(f, "cameras          {}", self.cameras.join(", "))?;
         writeln!(f, "solve method     {}", self.method)?;
+        writeln!(f, "iteration        {}", self.iteration)?;
         writeln!(
             f,
             "memory           medium {:.1} MiB, solve ≈ {:.1} MiB",

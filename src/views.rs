@@ -91,14 +91,13 @@ pub fn orbit_cameras(base: &CameraSpec, n: u32) -> Vec<CameraSpec> {
         .collect()
 }
 
-/// Output paths for several views: inside `out` when it is a directory (or ends in `/`),
-/// else `stem_NAME.ext`.
-pub fn view_outputs(out: &Path, names: &[String]) -> Vec<PathBuf> {
-    let is_dir = out.is_dir() || out.to_string_lossy().ends_with('/');
+/// Output paths for several views: `DIR/NAME.png` when `-o` names a folder, else
+/// `STEM_NAME.EXT` beside it (an orbit's names are `CAMERA_000`, `CAMERA_001`, …).
+pub fn view_outputs(out: &Path, names: &[String], into_directory: bool) -> Vec<PathBuf> {
     names
         .iter()
         .map(|n| {
-            if is_dir {
+            if into_directory {
                 out.join(format!("{n}.png"))
             } else {
                 let stem = out

@@ -213,7 +213,7 @@ fn bad_scenes_and_arguments_are_refused_without_writing() {
     let o = volrad(&["-q", "render", s(&good), "--camera", "nope", "-o", "x.png"]);
     assert!(!o.status.success() && stderr(&o).contains("no camera named `nope`"));
     let o = volrad(&["-q", "render", s(&good), "-o", s(&dir.path().join("x.bmp"))]);
-    assert!(!o.status.success() && stderr(&o).contains("unknown image extension"));
+    assert!(!o.status.success() && stderr(&o).contains("expected an image file ending in .png"));
     let o = volrad(&[
         "-q",
         "solve",
@@ -453,4 +453,99 @@ fn orbit_with_extinction_scale_matches_one_view_renders() {
             view.name
         );
     }
+}
+
+/// The first hour's surprises, each refused or handled before any work: an output folder is
+/// made and filled, a bad extension or a solution of another scene is refused naming what was
+/// wrong, an orbit reports in one line, logs carry no colour codes in a pipe, and `info`
+/// speaks the scene file's language.
+#[test]
+fn outputs_and_solutions_are_checked_before_the_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let zonal = small_scene(dir.path(), "zonal", r#"{ kind = "isotropic" }"#);
+    let hg = small_scene(
+        dir.path(),
+        "single-scatter",
+        r#"{ kind = "henyey-greenstein", g = 0.85 }"#,
+    );
+
+    // A folder that does not exist yet: made, one image per camera.
+    let out = dir.path().join("views/all/");
+    let o = volrad(&["-q", "render", s(&hg), "-o", &format!("{}/", out.display())]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for camera in ["front", "side"] {
+        assert!(out.join(format!("{camera}.png")).is_file(), "{camera}");
+    }
+
+    // A format volrad cannot write: refused before the solve, naming the path.
+    let jpg = dir.path().join("front.jpg");
+    let o = volrad(&["-q", "render", s(&zonal), "-o", s(&jpg)]);
+    let err = stderr(&o);
+    assert!(
+        !o.status.success() && err.contains("front.jpg") && err.contains(".png"),
+        "{err}"
+    );
+    assert!(!jpg.exists());
+
+    // A solution is refused with another scene, naming both; alone it renders.
+    let sol = dir.path().join("zonal.volrad");
+    let o = volrad(&["-q", "solve", s(&zonal), "-o", s(&sol)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let x = dir.path().join("x.png");
+    let o = volrad(&["-q", "render", s(&hg), "--solution", s(&sol), "-o", s(&x)]);
+    let err = stderr(&o);
+    assert!(
+        !o.status.success()
+            && err.contains("zonal.volrad")
+            && err.contains("scene-zonal.toml")
+            && err.contains("scene-single-scatter.toml"),
+        "{err}"
+    );
+    assert!(!x.exists());
+    let o = volrad(&[
+        "-q",
+        "render",
+        s(&zonal),
+        "--solution",
+        s(&sol),
+        "-o",
+        s(&x),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+
+    // An orbit of five views says so in one line; logs in a pipe have no colour codes.
+    let orbit = dir.path().join("orbit.png");
+    let o = volrad(&[
+        "-v",
+        "render",
+        "--solution",
+        s(&sol),
+        "--orbit",
+        "5",
+        "-o",
+        s(&orbit),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(stdout.lines().count(), 1, "{stdout}");
+    assert!(stdout.contains("5 views"), "{stdout}");
+    assert!(dir.path().join("orbit_front_004.png").is_file());
+    assert!(!stderr(&o).contains('\u{1b}'), "colour codes in a pipe");
+
+    // `info` in the scene file's words, not Rust's.
+    let o = volrad(&["info", s(&hg)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains(r#"{ kind = "henyey-greenstein", g = 0.85 }"#) && text.contains("≤ 0.9\n"),
+        "{text}"
+    );
+    assert!(!text.contains("HenyeyGreenstein"), "{text}");
+
+    // A solve refuses a folder as its output before solving.
+    let o = volrad(&["-q", "solve", s(&zonal), "-o", s(dir.path())]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("not a folder"),
+        "{}",
+        stderr(&o)
+    );
 }

@@ -53,7 +53,9 @@ use medium::{Light, Medium};
 
 use crate::check::Ctx;
 use crate::raw::RawScene;
-pub use crate::settings::{solve_method_names, SolveMethod, SolveSettings, UnknownSolveMethod};
+pub use crate::settings::{
+    phase_spelling, solve_method_names, SolveMethod, SolveSettings, UnknownSolveMethod,
+};
 
 /// A validated scene: the medium, its lighting, how to solve it and how to look at it.
 #[derive(Clone, Debug)]

@@ -6,6 +6,20 @@ use std::fmt;
 use std::str::FromStr;
 
 use medium::PhaseFunction;
+
+/// A phase function as a scene file writes it (`medium.phase`), for messages and `volrad info`.
+pub fn phase_spelling(phase: &PhaseFunction) -> String {
+    match *phase {
+        PhaseFunction::Isotropic => "isotropic".into(),
+        PhaseFunction::HenyeyGreenstein { g } => {
+            format!("{{ kind = \"henyey-greenstein\", g = {g} }}")
+        }
+        PhaseFunction::LambertianSphere => "lambertian-sphere".into(),
+        PhaseFunction::TwoLobe { r, g1, g2 } => {
+            format!("{{ kind = \"two-lobe\", r = {r}, g1 = {g1}, g2 = {g2} }}")
+        }
+    }
+}
 use serde::{Deserialize, Serialize};
 
 /// The multiple-scattering method of `[solve] method`.
