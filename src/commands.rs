@@ -13,7 +13,7 @@ use crate::engine::pipeline::{render_view, render_view_through, solve_scene, vie
 use crate::engine::solution::Solution;
 use crate::engine::SolveHooks;
 use crate::progress::SolveProgress;
-use crate::views::{choose_camera, orbit_cameras, view_outputs};
+use crate::views::{orbit_cameras, view_outputs, CameraRequest};
 
 /// The built-in default scene ([`Scene::builtin_default`]).
 pub fn default_scene() -> Result<Scene> {
@@ -93,12 +93,12 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         refuse_foreign_solution(scene, scene_path, solution, solution_path)?;
     }
     // A scene given together with its solution supplies the cameras.
-    let (cameras, center) = match (&scene, &stored) {
-        (Some(s), _) => (s.cameras.clone(), s.medium.grid().center()),
-        (None, Some(s)) => (s.cameras.clone(), s.medium.grid().center()),
+    let (cameras, grid) = match (&scene, &stored) {
+        (Some(s), _) => (s.cameras.clone(), *s.medium.grid()),
+        (None, Some(s)) => (s.cameras.clone(), *s.medium.grid()),
         (None, None) => bail!("render needs a scene file or --solution FILE"),
     };
-    let plan = plan_views(args, &cameras, center)?;
+    let plan = plan_views(args, &cameras, &grid)?;
     let solution = match (stored, &scene) {
         (Some(s), _) => s,
         (None, Some(scene)) => solve_with_progress(scene, &scene.solve, quiet)?,
@@ -161,38 +161,28 @@ struct ViewPlan {
     outputs: Vec<PathBuf>,
 }
 
-fn plan_views(args: &RenderArgs, cameras: &[CameraSpec], center: glam::DVec3) -> Result<ViewPlan> {
+fn plan_views(args: &RenderArgs, cameras: &[CameraSpec], grid: &medium::Grid) -> Result<ViewPlan> {
     let into_directory = is_directory_target(&args.output);
     let all_cameras = args.camera.is_none() && args.orbit.is_none() && into_directory;
-    let views: Vec<CameraSpec> = if all_cameras {
-        if cameras.is_empty() {
-            bail!("no camera: the scene has none; give --eye (and --target, --fov)");
+    let request = CameraRequest::from_args(args.camera.as_deref(), &args.view);
+    let views: Vec<CameraSpec> = if all_cameras && !cameras.is_empty() {
+        let mut views = Vec::with_capacity(cameras.len());
+        for c in cameras {
+            let named = CameraRequest {
+                name: Some(c.name.clone()),
+                ..request.clone()
+            };
+            views.push(named.camera(cameras, grid)?);
         }
-        cameras
-            .iter()
-            .map(|c| crate::views::apply_view(c.clone(), &args.view))
-            .collect()
+        views
     } else {
-        let base = choose_camera(cameras, args.camera.as_deref(), &args.view, center)?;
+        let base = request.camera(cameras, grid)?;
         match args.orbit {
             Some(0) => bail!("--orbit needs at least one view"),
             Some(n) => orbit_cameras(&base, n),
             None => vec![base],
         }
     };
-    for view in &views {
-        gather::Camera::from_spec(view).map_err(|e| {
-            anyhow::anyhow!(
-                "camera `{}`: {e}{}",
-                view.name,
-                if args.view.eye.is_some() || args.view.target.is_some() {
-                    " (give --up X,Y,Z across the view direction)"
-                } else {
-                    ""
-                }
-            )
-        })?;
-    }
     let outputs = if views.len() == 1 && !into_directory {
         vec![args.output.clone()]
     } else {
@@ -257,12 +247,8 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
     if args.orbit.is_some() {
         bail!("--orbit is for renders from a solution; path tracing renders one camera");
     }
-    let spec = choose_camera(
-        &cameras,
-        args.camera.as_deref(),
-        &args.view,
-        medium.grid().center(),
-    )?;
+    let spec = CameraRequest::from_args(args.camera.as_deref(), &args.view)
+        .camera(&cameras, medium.grid())?;
     let camera = gather::Camera::from_spec(&spec)?;
     check_image_output(&args.output)?;
     let options = montecarlo::path_trace::PathTraceOptions {

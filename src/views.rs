@@ -3,72 +3,113 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use glam::DVec3;
+use medium::Grid;
 use scene::{CameraSpec, Projection};
 
 use crate::cli::ViewArgs;
 
-/// The camera to use: the scene's (by name, or its first), with command-line overrides.
-pub fn choose_camera(
-    cameras: &[CameraSpec],
-    name: Option<&str>,
-    view: &ViewArgs,
-    grid_center: DVec3,
-) -> Result<CameraSpec> {
-    let base = match name {
-        Some(n) => cameras
-            .iter()
-            .find(|c| c.name == n)
-            .cloned()
-            .with_context(|| {
-                let known: Vec<&str> = cameras.iter().map(|c| c.name.as_str()).collect();
-                format!(
-                    "no camera named `{n}` (the scene has: {})",
-                    known.join(", ")
-                )
-            })?,
-        None => match cameras.first() {
-            Some(c) => c.clone(),
-            None if view.eye.is_some() => CameraSpec {
-                name: "command-line".into(),
-                eye: DVec3::ZERO,
-                target: grid_center,
+/// What a request (command-line flags or HTTP query) says about the camera: a scene camera
+/// by name, and overrides of its parts. The command line and the service read their own
+/// syntax into this and share [`CameraRequest::camera`], so both have the same defaults.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CameraRequest {
+    pub name: Option<String>,
+    pub eye: Option<DVec3>,
+    pub target: Option<DVec3>,
+    pub up: Option<DVec3>,
+    pub fov_y_degrees: Option<f64>,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+}
+
+impl CameraRequest {
+    /// The overrides of the command line's view flags.
+    pub fn from_args(name: Option<&str>, view: &ViewArgs) -> CameraRequest {
+        CameraRequest {
+            name: name.map(str::to_string),
+            eye: view.eye.map(DVec3::from),
+            target: view.target.map(DVec3::from),
+            up: view.up.map(DVec3::from),
+            fov_y_degrees: view.fov,
+            width: view.width,
+            height: view.height,
+        }
+    }
+
+    /// The camera to use: the named scene camera, else the scene's first, else one looking at
+    /// the volume's centre from in front (−y) at 2.5 times its largest extent (up +z, 40°,
+    /// 512×384); then the overrides. The result is checked as a render would check it.
+    pub fn camera(&self, cameras: &[CameraSpec], grid: &Grid) -> Result<CameraSpec> {
+        let extent = DVec3::new(
+            grid.dims[0] as f64,
+            grid.dims[1] as f64,
+            grid.dims[2] as f64,
+        ) * grid.cell_size;
+        let center = extent * 0.5;
+        let mut cam = match &self.name {
+            Some(n) => cameras
+                .iter()
+                .find(|c| &c.name == n)
+                .cloned()
+                .with_context(|| {
+                    let known: Vec<&str> = cameras.iter().map(|c| c.name.as_str()).collect();
+                    format!(
+                        "no camera named `{n}` (the scene has: {})",
+                        if known.is_empty() {
+                            "none".to_string()
+                        } else {
+                            known.join(", ")
+                        }
+                    )
+                })?,
+            None => cameras.first().cloned().unwrap_or(CameraSpec {
+                name: "default".into(),
+                eye: center + DVec3::new(0.0, -2.5 * extent.max_element(), 0.0),
+                target: center,
                 up: DVec3::Z,
                 projection: Projection::Perspective {
                     fov_y_degrees: 40.0,
                 },
                 width: 512,
                 height: 384,
-            },
-            None => bail!("no camera: the scene has none; give --eye (and --target, --fov)"),
-        },
-    };
-    Ok(apply_view(base, view))
-}
+            }),
+        };
+        self.apply(&mut cam);
+        gather::Camera::from_spec(&cam).map_err(|e| {
+            let hint = if self.eye.is_some() || self.target.is_some() {
+                " (give an up vector across the view direction)"
+            } else {
+                ""
+            };
+            anyhow::anyhow!("camera `{}`: {e}{hint}", cam.name)
+        })?;
+        Ok(cam)
+    }
 
-/// Command-line camera overrides on top of a scene camera.
-pub fn apply_view(mut cam: CameraSpec, view: &ViewArgs) -> CameraSpec {
-    if let Some(e) = view.eye {
-        cam.eye = DVec3::from(e);
-        cam.name = "command-line".into();
+    /// The overrides on top of `cam`; a new eye makes it a camera of its own.
+    pub fn apply(&self, cam: &mut CameraSpec) {
+        if let Some(e) = self.eye {
+            cam.eye = e;
+            cam.name = "custom".into();
+        }
+        if let Some(t) = self.target {
+            cam.target = t;
+        }
+        if let Some(u) = self.up {
+            cam.up = u;
+        }
+        if let Some(f) = self.fov_y_degrees {
+            cam.projection = Projection::Perspective { fov_y_degrees: f };
+        }
+        if let Some(w) = self.width {
+            cam.width = w;
+        }
+        if let Some(h) = self.height {
+            cam.height = h;
+        }
     }
-    if let Some(t) = view.target {
-        cam.target = DVec3::from(t);
-    }
-    if let Some(u) = view.up {
-        cam.up = DVec3::from(u);
-    }
-    if let Some(f) = view.fov {
-        cam.projection = Projection::Perspective { fov_y_degrees: f };
-    }
-    if let Some(w) = view.width {
-        cam.width = w;
-    }
-    if let Some(h) = view.height {
-        cam.height = h;
-    }
-    cam
 }
 
 /// `n` cameras on a horizontal circle (about the camera's up axis) around its target, keeping

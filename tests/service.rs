@@ -338,6 +338,11 @@ fn bad_input_is_refused_with_json_errors() {
     assert_error(&render("format=gif"), 400, "format");
     assert_error(&render("eye=5,5,4&target=5,5,4"), 400, "eye");
     assert_error(&render("eye=5,5,20&target=5,5,4&up=0,0,1"), 400, "up");
+    // Misspelled or unknown parameters are named, not ignored; cameras go by name.
+    assert_error(&render("widht=100"), 400, "widht");
+    assert_error(&render("width=16&height=12&colour=red"), 400, "colour");
+    assert_error(&render("camera=top"), 400, "top");
+    assert_eq!(render("camera=front&width=16&height=12").status, 200);
     // The server is still answering after all of that.
     assert_eq!(render("width=16&height=12").status, 200);
 }

@@ -12,12 +12,13 @@ use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use glam::DVec3;
-use scene::{CameraSpec, Projection};
+use scene::CameraSpec;
 use serde_json::{json, Value};
 
 use super::cache::{self, is_id};
 use super::jobs::{describe, parse_scene, JobState, Service, SubmitError};
 use crate::engine::solution::Solution;
+use crate::views::CameraRequest;
 
 /// The OpenAPI description served at `/v1/openapi.json`.
 pub const OPENAPI: &str = include_str!("openapi.json");
@@ -340,6 +341,7 @@ async fn post_volume(
     body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Response> {
     let q = query_map(q)?;
+    refuse_unknown_parameters(&q, &["dims"])?;
     let body = body_bytes(body)?;
     let dims_text = q
         .get("dims")
@@ -480,51 +482,34 @@ enum RenderFormat {
     Pfm,
 }
 
-/// The camera of a render request: the solution's first camera (or a default looking at the
-/// volume) with the query's overrides, checked against the limits.
+/// The camera of a render request: the scene camera named by `camera` (default: the
+/// solution's first, or one looking at the volume), with the query's overrides — the same
+/// rules as the command line's ([`CameraRequest`]) — checked against the limits.
 fn request_camera(
     sol: &Solution,
     q: &HashMap<String, String>,
     service: &Service,
 ) -> ApiResult<CameraSpec> {
-    let g = sol.medium.grid();
-    let extent = DVec3::new(g.dims[0] as f64, g.dims[1] as f64, g.dims[2] as f64) * g.cell_size;
-    let center = extent * 0.5;
-    let mut cam = sol.cameras.first().cloned().unwrap_or(CameraSpec {
-        name: "default".into(),
-        eye: center + DVec3::new(0.0, -2.5 * extent.max_element(), 0.0),
-        target: center,
-        up: DVec3::Z,
-        projection: Projection::Perspective {
-            fov_y_degrees: 40.0,
-        },
-        width: 512,
-        height: 384,
-    });
-    if let Some(e) = parse_vec3(q, "eye")? {
-        cam.eye = e;
-        cam.name = "request".into();
-    }
-    if let Some(t) = parse_vec3(q, "target")? {
-        cam.target = t;
-    }
-    if let Some(u) = parse_vec3(q, "up")? {
-        cam.up = u;
-    }
-    if let Some(f) = parse_f64(q, "fov")? {
+    let fov = parse_f64(q, "fov")?;
+    if let Some(f) = fov {
         if !(f > 0.0 && f < 180.0) {
             return Err(ApiError::bad(format!(
                 "fov: {f} is not in (0, 180) degrees"
             )));
         }
-        cam.projection = Projection::Perspective { fov_y_degrees: f };
     }
-    if let Some(w) = parse_u32(q, "width")? {
-        cam.width = w;
-    }
-    if let Some(h) = parse_u32(q, "height")? {
-        cam.height = h;
-    }
+    let request = CameraRequest {
+        name: q.get("camera").cloned(),
+        eye: parse_vec3(q, "eye")?,
+        target: parse_vec3(q, "target")?,
+        up: parse_vec3(q, "up")?,
+        fov_y_degrees: fov,
+        width: parse_u32(q, "width")?,
+        height: parse_u32(q, "height")?,
+    };
+    let cam = request
+        .camera(&sol.cameras, sol.medium.grid())
+        .map_err(|e| ApiError::bad(format!("{e:#}")))?;
     let limits = &service.inner.limits;
     if cam.width > limits.max_image_side || cam.height > limits.max_image_side {
         return Err(ApiError::bad(format!(
@@ -538,17 +523,36 @@ fn request_camera(
             cam.width, cam.height, limits.max_image_pixels
         )));
     }
-    if (cam.eye - cam.target).length() < 1e-9 {
-        return Err(ApiError::bad("eye and target must differ"));
-    }
-    if (cam.eye - cam.target).cross(cam.up).length()
-        < 1e-9 * (cam.eye - cam.target).length() * cam.up.length().max(1e-300)
-    {
-        return Err(ApiError::bad(
-            "up must not be parallel to the view direction",
-        ));
-    }
     Ok(cam)
+}
+
+/// Parameters `render` reads; anything else is a misspelling and refused.
+const RENDER_PARAMETERS: [&str; 10] = [
+    "camera", "eye", "target", "up", "fov", "width", "height", "spp", "exposure", "format",
+];
+
+/// Refuses query parameters the endpoint does not read, naming them and the ones it does,
+/// rather than answering as if they were not there.
+fn refuse_unknown_parameters(q: &HashMap<String, String>, known: &[&str]) -> ApiResult<()> {
+    let mut unknown: Vec<&str> = q
+        .keys()
+        .map(String::as_str)
+        .filter(|k| !known.contains(k))
+        .collect();
+    if unknown.is_empty() {
+        return Ok(());
+    }
+    unknown.sort_unstable();
+    Err(ApiError::bad(format!(
+        "unknown query parameter{} {} (this endpoint reads: {})",
+        if unknown.len() > 1 { "s" } else { "" },
+        unknown
+            .iter()
+            .map(|k| format!("`{k}`"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        known.join(", ")
+    )))
 }
 
 /// `GET /v1/scenes/{id}/render`: renders from the in-memory solution on a bounded pool.
@@ -558,6 +562,7 @@ async fn render(
     q: Result<Query<HashMap<String, String>>, QueryRejection>,
 ) -> ApiResult<Response> {
     let q = query_map(q)?;
+    refuse_unknown_parameters(&q, &RENDER_PARAMETERS)?;
     let format = match q.get("format").map(String::as_str) {
         None | Some("png") => RenderFormat::Png,
         Some("pfm") => RenderFormat::Pfm,
