@@ -127,6 +127,22 @@ fn solve_poll_render_and_same_scene_is_one_job() {
     assert_eq!(j.status, 202, "{}", j.text());
     assert_eq!(j.json()["id"].as_str(), Some(id.as_str()));
 
+    // The id is the scene hash the command line prints and stores in solution files.
+    let parsed =
+        scene::Scene::from_toml_str(&text, std::path::Path::new("."), std::path::Path::new("s"))
+            .unwrap();
+    assert_eq!(id, volrad::engine::pipeline::scene_hash(&parsed));
+    // The viewer shows 12 characters of it; the API takes any unique prefix of 8 or more.
+    let short = get(addr, &format!("/v1/scenes/{}", &id[..12])).unwrap();
+    assert_eq!(short.status, 200, "{}", short.text());
+    assert_eq!(short.json()["id"].as_str(), Some(id.as_str()));
+    assert_eq!(
+        get(addr, &format!("/v1/scenes/{}", &id[..4]))
+            .unwrap()
+            .status,
+        404
+    );
+
     let done = wait_finished(addr, &id);
     assert_eq!(done["state"], "done", "{done}");
     let report = &done["report"]["channels"][0];

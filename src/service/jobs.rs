@@ -79,18 +79,15 @@ pub struct Service {
     pub(crate) inner: Arc<Inner>,
 }
 
-/// The content id of a scene: everything that determines its solution and its default views.
+/// Shortest id prefix the API accepts for a scene (the viewer shows 12 characters).
+pub const MIN_ID_PREFIX: usize = 8;
+
+/// The id of a scene: its content hash, the one `volrad solve` prints and stores in the
+/// solution file ([`scene_hash`]: medium, lights, background, solve settings). Cameras and
+/// render settings are views of the solution, not part of its identity: a scene posted again
+/// with other cameras is the same scene, and keeps the cameras it was first posted with.
 pub fn scene_id(scene: &Scene) -> String {
-    use sha2::{Digest, Sha256};
-    let mut h = Sha256::new();
-    h.update(scene_hash(scene).as_bytes());
-    h.update(serde_json::to_vec(&scene.render).unwrap_or_default());
-    h.update(serde_json::to_vec(&scene.cameras).unwrap_or_default());
-    h.finalize()
-        .iter()
-        .take(16)
-        .map(|b| format!("{b:02x}"))
-        .collect()
+    scene_hash(scene)
 }
 
 /// Parses scene text the way the service stores it: volume files resolve inside `volumes/`.
@@ -267,6 +264,28 @@ impl Service {
 
     pub fn scene_count(&self) -> usize {
         self.lock().len()
+    }
+
+    /// The full id of a known scene given its id or a unique prefix of at least
+    /// [`MIN_ID_PREFIX`] characters (what the viewer shows). `Err` names the candidates when
+    /// the prefix is ambiguous; `Ok(None)` when nothing matches.
+    pub fn resolve(&self, id: &str) -> Result<Option<String>, Vec<String>> {
+        let jobs = self.lock();
+        if jobs.contains_key(id) {
+            return Ok(Some(id.to_string()));
+        }
+        if id.len() < MIN_ID_PREFIX {
+            return Ok(None);
+        }
+        let mut matches: Vec<String> = jobs.keys().filter(|k| k.starts_with(id)).cloned().collect();
+        match matches.len() {
+            0 => Ok(None),
+            1 => Ok(matches.pop()),
+            _ => {
+                matches.sort();
+                Err(matches)
+            }
+        }
     }
 
     /// State of scene `id`, if known.

@@ -298,10 +298,25 @@ async fn list_scenes(State(service): State<Service>) -> Json<Value> {
     Json(json!({ "scenes": scenes }))
 }
 
+/// The full id for a path's id or unique prefix: 404 when nothing matches, 400 when the
+/// prefix names several scenes.
+fn resolve(service: &Service, id: &str) -> ApiResult<String> {
+    match service.resolve(id) {
+        Ok(Some(full)) => Ok(full),
+        Ok(None) => Err(ApiError::not_found(id)),
+        Err(candidates) => Err(ApiError::bad(format!(
+            "scene id `{id}` is ambiguous: it begins {} ids ({}); give more of it",
+            candidates.len(),
+            candidates.join(", ")
+        ))),
+    }
+}
+
 async fn get_scene(
     State(service): State<Service>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<Value>> {
+    let id = resolve(&service, &id)?;
     let jobs = service.lock();
     let job = jobs.get(&id).ok_or_else(|| ApiError::not_found(&id))?;
     Ok(Json(describe(&id, job, true)))
@@ -311,6 +326,7 @@ async fn delete_scene(
     State(service): State<Service>,
     Path(id): Path<String>,
 ) -> ApiResult<StatusCode> {
+    let id = resolve(&service, &id)?;
     if service.delete(&id) {
         Ok(StatusCode::NO_CONTENT)
     } else {
@@ -322,6 +338,7 @@ async fn cancel_scene(
     State(service): State<Service>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<Value>> {
+    let id = resolve(&service, &id)?;
     let cancelled = service
         .cancel(&id)
         .ok_or_else(|| ApiError::not_found(&id))?;
@@ -586,6 +603,7 @@ async fn render(
     if exposure.is_some_and(|e| e < 0.0) {
         return Err(ApiError::bad("exposure: must not be negative"));
     }
+    let id = resolve(&service, &id)?;
     let solution = match service.solution(&id) {
         Some(s) => s,
         None => {
