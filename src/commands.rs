@@ -30,8 +30,12 @@ pub fn run_default(output: &Path, quiet: bool) -> Result<()> {
         .first()
         .context("the built-in scene has a camera")?;
     let image = render_view(&solution, camera, None)?;
+    let exposure = solution
+        .render
+        .exposure
+        .unwrap_or_else(|| gather::auto_exposure(&image));
     image
-        .save(output, solution.render.exposure)
+        .save(output, exposure)
         .with_context(|| format!("writing {}", output.display()))?;
     if !quiet {
         eprintln!(
@@ -104,13 +108,16 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         (None, Some(scene)) => solve_with_progress(scene, &scene.solve, quiet)?,
         (None, None) => unreachable!("refused above"),
     };
-    let exposure = args.exposure.unwrap_or(solution.render.exposure);
+    // The flag, else the scene's, else automatic from the first view (kept for the rest, so
+    // an orbit does not flicker).
+    let mut exposure = args.exposure.or(solution.render.exposure);
     // One rescaled copy of the whole grid for every view, not one per view.
     let medium = view_medium(&solution, args.extinction_scale)?;
     let started = Instant::now();
     for (view, out) in plan.views.iter().zip(&plan.outputs) {
         let view_started = Instant::now();
         let image = render_view_through(&solution, &medium, view, args.spp)?;
+        let exposure = *exposure.get_or_insert_with(|| gather::auto_exposure(&image));
         image
             .save(out, exposure)
             .with_context(|| format!("writing {}", out.display()))?;
@@ -265,8 +272,12 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
         * options.spp as f64
         * medium.channels().len() as f64;
     tracing::info!(seconds, paths_per_second = paths / seconds, "path traced");
+    let exposure = args
+        .exposure
+        .or(exposure)
+        .unwrap_or_else(|| gather::auto_exposure(&image));
     image
-        .save(&args.output, args.exposure.unwrap_or(exposure))
+        .save(&args.output, exposure)
         .with_context(|| format!("writing {}", args.output.display()))?;
     println!("wrote {}", args.output.display());
     Ok(())

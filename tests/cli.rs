@@ -476,6 +476,13 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     for camera in ["front", "side"] {
         assert!(out.join(format!("{camera}.png")).is_file(), "{camera}");
     }
+    // The scene sets no exposure: the picture is exposed automatically, its bright end near
+    // white rather than the dim grey a fixed exposure of 1 gave.
+    let png = image::open(out.join("front.png")).unwrap().to_luma8();
+    let mut bytes: Vec<u8> = png.pixels().map(|p| p.0[0]).collect();
+    bytes.sort_unstable();
+    let bright = bytes[bytes.len() * 995 / 1000];
+    assert!((200..=250).contains(&bright), "99.5th percentile byte {bright}");
 
     // A format volrad cannot write: refused before the solve, naming the path.
     let jpg = dir.path().join("front.jpg");

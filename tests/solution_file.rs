@@ -357,7 +357,7 @@ fn golden_small_decodes() {
     assert_eq!(s.medium.interpolation(), Interpolation::Nearest);
     assert_eq!(s.background, 0.25);
     assert_eq!(s.render.model, OpticalModel::Scattering);
-    assert_eq!((s.render.exposure, s.render.spp), (1.5, 4));
+    assert_eq!((s.render.exposure, s.render.spp), (Some(1.5), 4));
     assert_eq!(s.cameras.len(), 1);
     assert_eq!(s.cameras[0].name, "front");
     assert_eq!(s.cameras[0].eye, DVec3::new(1.0, 1.5, -8.0));

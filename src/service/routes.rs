@@ -622,7 +622,7 @@ async fn render(
             solution.render.spp, limits.max_spp
         )));
     }
-    let exposure = exposure.unwrap_or(solution.render.exposure);
+    let exposure = exposure.or(solution.render.exposure);
     let queued_at = std::time::Instant::now();
     let waiting = WaitingRender::enter(&service)?;
     let permit = Arc::clone(&service.inner.render_slots)
@@ -644,7 +644,10 @@ async fn render(
                 .map_err(|e| format!("{e:#}"))?;
             let t1 = std::time::Instant::now();
             let bytes = match format {
-                RenderFormat::Png => encode_png(&image, exposure)?,
+                RenderFormat::Png => encode_png(
+                    &image,
+                    exposure.unwrap_or_else(|| gather::auto_exposure(&image)),
+                )?,
                 RenderFormat::Pfm => {
                     let mut out = Vec::new();
                     image.write_pfm_to(&mut out).map_err(|e| e.to_string())?;

@@ -15,6 +15,7 @@ pub mod camera;
 mod empty_space;
 pub mod error;
 mod exponential;
+pub mod exposure;
 pub mod image_io;
 pub mod light_depth;
 pub mod render;
@@ -23,6 +24,7 @@ pub mod single_scatter;
 
 pub use camera::{Camera, CameraProjection, CameraSpec, Projection};
 pub use error::GatherError;
+pub use exposure::auto_exposure;
 pub use image_io::{read_pfm, Image, ImageFormat, ToneMap};
 pub use render::{
     render, render_image, render_image_indexed, render_indexed, ImageChannel, OpticalModel,

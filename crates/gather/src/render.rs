@@ -90,8 +90,9 @@ impl OpticalModel {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RenderSettings {
     pub model: OpticalModel,
-    /// PNG exposure: pixel value = 1 − exp(−exposure · radiance), then sRGB.
-    pub exposure: f64,
+    /// PNG exposure: pixel value = 1 − exp(−exposure · radiance), then sRGB. `None`:
+    /// automatic, per picture ([`auto_exposure`](crate::exposure::auto_exposure)).
+    pub exposure: Option<f64>,
     /// Stratified samples per pixel.
     pub spp: u32,
 }

@@ -393,7 +393,7 @@ impl Ctx<'_> {
         Ok(match render {
             None => RenderSettings {
                 model: default_model,
-                exposure: 1.0,
+                exposure: None,
                 spp: 1,
             },
             Some(v) => {
@@ -414,8 +414,8 @@ impl Ctx<'_> {
                     }
                 };
                 let exposure = match &r.exposure {
-                    Some(e) => self.positive(e, "render.exposure")?,
-                    None => 1.0,
+                    Some(e) => Some(self.positive(e, "render.exposure")?),
+                    None => None,
                 };
                 let spp = match &r.spp {
                     Some(s) => {

@@ -93,7 +93,10 @@ fn minimal_scene_gets_the_contract_defaults() {
     assert_eq!(s.solve.photons, 1 << 21);
     assert_eq!(s.solve.bins, 96);
     assert_eq!(s.render.model, OpticalModel::Scattering);
-    assert_eq!(s.render.exposure, 1.0);
+    assert_eq!(
+        s.render.exposure, None,
+        "automatic unless the scene sets it"
+    );
     assert_eq!(s.render.spp, 1);
     // The direction is normalised on load.
     match s.lights[0] {
@@ -186,7 +189,7 @@ fn default_method_follows_the_phase_function_and_render_model_the_method() {
     let render = "[render]\nmodel = \"absorption-only\"\nexposure = 2.5\nspp = 4\n";
     let s = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT, render, CAMERA])).unwrap();
     assert_eq!(s.render.model, OpticalModel::AbsorptionOnly);
-    assert_eq!((s.render.exposure, s.render.spp), (2.5, 4));
+    assert_eq!((s.render.exposure, s.render.spp), (Some(2.5), 4));
 }
 
 // --- every bad input of the contract -------------------------------------------------------

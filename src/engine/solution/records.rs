@@ -331,7 +331,8 @@ impl OpticalModelRecord {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RenderRecord {
     pub model: OpticalModelRecord,
-    pub exposure: f64,
+    /// `None`: automatic exposure.
+    pub exposure: Option<f64>,
     pub spp: u32,
 }
 
@@ -351,11 +352,8 @@ impl RenderRecord {
         if self.spp == 0 {
             return Err("render spp is 0 (must be at least 1)".into());
         }
-        if !(self.exposure.is_finite() && self.exposure >= 0.0) {
-            return Err(format!(
-                "render exposure {} must be finite and ≥ 0",
-                self.exposure
-            ));
+        if let Some(e) = self.exposure.filter(|e| !(e.is_finite() && *e >= 0.0)) {
+            return Err(format!("render exposure {e} must be finite and ≥ 0"));
         }
         Ok(RenderSettings {
             model: self.model.into_library(),
@@ -816,7 +814,7 @@ mod tests {
         ] {
             let r = RenderSettings {
                 model,
-                exposure: 2.5,
+                exposure: Some(2.5),
                 spp: 4,
             };
             assert_eq!(RenderRecord::from(&r).into_library().unwrap(), r);
@@ -938,7 +936,7 @@ mod tests {
         .is_err());
         let render = RenderRecord {
             model: OpticalModelRecord::Scattering,
-            exposure: 1.0,
+            exposure: None,
             spp: 0,
         };
         assert!(render.into_library().is_err());
