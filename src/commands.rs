@@ -82,7 +82,7 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         if args.extinction_scale.is_some() {
             bail!("--extinction-scale changes a render from a solution; the path tracer has none");
         }
-        return render_path_traced(args);
+        return render_path_traced(args, quiet);
     }
     // Everything that can be refused is refused before the solve: the scene, whether the
     // solution belongs to it, the cameras and every output path.
@@ -227,7 +227,7 @@ fn check_image_output(out: &Path) -> Result<()> {
 }
 
 /// `render --path-trace`: unbiased Monte Carlo of the scene, no solve.
-fn render_path_traced(args: &RenderArgs) -> Result<()> {
+fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
     let (medium, lights, background, cameras, exposure) = match (&args.scene, &args.solution) {
         (Some(path), _) => {
             let scene = load_scene(path)?;
@@ -264,8 +264,27 @@ fn render_path_traced(args: &RenderArgs) -> Result<()> {
         ..Default::default()
     };
     let started = Instant::now();
-    let image =
-        montecarlo::path_trace::path_trace_image(&medium, &lights, background, &camera, &options)?;
+    let rows = u64::from(camera.height) * medium.channels().len() as u64;
+    let progress = crate::progress::RowsProgress::start(
+        rows,
+        &format!("path tracing {} spp", options.spp),
+        quiet,
+    );
+    let traced = montecarlo::path_trace::path_trace_image_with_progress(
+        &medium,
+        &lights,
+        background,
+        &camera,
+        &options,
+        &|done| progress.update(done),
+    );
+    progress.finish();
+    let image = match traced {
+        Err(montecarlo::MonteCarloError::Cancelled) => {
+            bail!("path tracing cancelled; nothing written")
+        }
+        other => other?,
+    };
     let seconds = started.elapsed().as_secs_f64();
     let paths = camera.width as f64
         * camera.height as f64

@@ -1,4 +1,4 @@
-//! Progress on stderr (indicatif) and Ctrl-C cancellation for long solves.
+//! Progress on stderr (indicatif) and Ctrl-C cancellation for long solves and renders.
 
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
@@ -75,5 +75,44 @@ pub fn cancel_on_ctrl_c(control: Arc<SolveControl>) {
     });
     if let Ok(mut g) = slot.lock() {
         *g = Some(control);
+    }
+}
+
+/// A bar over the rows of a long render (path tracing), with an estimate of the time left;
+/// Ctrl-C cancels it through a [`SolveControl`] as it does a solve.
+pub struct RowsProgress {
+    bar: ProgressBar,
+    control: Arc<SolveControl>,
+}
+
+impl RowsProgress {
+    pub fn start(rows: u64, what: &str, quiet: bool) -> RowsProgress {
+        let bar = if quiet {
+            ProgressBar::hidden()
+        } else {
+            let bar = ProgressBar::new(rows);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{spinner} [{elapsed_precise}] {msg} {bar:30} {pos}/{len} rows, {eta} left",
+                )
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            );
+            bar.set_message(format!("{what}; Ctrl-C cancels"));
+            bar.enable_steady_tick(Duration::from_millis(200));
+            bar
+        };
+        let control = Arc::new(SolveControl::new());
+        cancel_on_ctrl_c(control.clone());
+        RowsProgress { bar, control }
+    }
+
+    /// Records `rows` finished; `false` once Ctrl-C asked to stop.
+    pub fn update(&self, rows: u64) -> bool {
+        self.bar.set_position(rows);
+        !self.control.is_cancelled()
+    }
+
+    pub fn finish(self) {
+        self.bar.finish_and_clear();
     }
 }

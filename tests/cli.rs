@@ -482,7 +482,10 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     let mut bytes: Vec<u8> = png.pixels().map(|p| p.0[0]).collect();
     bytes.sort_unstable();
     let bright = bytes[bytes.len() * 995 / 1000];
-    assert!((200..=250).contains(&bright), "99.5th percentile byte {bright}");
+    assert!(
+        (200..=250).contains(&bright),
+        "99.5th percentile byte {bright}"
+    );
 
     // A format volrad cannot write: refused before the solve, naming the path.
     let jpg = dir.path().join("front.jpg");

@@ -16,6 +16,9 @@ pub enum MonteCarloError {
     /// A stored solution that does not fit the medium it is used with.
     #[error("two-pass solution does not fit: {0}")]
     Mismatch(String),
+    /// The caller's progress callback asked to stop.
+    #[error("cancelled")]
+    Cancelled,
     #[error(transparent)]
     Gather(#[from] gather::GatherError),
 }

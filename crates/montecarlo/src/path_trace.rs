@@ -237,7 +237,34 @@ pub fn path_trace_with_error(
     camera: &Camera,
     options: &PathTraceOptions,
 ) -> Result<PathTraced, MonteCarloError> {
+    path_trace_rows(
+        medium,
+        channel,
+        lights,
+        background,
+        camera,
+        options,
+        &|_| true,
+    )
+}
+
+/// Rows finished so far, for progress; return `false` to stop (the render then fails with
+/// [`MonteCarloError::Cancelled`]). Called from the worker threads, once per finished row.
+pub type RowProgress<'a> = dyn Fn(u64) -> bool + Sync + 'a;
+
+fn path_trace_rows(
+    medium: &Medium,
+    channel: usize,
+    lights: &[Light],
+    background: f64,
+    camera: &Camera,
+    options: &PathTraceOptions,
+    progress: &RowProgress<'_>,
+) -> Result<PathTraced, MonteCarloError> {
+    use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
     let tracer = PathTracer::new(medium, channel, lights, background, options)?;
+    let rows_done = AtomicU64::new(0);
+    let stopped = AtomicBool::new(false);
     let (width, height) = (camera.width as usize, camera.height as usize);
     let spp = options.spp as usize;
     let mut mean = vec![0.0f32; width * height];
@@ -246,6 +273,9 @@ pub fn path_trace_with_error(
         .zip(std_error.par_chunks_mut(width))
         .enumerate()
         .for_each(|(y, (mean_row, se_row))| {
+            if stopped.load(Ordering::Relaxed) {
+                return;
+            }
             for x in 0..width {
                 let pixel = (y * width + x) as u64;
                 let mut rng = rng::stream(options.seed, 0, pixel);
@@ -266,7 +296,13 @@ pub fn path_trace_with_error(
                     f32::INFINITY
                 };
             }
+            if !progress(rows_done.fetch_add(1, Ordering::Relaxed) + 1) {
+                stopped.store(true, Ordering::Relaxed);
+            }
         });
+    if stopped.load(Ordering::Relaxed) {
+        return Err(MonteCarloError::Cancelled);
+    }
     let channel_image = |pixels| ImageChannel {
         width: camera.width,
         height: camera.height,
@@ -288,10 +324,27 @@ pub fn path_trace_image(
     camera: &Camera,
     options: &PathTraceOptions,
 ) -> Result<Image, MonteCarloError> {
+    path_trace_image_with_progress(medium, lights, background, camera, options, &|_| true)
+}
+
+/// [`path_trace_image`] reporting the rows finished over all channels (of
+/// `channels × height`) as it goes; the callback's `false` cancels.
+pub fn path_trace_image_with_progress(
+    medium: &Medium,
+    lights: &[Light],
+    background: f64,
+    camera: &Camera,
+    options: &PathTraceOptions,
+    progress: &RowProgress<'_>,
+) -> Result<Image, MonteCarloError> {
     let n = medium.channels().len();
     let mut pixels = vec![0.0f32; camera.width as usize * camera.height as usize * n];
     for c in 0..n {
-        let ch = path_trace(medium, c, lights, background, camera, options)?;
+        let before = c as u64 * camera.height as u64;
+        let ch = path_trace_rows(medium, c, lights, background, camera, options, &|rows| {
+            progress(before + rows)
+        })?
+        .mean;
         for (i, &v) in ch.pixels.iter().enumerate() {
             pixels[i * n + c] = v;
         }

@@ -353,3 +353,49 @@ fn colour_channels_are_traced_separately() {
         }
     }
 }
+
+/// Progress counts every row of every channel once, the image is the same as without it,
+/// and a callback that says stop cancels the render instead of finishing it.
+#[test]
+fn progress_counts_rows_and_can_cancel() {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let medium = columns(0.7);
+    let light = Light::Directional {
+        direction: DVec3::new(0.2, 0.1, -1.0).normalize(),
+        irradiance: 1.0,
+    };
+    let options = PathTraceOptions {
+        spp: 8,
+        seed: 5,
+        ..Default::default()
+    };
+    let camera = top_camera();
+    let calls = AtomicU64::new(0);
+    let largest = AtomicU64::new(0);
+    let image = montecarlo::path_trace::path_trace_image_with_progress(
+        &medium,
+        &[light],
+        0.0,
+        &camera,
+        &options,
+        &|rows| {
+            calls.fetch_add(1, Ordering::Relaxed);
+            largest.fetch_max(rows, Ordering::Relaxed);
+            true
+        },
+    )
+    .unwrap();
+    assert_eq!(calls.load(Ordering::Relaxed), 8);
+    assert_eq!(largest.load(Ordering::Relaxed), 8);
+    let plain = montecarlo::path_trace_image(&medium, &[light], 0.0, &camera, &options).unwrap();
+    assert_eq!(image.pixels, plain.pixels);
+    let stopped = montecarlo::path_trace::path_trace_image_with_progress(
+        &medium,
+        &[light],
+        0.0,
+        &camera,
+        &options,
+        &|rows| rows < 3,
+    );
+    assert!(matches!(stopped, Err(MonteCarloError::Cancelled)));
+}
