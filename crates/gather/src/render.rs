@@ -97,6 +97,10 @@ pub struct RenderSettings {
     pub spp: u32,
 }
 
+/// Most samples per pixel a render takes: each is a full ray; beyond this the image costs
+/// hours without a visible change (a typo like `spp = 1000000` is refused, not run).
+pub const MAX_SPP: u32 = 4096;
+
 /// What to render and how.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderOptions {
@@ -138,8 +142,8 @@ impl RenderOptions {
 
     fn validate(&self) -> Result<(), GatherError> {
         let bad = |m: String| Err(GatherError::Render(m));
-        if self.spp == 0 {
-            return bad("spp must be at least 1".into());
+        if !(1..=MAX_SPP).contains(&self.spp) {
+            return bad(format!("spp {} must be from 1 to {MAX_SPP}", self.spp));
         }
         if !(self.background.is_finite() && self.background >= 0.0) {
             return bad(format!(

@@ -19,11 +19,12 @@ pub enum MediumError {
     /// An argument to a constructor is invalid (dims of zero, negative cell size, ...).
     #[error("invalid {what}: {message}")]
     Invalid { what: &'static str, message: String },
-    #[error("{file}: {source}")]
+    /// Reading or writing a file failed. (The OS error is the message, not a source, so
+    /// that an error chain prints it once.)
+    #[error("{file}: {error}")]
     Io {
         file: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 

@@ -36,6 +36,10 @@ use serde::{Deserialize, Serialize};
 use crate::traversal::Ray;
 use crate::{ChannelMedium, Grid, Light, MediumError};
 
+/// Most lights one light pass takes: each costs a sweep through the grid and its own
+/// stored fields (a scene's `[[light]]` count is bounded by it).
+pub const MAX_LIGHTS: usize = 1024;
+
 /// Tuning of the light pass.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LightPassOptions {
@@ -925,6 +929,12 @@ impl LightPass {
         lights: &[Light],
         options: &LightPassOptions,
     ) -> Result<LightPass, MediumError> {
+        if lights.len() > MAX_LIGHTS {
+            return Err(MediumError::invalid(
+                "light pass",
+                format!("{} lights: at most {MAX_LIGHTS}", lights.len()),
+            ));
+        }
         let cells = grid.cell_count();
         if channel.sigma_t.len() != cells {
             return Err(MediumError::invalid(

@@ -69,11 +69,29 @@ fn vol_err(file: &Path, message: impl Into<String>) -> MediumError {
     }
 }
 
-fn io_err(file: &Path, source: std::io::Error) -> MediumError {
+fn io_err(file: &Path, error: std::io::Error) -> MediumError {
     MediumError::Io {
         file: file.to_path_buf(),
-        source,
+        error,
     }
+}
+
+/// Reads a whole volume file, refusing anything but a regular file first: a FIFO would block
+/// the read forever, a device or directory is no volume.
+fn read_regular(path: &Path) -> Result<Vec<u8>, MediumError> {
+    let meta = fs::metadata(path).map_err(|e| io_err(path, e))?;
+    if !meta.is_file() {
+        let what = if meta.is_dir() {
+            "a directory"
+        } else {
+            "not a regular file (a pipe, socket or device)"
+        };
+        return Err(vol_err(
+            path,
+            format!("{what}: a volume must be a regular file"),
+        ));
+    }
+    fs::read(path).map_err(|e| io_err(path, e))
 }
 
 /// Reads a volume in the format its extension names. `dims` is required for raw files; for
@@ -118,7 +136,7 @@ pub fn read_raw_f32(path: &Path, dims: [usize; 3]) -> Result<VolumeData, MediumE
             format!("file has {actual} bytes but dims {dims:?} need {expected} bytes (nx·ny·nz·4)"),
         ));
     }
-    let bytes = fs::read(path).map_err(|e| io_err(path, e))?;
+    let bytes = read_regular(path)?;
     if bytes.len() != expected {
         return Err(vol_err(
             path,
@@ -146,7 +164,7 @@ const VOL_HEADER_BYTES: usize = 48;
 /// Reads Mitsuba's binary grid: `b"VOL"`, version byte 3, i32 encoding (1 = float32), i32
 /// `xres, yres, zres`, i32 channels (must be 1), 6 f32 bounding box, then x-fastest data.
 pub fn read_mitsuba_vol(path: &Path) -> Result<VolumeData, MediumError> {
-    let bytes = fs::read(path).map_err(|e| io_err(path, e))?;
+    let bytes = read_regular(path)?;
     if bytes.len() < VOL_HEADER_BYTES {
         return Err(vol_err(
             path,
@@ -313,7 +331,7 @@ impl NrrdType {
 /// for multi-byte types, data attached after the blank line or in a detached `data file`
 /// (relative to the header). Values are converted to f32 without rescaling.
 pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
-    let bytes = fs::read(path).map_err(|e| io_err(path, e))?;
+    let bytes = read_regular(path)?;
     if !bytes.starts_with(b"NRRD000") {
         return Err(vol_err(
             path,
@@ -439,7 +457,7 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
             }
             let base = path.parent().unwrap_or(Path::new("."));
             let p = base.join(name);
-            let raw = fs::read(&p).map_err(|e| io_err(&p, e))?;
+            let raw = read_regular(&p)?;
             (p, raw)
         }
         None => (path.to_path_buf(), bytes[header_end..].to_vec()),

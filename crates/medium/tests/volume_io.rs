@@ -335,3 +335,39 @@ fn nrrd_byte_skip_counts_decoded_bytes() {
         .to_string()
         .contains("byte skip -1"));
 }
+
+/// A FIFO, a directory or a device named as a volume is refused at once, naming it; reading
+/// a FIFO would otherwise block forever.
+#[cfg(unix)]
+#[test]
+fn only_regular_files_are_read_as_volumes() {
+    use std::sync::mpsc;
+    use std::time::Duration;
+    let dir = scratch("fifo");
+    let fifo = dir.join("density.nrrd");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let folder = dir.join("folder.vol");
+    std::fs::create_dir(&folder).unwrap();
+    let (tx, rx) = mpsc::channel();
+    let paths = [fifo.clone(), folder.clone()];
+    std::thread::spawn(move || {
+        for p in paths {
+            let _ = tx.send((p.clone(), load_volume(&p, None).map(|_| ())));
+        }
+    });
+    for _ in 0..2 {
+        let (path, result) = rx
+            .recv_timeout(Duration::from_secs(10))
+            .expect("refused at once, not blocked reading");
+        let err = result.expect_err("not a volume").to_string();
+        assert!(err.contains(&*path.to_string_lossy()), "{err}");
+        assert!(
+            err.contains("regular file") || err.contains("directory"),
+            "{err}"
+        );
+    }
+}

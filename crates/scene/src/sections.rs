@@ -4,6 +4,7 @@
 use formfactor::ordinates::{MAX_TRANSPORT_REFINEMENT, VALID_BINS};
 use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
 use medium::generators::Generator;
+use medium::light_pass::MAX_LIGHTS;
 use medium::transfer::{PiecewiseLinear, SigmaTransfer, Transfer};
 use medium::volume_io::{load_volume, VolumeData, VolumeFormat};
 use medium::{ChannelMedium, Grid, Interpolation, Light, Medium, MediumError, PhaseFunction};
@@ -282,6 +283,15 @@ impl Ctx<'_> {
                 let list = v
                     .as_array()
                     .ok_or_else(|| self.err("light", "expected an array of tables ([[light]])"))?;
+                if list.len() > MAX_LIGHTS {
+                    return Err(self.err(
+                        "light",
+                        format!(
+                            "{} lights: at most {MAX_LIGHTS} (each costs a pass through the grid)",
+                            list.len()
+                        ),
+                    ));
+                }
                 list.iter()
                     .enumerate()
                     .map(|(i, l)| self.light(l, &format!("light[{i}]")))
@@ -421,7 +431,17 @@ impl Ctx<'_> {
                     Some(s) => {
                         let n = self.integer(s, "render.spp", 1)?;
                         u32::try_from(n)
-                            .map_err(|_| self.err("render.spp", format!("{n} is too large")))?
+                            .ok()
+                            .filter(|&n| n <= gather::MAX_SPP)
+                            .ok_or_else(|| {
+                                self.err(
+                                    "render.spp",
+                                    format!(
+                                        "{n}: expected a whole number from 1 to {}",
+                                        gather::MAX_SPP
+                                    ),
+                                )
+                            })?
                     }
                     None => 1,
                 };

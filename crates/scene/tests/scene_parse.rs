@@ -980,3 +980,45 @@ fn sections_of_the_wrong_shape_are_refused_and_volume_data_is_kept() {
     assert_eq!(data.values[12], 12.0 / 24.0);
     assert_eq!(s.medium.channels()[0].sigma_t[12], 5.0 * 12.0 / 24.0);
 }
+
+/// Counts a user controls that would run without bound are refused with the bound named:
+/// lights (a light-pass sweep each), samples per pixel, the GMRES restart (a basis vector each).
+#[test]
+fn unbounded_counts_are_refused_naming_their_bound() {
+    let many_lights = LIGHT.repeat(medium::light_pass::MAX_LIGHTS + 1);
+    assert_refused(
+        "many-lights",
+        &scene_text(&[VOLUME, MEDIUM, &many_lights, CAMERA]),
+        "light",
+        &["1025 lights", "1024"],
+    );
+    assert_refused(
+        "huge-spp",
+        &scene_text(&[VOLUME, MEDIUM, LIGHT, "[render]\nspp = 1000000\n", CAMERA]),
+        "render.spp",
+        &["1000000", "4096"],
+    );
+    assert_refused(
+        "huge-gmres",
+        &scene_text(&[
+            VOLUME,
+            MEDIUM,
+            LIGHT,
+            "[solve]\niteration = \"gmres:100000000\"\n",
+            CAMERA,
+        ]),
+        "solve.iteration",
+        &["gmres:100000000", "1000"],
+    );
+    // The bounds themselves are accepted.
+    let dir = scratch("bounds-ok");
+    write_volume(&dir);
+    let ok = scene_text(&[
+        VOLUME,
+        MEDIUM,
+        LIGHT,
+        "[render]\nspp = 4096\n[solve]\niteration = \"gmres:1000\"\n",
+        CAMERA,
+    ]);
+    parse_in(&dir, &ok).unwrap();
+}

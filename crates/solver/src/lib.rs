@@ -34,7 +34,7 @@ pub use methods::coarse::{
 pub use methods::multigrid::DiffusionMultigrid;
 pub use operator::{Diffusion, RowAccess, TransportOperator};
 pub use options::{
-    Method, ParseMethodError, Smoother, SolveOptions, DEFAULT_GMRES_RESTART,
+    Method, ParseMethodError, Smoother, SolveOptions, DEFAULT_GMRES_RESTART, MAX_GMRES_RESTART,
     MAX_TWO_LEVEL_SMOOTHING,
 };
 pub use report::{SolveReport, StopReason};

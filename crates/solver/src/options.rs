@@ -60,6 +60,10 @@ pub const MAX_TWO_LEVEL_SMOOTHING: usize = 8;
 /// Default restart length for `"gmres"` without a number.
 pub const DEFAULT_GMRES_RESTART: usize = 30;
 
+/// Largest GMRES restart length: GMRES(m) keeps `m + 1` vectors of the unknowns' length, so
+/// the bound keeps a typo (`gmres:100000000`) from asking for terabytes.
+pub const MAX_GMRES_RESTART: usize = 1000;
+
 /// How to stop and what to record.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SolveOptions {
@@ -172,8 +176,13 @@ impl FromStr for Method {
                     Some(t) => t
                         .parse::<usize>()
                         .ok()
-                        .filter(|&m| m >= 1)
-                        .ok_or_else(|| err("the GMRES restart must be a positive integer"))?,
+                        .filter(|&m| (1..=MAX_GMRES_RESTART).contains(&m))
+                        .ok_or_else(|| {
+                            err(&format!(
+                                "the GMRES restart must be a whole number from 1 to \
+                                 {MAX_GMRES_RESTART}"
+                            ))
+                        })?,
                 };
                 Ok(Method::Gmres { restart })
             }

@@ -8,7 +8,7 @@ use crate::error::SolveError;
 use crate::methods;
 use crate::methods::krylov::Preconditioner;
 use crate::operator::TransportOperator;
-use crate::options::{Method, Smoother, SolveOptions, MAX_TWO_LEVEL_SMOOTHING};
+use crate::options::{Method, Smoother, SolveOptions, MAX_GMRES_RESTART, MAX_TWO_LEVEL_SMOOTHING};
 use crate::report::{SolveReport, StopReason};
 use crate::vecops::{residual_into, Reducer};
 
@@ -208,9 +208,11 @@ fn check_options(o: &SolveOptions) -> Result<(), SolveError> {
                 "two-level smoothing must be at most {MAX_TWO_LEVEL_SMOOTHING}, not {smoothing}"
             )))
         }
-        Method::Gmres { restart: 0 } => Err(SolveError::InvalidOptions(
-            "GMRES restart must be at least 1".into(),
-        )),
+        Method::Gmres { restart } if !(1..=MAX_GMRES_RESTART).contains(&restart) => {
+            Err(SolveError::InvalidOptions(format!(
+                "GMRES restart must be from 1 to {MAX_GMRES_RESTART}, not {restart}"
+            )))
+        }
         _ => Ok(()),
     }
 }

@@ -342,6 +342,7 @@ fn methods_parse_and_print() {
         "sor:2.5",
         "sor:x",
         "gmres:0",
+        "gmres:100000000",
         "jacobi:3",
         "multigrid",
         "coarse-bicgstab",
@@ -352,6 +353,37 @@ fn methods_parse_and_print() {
         let err = bad.parse::<Method>().unwrap_err();
         assert!(err.to_string().contains("expected one of"), "{bad}: {err}");
     }
+    // The largest restart parses; one built in code beyond it is refused by the solve, not
+    // allowed to allocate its basis (which would abort the process).
+    assert_eq!(
+        format!("gmres:{}", solver::MAX_GMRES_RESTART).parse::<Method>(),
+        Ok(Method::Gmres {
+            restart: solver::MAX_GMRES_RESTART
+        })
+    );
+    let k = reciprocal(30, 5, 0.9, 1.0);
+    let e = random_source(30, 5);
+    let huge = opts(
+        Method::Gmres {
+            restart: usize::MAX / 16,
+        },
+        1e-8,
+        10,
+    );
+    assert!(matches!(
+        solve(&k, &e, None, &huge, &SolveControl::new()),
+        Err(solver::SolveError::InvalidOptions(_))
+    ));
+    // A restart longer than the problem converges as GMRES(n) does.
+    let (_, r) = solve(
+        &k,
+        &e,
+        None,
+        &opts(Method::Gmres { restart: 1000 }, 1e-10, 200),
+        &SolveControl::new(),
+    )
+    .unwrap();
+    assert!(r.converged, "{r:?}");
 }
 
 #[test]

@@ -53,6 +53,8 @@ fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
 /// least-squares residual is the estimate, confirmed by a true residual at each restart.
 pub(crate) fn gmres(ctx: &mut Ctx<'_>, x: &mut [f64], m: usize) -> Stop {
     let n = x.len();
+    // GMRES converges within n steps: a longer cycle only costs memory.
+    let m = m.min(n.max(1));
     let mut basis: Vec<Vec<f64>> = (0..=m).map(|_| vec![0.0; n]).collect();
     let mut w = vec![0.0; n];
     // Hessenberg column-major: h[j] has m+1 entries.
