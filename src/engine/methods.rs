@@ -98,6 +98,30 @@ pub fn solve_zonal(
     let grid = scene.medium.grid();
     let channel = &scene.medium.channels()[c];
     let source = light_pass.zonal_source(channel);
+    if channel.albedo.max() == 0.0 {
+        // Nothing scatters: the source is the answer (g = E), whatever the iteration — the
+        // symmetrised methods' weights (σt/σs) do not even exist here.
+        tracing::info!("no scattering in channel {c}: the first pass is the solution");
+        return Ok((
+            ScatteredField::Isotropic {
+                source: source.iter().map(|&v| v as f32).collect(),
+                higher_order: vec![0.0; source.len()],
+            },
+            Some(SolveReport {
+                method: settings.iteration.to_string(),
+                iterations: 0,
+                converged: true,
+                final_residual: 0.0,
+                residual_history: vec![0.0],
+                seconds: 0.0,
+                seconds_per_iteration: 0.0,
+                operator_applications: 0,
+                operator_sweeps: 0,
+                cancelled: false,
+                stop_reason: solver::StopReason::Converged,
+            }),
+        ));
+    }
     let (g, report) = match settings.method {
         SolveMethod::Zonal => {
             let op = FormFactorMatrix::build(grid, channel, &ExactOptions::default(), None)
@@ -523,5 +547,62 @@ mod tests {
         assert_eq!(ordinates_options(&settings).transport_refinement, 1);
         settings.transport_refinement = 3;
         assert_eq!(ordinates_options(&settings).transport_refinement, 3);
+    }
+
+    /// A medium that does not scatter (albedo 0, an emitter in an absorber) is solved by
+    /// every zonal method with its default iteration: the first pass is the answer. (The
+    /// default `dsa-cg` of the hierarchical method refused it: its weights need σs > 0.)
+    #[test]
+    fn a_medium_that_does_not_scatter_is_solved_by_the_zonal_methods() {
+        let text = r#"
+[volume]
+generator = { kind = "cloud", seed = 3 }
+dims = [8, 8, 6]
+
+[medium]
+albedo = 0.0
+emission = 0.2
+
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, 0.2]
+irradiance = 1.0
+
+[[camera]]
+name = "c"
+eye = [4.0, 4.0, -20.0]
+target = [4.0, 4.0, 3.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 40.0
+width = 8
+height = 8
+"#;
+        let scene =
+            Scene::from_toml_str(text, std::path::Path::new("."), std::path::Path::new("a0"))
+                .unwrap();
+        for method in [SolveMethod::ZonalHierarchical, SolveMethod::Zonal] {
+            let mut settings = scene.solve.clone();
+            settings.method = method;
+            settings.iteration = method.default_iteration();
+            let solution =
+                crate::engine::pipeline::solve_scene(&scene, &settings, &SolveHooks::default())
+                    .unwrap_or_else(|e| panic!("{method}: {e:#}"));
+            let ch = &solution.channels[0];
+            assert!(ch.report.as_ref().unwrap().converged);
+            let ScatteredField::Isotropic {
+                source,
+                higher_order,
+            } = &ch.scattered
+            else {
+                panic!("{method}: not an isotropic field");
+            };
+            // g = E = the emission (nothing scatters the light in).
+            let emission = &scene.medium.channels()[0].emission;
+            for (i, &g) in source.iter().enumerate() {
+                let want = emission.get(i);
+                assert!((g - want).abs() < 1e-6, "{method}: cell {i}: {g} vs {want}");
+            }
+            assert!(higher_order.iter().all(|&h| h == 0.0));
+        }
     }
 }
