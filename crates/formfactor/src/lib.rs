@@ -1,6 +1,7 @@
 //! `formfactor`: builds the linear transport operators (zonal form factors, discrete ordinates).
 //!
-//! - [`zonal`]: the exact zonal operator ([`FormFactorMatrix`], sparse CSR) and the source term.
+//! - [`zonal`]: the exact zonal operator ([`FormFactorMatrix`], sparse CSR). Its source term
+//!   is the light pass's (`medium::light_pass::LightPass::zonal_source`).
 //! - [`hierarchical`]: the clustered zonal operator ([`HierarchicalOperator`]) for real sizes.
 
 pub mod hierarchical;
@@ -8,6 +9,4 @@ pub mod ordinates;
 pub mod zonal;
 
 pub use hierarchical::{HierarchicalOperator, HierarchicalOptions};
-pub use zonal::{
-    zonal_source, BuildReport, ExactOptions, FormFactorError, FormFactorMatrix, NearQuadrature,
-};
+pub use zonal::{BuildReport, ExactOptions, FormFactorError, FormFactorMatrix, NearQuadrature};

@@ -1,7 +1,8 @@
 //! Physics of the exact zonal operator: energy (column sums), reciprocity, the self term
-//! against an independent quadrature, thresholding and the source term.
+//! against an independent quadrature, thresholding and bad input (the source term is the
+//! light pass's: crates/medium/tests/light_pass.rs).
 
-use formfactor::{zonal_source, ExactOptions, FormFactorError, FormFactorMatrix, NearQuadrature};
+use formfactor::{ExactOptions, FormFactorError, FormFactorMatrix, NearQuadrature};
 use medium::{CellValues, ChannelMedium, Grid};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -194,19 +195,12 @@ fn apply_matches_sparse_product_with_albedo() {
 }
 
 #[test]
-fn source_term_and_bad_input() {
+fn bad_input() {
     let ch = ChannelMedium {
         sigma_t: vec![2.0, 0.0],
         albedo: CellValues::Uniform(0.5),
         emission: CellValues::PerCell(vec![0.1, 0.2]),
     };
-    let e = zonal_source(&ch, &[4.0 * std::f64::consts::PI, 1.0]).unwrap();
-    assert!((e[0] - (0.1 + 0.5 * 2.0)).abs() < 1e-7);
-    assert!((e[1] - 0.2).abs() < 1e-7);
-    assert!(matches!(
-        zonal_source(&ch, &[1.0]),
-        Err(FormFactorError::Length { .. })
-    ));
     let grid = Grid::new([2, 1, 1], 1.0).unwrap();
     let bad = ExactOptions {
         near: NearQuadrature {

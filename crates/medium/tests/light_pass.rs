@@ -1,8 +1,9 @@
 //! The light pass: energy conservation, closed forms in homogeneous slabs, exact shadows,
-//! 1/r² falloff of point lights, spot cones, and corner/inside-cell transmittance.
+//! 1/r² falloff of point lights, spot cones, corner/inside-cell transmittance, and the zonal
+//! source term.
 
 use glam::DVec3;
-use medium::light_pass::{LightPass, LightPassOptions};
+use medium::light_pass::{LightEnergy, LightField, LightPass, LightPassOptions};
 use medium::traversal::Ray;
 use medium::{CellValues, ChannelMedium, Grid, Light};
 use rand::{Rng, SeedableRng};
@@ -500,4 +501,34 @@ fn refuses_bad_input() {
         ..Default::default()
     };
     assert!(LightPass::compute_with(&grid, &channel(vec![1.0; 8]), &light, &zero_m).is_err());
+}
+
+/// `E_i = e_i + a_i σt_i Σ_lights cell_irradiance_i / 4π`, summed over the lights; an empty
+/// cell keeps only its emission.
+#[test]
+fn zonal_source_adds_emission_and_scattered_light_of_every_light() {
+    let grid = Grid::new([2, 1, 1], 1.0).unwrap();
+    let ch = ChannelMedium {
+        sigma_t: vec![2.0, 0.0],
+        albedo: CellValues::Uniform(0.5),
+        emission: CellValues::PerCell(vec![0.1, 0.2]),
+    };
+    let field = |cell_irradiance: Vec<f32>| LightField {
+        light: Light::Directional {
+            direction: DVec3::Z,
+            irradiance: 1.0,
+        },
+        cell_irradiance,
+        corner_optical_depth: vec![0.0; 12],
+        energy: LightEnergy::default(),
+    };
+    let half = (2.0 * std::f64::consts::PI) as f32;
+    let pass = LightPass {
+        grid,
+        sigma_t: ch.sigma_t.clone(),
+        fields: vec![field(vec![half, 0.5]), field(vec![half, 0.5])],
+    };
+    let e = pass.zonal_source(&ch);
+    assert!((e[0] - (0.1 + 0.5 * 2.0)).abs() < 1e-7, "{e:?}");
+    assert!((e[1] - 0.2).abs() < 1e-7, "{e:?}");
 }

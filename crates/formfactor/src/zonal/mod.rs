@@ -173,28 +173,6 @@ pub(crate) fn far_entry(grid: &Grid, sigma_t: &[f32], i: usize, j: usize) -> f64
     interception(si, h) * escape(sj, h) * geometry_factor(h) * t / r2
 }
 
-/// `E_i = e_i + a_i σt_i cell_irradiance_i / 4π` (physics.md), one value per cell.
-pub fn zonal_source(
-    channel: &ChannelMedium,
-    cell_irradiance: &[f64],
-) -> Result<Vec<f64>, FormFactorError> {
-    let n = channel.sigma_t.len();
-    if cell_irradiance.len() != n {
-        return Err(FormFactorError::Length {
-            what: "cell_irradiance",
-            got: cell_irradiance.len(),
-            expected: n,
-        });
-    }
-    Ok((0..n)
-        .map(|i| {
-            channel.emission.get(i) as f64
-                + channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * cell_irradiance[i]
-                    / (4.0 * std::f64::consts::PI)
-        })
-        .collect())
-}
-
 /// Weights `w_i = 1/(a_i σt_i)` making `diag(w)·diag(a)·F` symmetric; `None` when an active
 /// cell has zero albedo (its row of `K` vanishes while its column does not).
 pub(crate) fn symmetrizer_weights(sigma_t: &[f32], albedo: &[f64]) -> Option<Vec<f64>> {
