@@ -6,18 +6,10 @@
 //! is a handful of FMAs and a table load that overlap with the work around them. It is
 //! within about one ulp of libm's (the test `agrees_with_libm_to_two_ulps` checks), so the
 //! images differ from the portable build's in the last bits only.
-
-/// Whether this CPU has fused multiply-add (checked once, cached by the standard library).
-pub(crate) fn fma_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
+//!
+//! The light pass's `interception` (`1 − e^{−x}` in `medium::light_pass`) is a different
+//! kernel on purpose: it must keep its relative accuracy for thin cells (where `1 − exp`
+//! cancels) and vectorise across rays (no table load, no branch), at 1e-9 instead of 1 ulp.
 
 /// `e^x`: [`exp_fused`] inside FMA-compiled code (`FMA` true), libm's otherwise (without FMA
 /// the polynomial is slower than the call).

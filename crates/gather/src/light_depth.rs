@@ -21,11 +21,12 @@
 use std::fmt;
 
 use glam::DVec3;
+use medium::fma::mul_add;
 use medium::light_pass::{directional_corner_depths, LightPass};
 use medium::{Grid, Light};
 use rayon::prelude::*;
 
-use crate::exponential::{exp, fma_available};
+use crate::exponential::exp;
 use crate::scattering::ViewSegment;
 use crate::GatherError;
 
@@ -227,7 +228,7 @@ impl DepthLattice {
         // Renders do not come here (the first bounce inlines `segment_body` into its own
         // FMA-compiled path), so the standard library's cached check is cheap enough.
         #[cfg(target_arch = "x86_64")]
-        if fma_available() {
+        if medium::fma::available() {
             // SAFETY: the CPU has FMA, checked on the line above.
             return unsafe { self.segment_fma(seg, start) };
         }
@@ -393,16 +394,6 @@ impl DepthLattice {
             }
             depths = self.corners(sub);
         }
-    }
-}
-
-/// `a b + c`, fused when `FMA`.
-#[inline(always)]
-fn mul_add<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
-    if FMA {
-        a.mul_add(b, c)
-    } else {
-        a * b + c
     }
 }
 

@@ -278,7 +278,7 @@ impl<'a> RayIntegrator<'a> {
             index,
             termination: options.termination,
             step: options.trilinear_step * medium.grid().cell_size,
-            fma: crate::exponential::fma_available(),
+            fma: medium::fma::available(),
         })
     }
 

@@ -232,7 +232,7 @@ impl<'a> SingleScatter<'a> {
             && (0..pass.fields.len()).all(|l| depth.lattice(l).is_some());
         Ok(SingleScatter {
             lattices_only,
-            fma: crate::exponential::fma_available(),
+            fma: medium::fma::available(),
             pass,
             sigma_t: &ch.sigma_t,
             albedo: &ch.albedo,

@@ -25,6 +25,7 @@
 
 pub mod atomic_file;
 pub mod error;
+pub mod fma;
 pub mod generators;
 pub mod grid;
 pub mod light;

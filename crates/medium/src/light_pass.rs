@@ -33,6 +33,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::fma::mul_add;
 use crate::traversal::Ray;
 use crate::{ChannelMedium, Grid, Light, MediumError};
 
@@ -190,22 +191,14 @@ fn deposit_parallel(
         .unwrap_or_else(|| Deposit::new(cells))
 }
 
-/// `a b + c`, fused when `FMA` (compiled only where the CPU has it).
-#[inline(always)]
-fn mul_add<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
-    if FMA {
-        a.mul_add(b, c)
-    } else {
-        a * b + c
-    }
-}
-
 /// Interception `1 − e^{−x}` for `x ≥ 0`, to a relative 1e-9 also for small `x` (the ray
 /// loses exactly what the cell is credited, whatever this error). Branch-free so that loops
 /// over rays vectorise: `e^{−x} = 2^k e^r` with `|r| ≤ ln2/2` (magic-number rounding for
 /// `k`), `e^r − 1 = r Σ_{n<8} r^n/(n+1)!` (Estrin's scheme: a short dependency chain), and
 /// `1 − e^{−x} = (1 − 2^k) − 2^k (e^r − 1)`, exact in the series when `k = 0`. `x` is capped
 /// at 700, where `e^{−x}` no longer matters.
+/// (Not the renders' table `exp` of gather's exponential.rs: `1 − e^{−x}` from it would
+/// lose the digits of thin cells, and its table load and range branch keep loops scalar.)
 #[inline(always)]
 fn interception<const FMA: bool>(x: f64) -> f64 {
     const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
