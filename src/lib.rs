@@ -13,7 +13,6 @@ pub mod app;
 pub mod bench_albedo;
 pub mod cli;
 pub mod commands;
-pub mod compare;
 pub mod engine;
 pub mod info;
 pub mod progress;

@@ -4,7 +4,7 @@
 //!
 //! The work is the pipeline's own: [`solve_scene`] + [`render_view`] for the solved methods,
 //! the `montecarlo` path tracer for the reference and the `path-trace` method, and
-//! [`crate::compare::compare`] for every error figure.
+//! [`montecarlo::compare::compare_images`] for every error figure.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -15,12 +15,12 @@ use anyhow::{bail, Context, Result};
 use gather::image_io::tone_map;
 use gather::Image;
 use indicatif::{ProgressBar, ProgressStyle};
+use montecarlo::compare::{compare_images, downscale_channel0};
 use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions};
 use scene::Scene;
 use scene::SolveMethod;
 use serde::Serialize;
 
-use crate::compare::{block_means, compare, compare_noisy, Comparison};
 use crate::engine::pipeline::{render_view, solve_scene};
 use crate::engine::SolveHooks;
 
@@ -159,6 +159,51 @@ pub struct ValidateOptions {
     pub out: PathBuf,
     pub settings: ValidateSettings,
     pub quiet: bool,
+}
+
+/// An image against a reference as the report records it: [`montecarlo::Comparison`]'s
+/// figures under report.json's names.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Comparison {
+    /// `sqrt(Σ (x−r)² / Σ r²)` over the mask, the noise included.
+    pub relative_rms_raw: f64,
+    /// The same with the stated noise taken out of the squared error:
+    /// `sqrt(max(0, Σ[(x−r)² − s²]) / Σ r²)`.
+    pub relative_rms: f64,
+    /// Relative difference of the image means over the mask.
+    pub mean_ratio_error: f64,
+    /// Pixels in the mask (reference above `MASK_THRESHOLD · max`).
+    pub pixels: usize,
+}
+
+impl From<montecarlo::Comparison> for Comparison {
+    fn from(c: montecarlo::Comparison) -> Comparison {
+        Comparison {
+            relative_rms_raw: c.relative_rms_raw,
+            relative_rms: c.relative_rms_error,
+            mean_ratio_error: c.relative_mean_difference,
+            pixels: c.pixels,
+        }
+    }
+}
+
+/// Channel 0 of `image` (with its standard error when it is noisy) against `reference` and
+/// its standard error, per pixel over the mask.
+fn compare(
+    image: &Image,
+    image_stderr: Option<&Image>,
+    reference: &Image,
+    reference_stderr: &Image,
+) -> Result<Comparison, String> {
+    compare_images(
+        image,
+        image_stderr,
+        reference,
+        Some(reference_stderr),
+        MASK_THRESHOLD,
+        1,
+    )
+    .map(Comparison::from)
 }
 
 /// One method on one scene.
@@ -410,8 +455,7 @@ fn validate_scene(
         mitsuba
             .as_ref()
             .map(|(m, s, file, _)| {
-                compare(img, m, Some(s), MASK_THRESHOLD, 1)
-                    .map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
+                compare(img, None, m, s).map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
             })
             .transpose()
     };
@@ -423,15 +467,8 @@ fn validate_scene(
             .as_ref()
             .map(|(m, s, file, _)| {
                 // Both images are noisy here: take out both standard errors.
-                compare_noisy(
-                    &reference,
-                    Some(&reference_err),
-                    m,
-                    Some(s),
-                    MASK_THRESHOLD,
-                    1,
-                )
-                .map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
+                compare(&reference, Some(&reference_err), m, s)
+                    .map_err(|e| anyhow::anyhow!("comparing with {file}: {e}"))
             })
             .transpose()?,
         mitsuba_files: mitsuba.as_ref().map(|(_, _, a, b)| (a.clone(), b.clone())),
@@ -446,14 +483,8 @@ fn validate_scene(
         let run = run_method(scene, spec, &camera, method, settings, bar)?;
         let peak_rss_growth_bytes =
             baseline.and_then(|b| run.peak_rss_bytes.map(|p| p.saturating_sub(b)));
-        let vs_path_tracer = compare(
-            &run.image,
-            &reference,
-            Some(&reference_err),
-            MASK_THRESHOLD,
-            1,
-        )
-        .map_err(|e| anyhow::anyhow!("{name}, {}: {e}", method.name()))?;
+        let vs_path_tracer = compare(&run.image, None, &reference, &reference_err)
+            .map_err(|e| anyhow::anyhow!("{name}, {}: {e}", method.name()))?;
         let image_name = format!("{name}_{}.png", method.name());
         let composite = side_by_side(&reference, &run.image)?;
         write_png(&options.out.join(&image_name), &composite)?;
@@ -666,7 +697,7 @@ impl Rgb {
 
 /// Block means of channel 0 for the panels (partial blocks at the edges dropped).
 fn downscale(image: &Image, factor: u32) -> Result<Image> {
-    block_means(image, factor).map_err(|e| anyhow::anyhow!("downscaling a panel: {e}"))
+    downscale_channel0(image, factor).map_err(|e| anyhow::anyhow!("downscaling a panel: {e}"))
 }
 
 /// Diverging false colour of a relative error: blue (−scale) – white (0) – red (+scale).
@@ -809,7 +840,7 @@ impl ValidationReport {
             md,
             "- **Error:** relative RMS over the pixels above {:.0} % of the reference maximum, \
              with the reference's own noise (its per-pixel standard error) taken out: \
-             `sqrt(max(0, Σ[(x−r)² − s²]) / Σ r²)` (`src/compare.rs`); channel 0. **Mean:** \
+             `sqrt(max(0, Σ[(x−r)² − s²]) / Σ r²)` (`crates/montecarlo/src/compare.rs`); channel 0. **Mean:** \
              relative difference of the image means over the same pixels. The method's own \
              noise (path tracing, two-pass photons) counts as error.",
             100.0 * MASK_THRESHOLD

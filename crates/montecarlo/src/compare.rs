@@ -1,6 +1,11 @@
-//! Comparing a noisy render with a noisy reference image, taking both noises out.
+//! Comparing a noisy render with a noisy reference image, taking both noises out: the one
+//! image comparison of volrad (tests, examples, `volrad validate`, docs/validation.md).
+//!
+//! [`compare`] works on [`NoisyImage`] channels; [`compare_images`] adapts `gather::Image`s to
+//! it (channel 0 with its optional standard-error image, blocks that do not fill the image
+//! dropped).
 
-use gather::ImageChannel;
+use gather::{Image, ImageChannel};
 
 /// A channel with the standard error of each pixel, e.g. a Monte Carlo render or a
 /// reference image with its stderr image.
@@ -128,6 +133,82 @@ pub fn compare(x: &NoisyImage, r: &NoisyImage, threshold: f64) -> Option<Compari
     })
 }
 
+/// Compares channel 0 of `image` with channel 0 of `reference` over the pixels where the
+/// reference exceeds `threshold` times its maximum, taking the stated standard errors out
+/// (`s² = s_image² + s_reference²`; an image without one counts its own noise as error).
+/// With `block > 1` both images (and the error variances, divided by block²) are first
+/// averaged over `block × block` pixel blocks, edges that fill no block dropped. Errs, saying
+/// why, when sizes differ or no pixel is above the threshold.
+pub fn compare_images(
+    image: &Image,
+    image_stderr: Option<&Image>,
+    reference: &Image,
+    reference_stderr: Option<&Image>,
+    threshold: f64,
+    block: u32,
+) -> Result<Comparison, String> {
+    let size = |i: &Image| (i.width, i.height);
+    if size(image) != size(reference) {
+        return Err(format!(
+            "image is {}×{}, reference {}×{}",
+            image.width, image.height, reference.width, reference.height
+        ));
+    }
+    if [image_stderr, reference_stderr]
+        .into_iter()
+        .flatten()
+        .any(|s| size(s) != size(reference))
+    {
+        return Err("standard-error image size differs from the reference".into());
+    }
+    let block = block.max(1);
+    let noisy = |mean: &Image, stderr: Option<&Image>| {
+        let mean = channel0_cropped(mean, block);
+        let std_error = match stderr {
+            Some(s) => channel0_cropped(s, block),
+            None => ImageChannel {
+                pixels: vec![0.0; mean.pixels.len()],
+                ..mean.clone()
+            },
+        };
+        NoisyImage { mean, std_error }.block_average(block)
+    };
+    let not_above = || "the reference has no pixels above the threshold".to_string();
+    // Cropped to whole blocks, so block averages exist.
+    let (x, r) = noisy(image, image_stderr)
+        .zip(noisy(reference, reference_stderr))
+        .ok_or_else(not_above)?;
+    compare(&x, &r, threshold).ok_or_else(not_above)
+}
+
+/// Means of `factor × factor` blocks of channel 0 of `image` (edges that do not fill a block
+/// dropped), as a one-channel image; `factor` 1 is channel 0 itself.
+pub fn downscale_channel0(image: &Image, factor: u32) -> Result<Image, String> {
+    let factor = factor.max(1);
+    let blocks = block_mean(&channel0_cropped(image, factor), factor)
+        .ok_or("block size does not divide the cropped image")?;
+    Image::new(blocks.width, blocks.height, 1, blocks.pixels).map_err(|_| {
+        format!(
+            "a {}×{} image has no whole {factor}×{factor} block",
+            image.width, image.height
+        )
+    })
+}
+
+/// Channel 0 of `image`, cut to whole multiples of `block` in each direction.
+fn channel0_cropped(image: &Image, block: u32) -> ImageChannel {
+    let (width, height) = (image.width / block * block, image.height / block * block);
+    let mut pixels = Vec::with_capacity(width as usize * height as usize);
+    for y in 0..height {
+        pixels.extend((0..width).map(|x| image.get(x, y, 0)));
+    }
+    ImageChannel {
+        width,
+        height,
+        pixels,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -177,5 +258,83 @@ mod tests {
             ..x.clone()
         };
         assert!(compare(&short, &r, 0.01).is_none());
+    }
+
+    fn img(w: u32, h: u32, f: impl Fn(u32, u32) -> f32) -> Image {
+        let mut p = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                p.push(f(x, y));
+            }
+        }
+        Image::new(w, h, 1, p).unwrap()
+    }
+
+    #[test]
+    fn identical_images_have_zero_error_and_scaled_ones_the_scale() {
+        let r = img(8, 8, |x, y| (x + y) as f32);
+        let c = compare_images(&r, None, &r, None, 0.01, 1).unwrap();
+        assert_eq!(c.relative_rms_error, 0.0);
+        let x = img(8, 8, |x, y| 1.1 * (x + y) as f32);
+        let c = compare_images(&x, None, &r, None, 0.01, 1).unwrap();
+        assert!((c.relative_rms_error - 0.1).abs() < 1e-6);
+        assert!((c.relative_mean_difference - 0.1).abs() < 1e-6);
+    }
+
+    #[test]
+    fn reference_noise_is_taken_out_and_blocks_average() {
+        // Error exactly equal to the stated noise: the noise-corrected error is zero.
+        let r = img(4, 4, |_, _| 1.0);
+        let x = img(4, 4, |x, _| if x % 2 == 0 { 1.1 } else { 0.9 });
+        let s = img(4, 4, |_, _| 0.1);
+        let c = compare_images(&x, None, &r, Some(&s), 0.01, 1).unwrap();
+        assert!(c.relative_rms_error < 1e-3 && (c.relative_rms_raw - 0.1).abs() < 1e-6);
+        // Blocks of 2 average the alternating error away.
+        let c = compare_images(&x, None, &r, None, 0.01, 2).unwrap();
+        assert!(c.relative_rms_error < 1e-6);
+        // Blocks of 3 on 4×4: the last row and column fill no block and are dropped, leaving
+        // one block whose mean (two 1.1 columns, one 0.9) is 1 + 0.1/3.
+        let c = compare_images(&x, None, &r, None, 0.01, 3).unwrap();
+        assert_eq!(c.pixels, 1);
+        assert!(
+            (c.relative_mean_difference - 0.1 / 3.0).abs() < 1e-6,
+            "{c:?}"
+        );
+    }
+
+    #[test]
+    fn both_images_noise_is_taken_out_only_when_stated() {
+        let r = img(4, 4, |_, _| 1.0);
+        let x = img(4, 4, |x, _| if x % 2 == 0 { 1.1 } else { 0.9 });
+        // The error is sqrt(0.06² + 0.08²) = 0.1, shared between the two images.
+        let (sr, sx) = (img(4, 4, |_, _| 0.06), img(4, 4, |_, _| 0.08));
+        let both = compare_images(&x, Some(&sx), &r, Some(&sr), 0.01, 1).unwrap();
+        assert!(both.relative_rms_error < 1e-3, "{both:?}");
+        let reference_only = compare_images(&x, None, &r, Some(&sr), 0.01, 1).unwrap();
+        assert!((reference_only.relative_rms_error - 0.08).abs() < 1e-6);
+        let small = img(2, 4, |_, _| 0.08);
+        assert!(compare_images(&x, Some(&small), &r, Some(&sr), 0.01, 1).is_err());
+        assert!(compare_images(&small, None, &r, None, 0.01, 1).is_err());
+    }
+
+    #[test]
+    fn downscale_averages_channel_0_and_drops_partial_blocks() {
+        let img = Image::new(
+            5,
+            2,
+            1,
+            vec![0.0, 2.0, 4.0, 4.0, 9.0, 2.0, 0.0, 4.0, 4.0, 9.0],
+        )
+        .unwrap();
+        let d = downscale_channel0(&img, 2).unwrap();
+        assert_eq!((d.width, d.height), (2, 1));
+        assert_eq!(d.pixels, vec![1.0, 4.0]);
+        let rgb = Image::new(2, 1, 3, vec![1.0, 5.0, 5.0, 3.0, 5.0, 5.0]).unwrap();
+        let d = downscale_channel0(&rgb, 1).unwrap();
+        assert_eq!((d.channels, d.pixels.clone()), (1, vec![1.0, 3.0]));
+        assert!(
+            downscale_channel0(&img, 3).is_err(),
+            "2 rows fill no 3×3 block"
+        );
     }
 }

@@ -6,7 +6,8 @@
 //! - [`energetize`] ([`two_pass`]): Blasi & Wuethrich's two-pass method; the stored
 //!   [`TwoPassSolution`] is a [`gather::InScattering`] for the rendering pass.
 //! - [`flight`]: exact free-flight sampling and transmittance along [`medium::Grid::traverse`].
-//! - [`compare`](mod@compare): render against a noisy reference, both noises taken out.
+//! - [`compare`](mod@compare): render against a noisy reference, both noises taken out (the
+//!   one image comparison of volrad).
 //! - [`rng`]: deterministic per-task random streams.
 
 pub mod compare;
@@ -17,7 +18,7 @@ pub mod path_trace;
 pub mod rng;
 pub mod two_pass;
 
-pub use compare::{compare, Comparison, NoisyImage};
+pub use compare::{compare, compare_images, Comparison, NoisyImage};
 pub use directions::DirectionBins;
 pub use error::MonteCarloError;
 pub use path_trace::{
