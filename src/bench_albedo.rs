@@ -464,13 +464,11 @@ fn plot_error(e: impl std::fmt::Display) -> anyhow::Error {
 const PLOT_SIZE: (u32, u32) = (960, 640);
 
 /// Draws a plot in memory with `draw` (which fills the whole area) and replaces `path` with
-/// it as a PNG through [`medium::atomic_file`], so no half-drawn plot is ever left.
+/// it as a PNG ([`gather::image_io::write_png`], atomic), so no half-drawn plot is ever left.
 fn write_plot(
     path: &Path,
     draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
 ) -> Result<()> {
-    use image::codecs::png::PngEncoder;
-    use image::ImageEncoder;
     let (width, height) = PLOT_SIZE;
     let mut pixels = vec![0u8; width as usize * height as usize * 3];
     {
@@ -478,12 +476,15 @@ fn write_plot(
         draw(&root)?;
         root.present().map_err(plot_error)?;
     }
-    let mut png = Vec::new();
-    PngEncoder::new(&mut png)
-        .write_image(&pixels, width, height, image::ExtendedColorType::Rgb8)
-        .with_context(|| format!("encoding {}", path.display()))?;
-    medium::atomic_file::write_bytes(path, &png)
-        .with_context(|| format!("writing {}", path.display()))
+    gather::image_io::write_png(
+        path,
+        width,
+        height,
+        3,
+        &pixels,
+        gather::PngCompression::Default,
+    )?;
+    Ok(())
 }
 
 /// Series label: the method, plus the σ-scale when several are swept.

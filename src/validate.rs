@@ -779,20 +779,17 @@ fn error_scale_bar() -> Rgb {
     out
 }
 
+/// The smallest PNG: the report's images are committed (docs/validation/).
 fn write_png(path: &Path, picture: &Rgb) -> Result<()> {
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    use image::ImageEncoder;
-    let mut bytes = Vec::new();
-    PngEncoder::new_with_quality(&mut bytes, CompressionType::Best, FilterType::Adaptive)
-        .write_image(
-            &picture.data,
-            picture.width,
-            picture.height,
-            image::ExtendedColorType::Rgb8,
-        )
-        .with_context(|| format!("encoding {}", path.display()))?;
-    medium::atomic_file::write_bytes(path, &bytes)
-        .with_context(|| format!("writing {}", path.display()))
+    gather::image_io::write_png(
+        path,
+        picture.width,
+        picture.height,
+        3,
+        &picture.data,
+        gather::PngCompression::Best,
+    )?;
+    Ok(())
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {

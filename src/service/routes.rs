@@ -711,21 +711,11 @@ impl Drop for WaitingRender<'_> {
 
 /// Tone-mapped 8-bit PNG in memory (fast compression: renders are viewed, not archived).
 fn encode_png(image: &gather::Image, exposure: f64) -> Result<Vec<u8>, String> {
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    use image::ImageEncoder;
-    let color = if image.channels == 1 {
-        image::ExtendedColorType::L8
-    } else {
-        image::ExtendedColorType::Rgb8
-    };
-    let mut out = Vec::new();
-    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Sub)
-        .write_image(
-            &image.tone_mapped(exposure),
-            image.width,
-            image.height,
-            color,
-        )
-        .map_err(|e| e.to_string())?;
-    Ok(out)
+    gather::image_io::encode_png(
+        image.width,
+        image.height,
+        image.channels,
+        &image.tone_mapped(exposure),
+        gather::PngCompression::Fast,
+    )
 }

@@ -1,7 +1,9 @@
 //! Images and their files: PNG (tone-mapped 8-bit), PFM and EXR (linear float radiance).
 //!
 //! Every write goes to a temporary file beside the target and is renamed into place, so a
-//! reader never sees a half-written image.
+//! reader never sees a half-written image. [`encode_png`] and [`write_png`] are volrad's one
+//! PNG encoder: renders, the service's images, validation composites and plots all go
+//! through them.
 
 use std::fs;
 use std::io::{BufWriter, Write};
@@ -86,7 +88,14 @@ impl Image {
         let format = ImageFormat::from_path(path)?;
         self.check()?;
         match format {
-            ImageFormat::Png => write_atomic(path, |tmp| self.write_png(path, tmp, exposure)),
+            ImageFormat::Png => write_png(
+                path,
+                self.width,
+                self.height,
+                self.channels,
+                &self.tone_mapped(exposure),
+                PngCompression::Default,
+            ),
             ImageFormat::Pfm => write_atomic(path, |tmp| {
                 let file = fs::File::create(tmp).map_err(|e| GatherError::io(tmp, e))?;
                 let mut out = BufWriter::new(file);
@@ -138,26 +147,6 @@ impl Image {
         self.pixels.iter().map(|&l| map.apply(l)).collect()
     }
 
-    fn write_png(&self, target: &Path, tmp: &Path, exposure: f64) -> Result<(), GatherError> {
-        let color = if self.channels == 1 {
-            image::ExtendedColorType::L8
-        } else {
-            image::ExtendedColorType::Rgb8
-        };
-        image::save_buffer_with_format(
-            tmp,
-            &self.tone_mapped(exposure),
-            self.width,
-            self.height,
-            color,
-            image::ImageFormat::Png,
-        )
-        .map_err(|e| GatherError::Encode {
-            file: target.to_path_buf(),
-            message: e.to_string(),
-        })
-    }
-
     fn write_exr(&self, target: &Path, tmp: &Path) -> Result<(), GatherError> {
         use exr::prelude::*;
         let (w, h) = (self.width as usize, self.height as usize);
@@ -175,6 +164,78 @@ impl Image {
             message: e.to_string(),
         })
     }
+}
+
+/// How hard a PNG is compressed; the pixels are the same at every level, only the file's size
+/// and the time to write it differ.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PngCompression {
+    /// Fast compression with the `Sub` filter: images that are viewed once, not kept (the
+    /// service's responses).
+    Fast,
+    /// The encoder's default (adaptive filters): renders and plots.
+    #[default]
+    Default,
+    /// The smallest files (adaptive filters): images committed to the repository.
+    Best,
+}
+
+/// 8-bit pixels as a PNG file's bytes: `channels` 1 (grey) or 3 (RGB) interleaved values a
+/// pixel, rows top first. Errs when the sizes do not agree or the encoder fails.
+pub fn encode_png(
+    width: u32,
+    height: u32,
+    channels: u32,
+    pixels: &[u8],
+    compression: PngCompression,
+) -> Result<Vec<u8>, String> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    let color = match channels {
+        1 => image::ExtendedColorType::L8,
+        3 => image::ExtendedColorType::Rgb8,
+        _ => return Err(format!("{channels} channels (expected 1 or 3)")),
+    };
+    let expected = width as u64 * height as u64 * channels as u64;
+    if pixels.len() as u64 != expected || expected == 0 {
+        return Err(format!(
+            "{} bytes for a {width}×{height} image with {channels} channel(s)",
+            pixels.len()
+        ));
+    }
+    let mut out = Vec::new();
+    let encoder = match compression {
+        PngCompression::Fast => {
+            PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Sub)
+        }
+        PngCompression::Default => PngEncoder::new(&mut out),
+        PngCompression::Best => {
+            PngEncoder::new_with_quality(&mut out, CompressionType::Best, FilterType::Adaptive)
+        }
+    };
+    encoder
+        .write_image(pixels, width, height, color)
+        .map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
+/// [`encode_png`] written to `path` atomically ([`medium::atomic_file`]): a reader sees the
+/// old file or the whole new one.
+pub fn write_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: u32,
+    pixels: &[u8],
+    compression: PngCompression,
+) -> Result<(), GatherError> {
+    let bytes = encode_png(width, height, channels, pixels, compression).map_err(|message| {
+        GatherError::Encode {
+            file: path.to_path_buf(),
+            message,
+        }
+    })?;
+    medium::atomic_file::write_bytes(path, &bytes).map_err(|e| GatherError::io(path, e))
 }
 
 /// 8-bit display value of radiance `l`: `1 − exp(−exposure · L)`, sRGB-encoded (non-finite

@@ -25,7 +25,7 @@ pub mod single_scatter;
 pub use camera::{Camera, CameraProjection, CameraSpec, Projection};
 pub use error::GatherError;
 pub use exposure::auto_exposure;
-pub use image_io::{read_pfm, Image, ImageFormat, ToneMap};
+pub use image_io::{read_pfm, Image, ImageFormat, PngCompression, ToneMap};
 pub use render::{
     render, render_image, render_image_indexed, render_indexed, ImageChannel, OpticalModel,
     RayIntegrator, RenderIndex, RenderOptions, RenderSettings, MAX_SPP, OPTICAL_MODEL_NAMES,

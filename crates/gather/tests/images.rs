@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use gather::image_io::{parse_pfm, srgb_encode, tone_map};
-use gather::{read_pfm, GatherError, Image, ToneMap};
+use gather::image_io::{encode_png, parse_pfm, srgb_encode, tone_map, write_png};
+use gather::{read_pfm, GatherError, Image, PngCompression, ToneMap};
 
 /// A fresh empty directory for one test.
 fn scratch(name: &str) -> PathBuf {
@@ -179,6 +179,36 @@ fn png_is_tone_mapped_and_srgb_encoded() {
     let decoded = image::open(&path).unwrap();
     assert_eq!(decoded.color(), image::ColorType::Rgb8);
     assert_eq!(decoded.to_rgb8().as_raw(), &vec![0, half, 255, 0, 0, 0]);
+}
+
+/// Every compression level encodes the same pixels; the file is written whole, and a
+/// channel count other than 1 or 3 is refused.
+#[test]
+fn png_encoder_keeps_the_pixels_at_every_compression() {
+    let dir = scratch("png-levels");
+    let (width, height) = (7, 5);
+    let rgb: Vec<u8> = (0..width * height * 3)
+        .map(|i| (i * 37 % 256) as u8)
+        .collect();
+    for compression in [
+        PngCompression::Fast,
+        PngCompression::Default,
+        PngCompression::Best,
+    ] {
+        let bytes = encode_png(width, height, 3, &rgb, compression).unwrap();
+        let decoded = image::load_from_memory(&bytes).unwrap().to_rgb8();
+        assert_eq!(decoded.dimensions(), (width, height));
+        assert_eq!(decoded.as_raw(), &rgb, "{compression:?}");
+    }
+    let grey = &rgb[..(width * height) as usize];
+    let path = dir.join("grey.png");
+    write_png(&path, width, height, 1, grey, PngCompression::Default).unwrap();
+    let decoded = image::open(&path).unwrap();
+    assert_eq!(decoded.color(), image::ColorType::L8);
+    assert_eq!(decoded.to_luma8().as_raw(), grey);
+    assert_eq!(entries(&dir), vec!["grey.png"]);
+    assert!(encode_png(width, height, 2, &rgb, PngCompression::Default).is_err());
+    assert!(encode_png(width, height + 1, 3, &rgb, PngCompression::Default).is_err());
 }
 
 /// The table gives `tone_map`'s bytes exactly: at every step and the floats around it (where an
