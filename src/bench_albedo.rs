@@ -102,11 +102,12 @@ impl TransportOperator for AlbedoScaled<'_> {
         Some(k)
     }
 
-    /// `σs` scales with the albedo; `σt` and the leakage do not.
+    /// `σs` scales with the albedo; `σt` and the leakage do not. (With the albedo in (0, 1]
+    /// the scaled approximation stays valid; `None` if it were not.)
     fn diffusion(&self) -> Option<solver::Diffusion> {
-        let mut d = self.inner.diffusion()?;
-        d.sigma_s.iter_mut().for_each(|s| *s *= self.albedo);
-        Some(d)
+        let (sigma_t, mut sigma_s, row_ptr, col, val) = self.inner.diffusion()?.into_parts();
+        sigma_s.iter_mut().for_each(|s| *s *= self.albedo);
+        solver::Diffusion::new(sigma_t, sigma_s, row_ptr, col, val).ok()
     }
 }
 

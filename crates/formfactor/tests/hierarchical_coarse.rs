@@ -212,7 +212,7 @@ fn multigrid_v_cycles_reduce_the_clouds_diffusion_residual() {
     assert!(levels.len() >= 2, "{levels:?}");
     let r: Vec<f64> = (0..n)
         .map(|i| {
-            if d.row_ptr[i + 1] > d.row_ptr[i] {
+            if d.row_ptr()[i + 1] > d.row_ptr()[i] {
                 ((i * 13) % 7) as f64 - 3.0
             } else {
                 0.0
@@ -222,9 +222,9 @@ fn multigrid_v_cycles_reduce_the_clouds_diffusion_residual() {
     let residual = |y: &[f64]| -> f64 {
         (0..n)
             .map(|i| {
-                let mut ay = (d.sigma_t[i] - d.sigma_s[i]) * y[i];
-                for p in d.row_ptr[i]..d.row_ptr[i + 1] {
-                    ay += d.val[p] * y[d.col[p] as usize];
+                let mut ay = (d.sigma_t()[i] - d.sigma_s()[i]) * y[i];
+                for p in d.row_ptr()[i]..d.row_ptr()[i + 1] {
+                    ay += d.val()[p] * y[d.col()[p] as usize];
                 }
                 (r[i] - ay).powi(2)
             })

@@ -87,6 +87,12 @@ pub fn solve(
                     needs: "a diffusion approximation (grid and σt)",
                 });
             };
+            if d.len() != n {
+                return Err(SolveError::InvalidOperatorData {
+                    what: "diffusion approximation",
+                    reason: format!("{} unknowns for an operator of {n}", d.len()),
+                });
+            }
             let pre = Preconditioner::Dsa(Box::new(methods::krylov::Dsa::new(d)?));
             methods::krylov::cg(&mut ctx, &mut g, w, pre)
         }

@@ -697,13 +697,9 @@ impl TransportOperator for HierarchicalOperator {
             .zip(&self.albedo)
             .map(|(s, a)| s * a)
             .collect();
-        Some(solver::Diffusion {
-            sigma_t,
-            sigma_s,
-            row_ptr,
-            col,
-            val,
-        })
+        // Valid by construction (σt of a checked medium, albedo in [0, 1], conductances ≥ 0);
+        // `None` rather than a panic should that ever change.
+        solver::Diffusion::new(sigma_t, sigma_s, row_ptr, col, val).ok()
     }
 
     /// `Pᵀ W K P` exactly, from the near entries and the cluster links (no application of

@@ -283,10 +283,11 @@ const DSA_INNER_MAX: usize = 100;
 impl Dsa {
     pub(crate) fn new(d: crate::operator::Diffusion) -> Result<Self, crate::SolveError> {
         let multigrid = DiffusionMultigrid::new(&d)?;
-        let n = d.sigma_t.len();
+        let n = d.len();
+        let (_, sigma_s, ..) = d.into_parts();
         Ok(Dsa {
             multigrid,
-            sigma_s: d.sigma_s,
+            sigma_s,
             y: vec![0.0; n],
             inner_iterations: 0,
         })

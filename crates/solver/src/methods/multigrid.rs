@@ -418,31 +418,15 @@ pub struct DiffusionMultigrid {
 }
 
 impl DiffusionMultigrid {
-    /// Builds the hierarchy. Errors if the diffusion data is inconsistent (lengths, columns out
-    /// of range, or a non-positive or non-finite diagonal on an active row).
+    /// Builds the hierarchy. Errors if an active row's diagonal `σt − σs + G_ii` is not
+    /// positive and finite (the rest of the data is consistent by [`Diffusion`]'s invariants).
     pub fn new(d: &Diffusion) -> Result<Self, SolveError> {
         let t0 = std::time::Instant::now();
-        let n = d.sigma_t.len();
-        let bad = |reason: String| SolveError::InvalidOperatorData {
-            what: "diffusion approximation",
-            reason,
-        };
-        if d.sigma_s.len() != n || d.row_ptr.len() != n + 1 {
-            return Err(bad(format!(
-                "{} σt, {} σs and {} row pointers for {n} unknowns",
-                d.sigma_t.len(),
-                d.sigma_s.len(),
-                d.row_ptr.len()
-            )));
-        }
-        if d.row_ptr.windows(2).any(|w| w[1] < w[0])
-            || d.row_ptr[n] > d.col.len()
-            || d.col.len() != d.val.len()
-        {
-            return Err(bad("row pointers do not match the entries".into()));
-        }
+        let n = d.len();
+        let (sigma_t, sigma_s) = (d.sigma_t(), d.sigma_s());
+        let (row_ptr, d_col, d_val) = (d.row_ptr(), d.col(), d.val());
         let active: Vec<u32> = (0..n as u32)
-            .filter(|&i| d.row_ptr[i as usize + 1] > d.row_ptr[i as usize])
+            .filter(|&i| row_ptr[i as usize + 1] > row_ptr[i as usize])
             .collect();
         let mut compact = vec![u32::MAX; n];
         for (k, &i) in active.iter().enumerate() {
@@ -455,23 +439,23 @@ impl DiffusionMultigrid {
         ptr.push(0);
         for (k, &i) in active.iter().enumerate() {
             let i = i as usize;
-            let mut diag = d.sigma_t[i] - d.sigma_s[i];
+            let mut diag = sigma_t[i] - sigma_s[i];
             col.push(k as u32);
             val.push(0.0);
-            for p in d.row_ptr[i]..d.row_ptr[i + 1] {
-                let j = d.col[p] as usize;
-                if j >= n {
-                    return Err(bad(format!("row {i} has column {j} out of range")));
-                }
+            for p in row_ptr[i]..row_ptr[i + 1] {
+                let j = d_col[p] as usize;
                 if j == i {
-                    diag += d.val[p];
+                    diag += d_val[p];
                 } else if compact[j] != u32::MAX {
                     col.push(compact[j]);
-                    val.push(d.val[p]);
+                    val.push(d_val[p]);
                 }
             }
             if !(diag > 0.0 && diag.is_finite()) {
-                return Err(bad(format!("row {i} has diagonal {diag}")));
+                return Err(SolveError::InvalidOperatorData {
+                    what: "diffusion approximation",
+                    reason: format!("row {i} has diagonal {diag}"),
+                });
             }
             let start = ptr[k];
             val[start] = diag;
@@ -691,17 +675,11 @@ mod tests {
             val.push(diag);
             row_ptr.push(col.len());
         }
-        Diffusion {
-            sigma_t: vec![1.0; len],
-            sigma_s: vec![1.0 - sigma_a; len],
-            row_ptr,
-            col,
-            val,
-        }
+        Diffusion::new(vec![1.0; len], vec![1.0 - sigma_a; len], row_ptr, col, val).unwrap()
     }
 
     fn reduction(d: &Diffusion, cycles: usize) -> f64 {
-        let n = d.sigma_t.len();
+        let n = d.len();
         let mut mg = DiffusionMultigrid::new(d).unwrap();
         let r: Vec<f64> = (0..n)
             .map(|i| ((i * 7919) % 101) as f64 / 101.0 - 0.3)
@@ -711,9 +689,9 @@ mod tests {
         let mut res = 0.0;
         let mut r0 = 0.0;
         for i in 0..n {
-            let mut ay = (d.sigma_t[i] - d.sigma_s[i]) * y[i];
-            for p in d.row_ptr[i]..d.row_ptr[i + 1] {
-                ay += d.val[p] * y[d.col[p] as usize];
+            let mut ay = (d.sigma_t()[i] - d.sigma_s()[i]) * y[i];
+            for p in d.row_ptr()[i]..d.row_ptr()[i + 1] {
+                ay += d.val()[p] * y[d.col()[p] as usize];
             }
             res += (r[i] - ay) * (r[i] - ay);
             r0 += r[i] * r[i];
@@ -760,7 +738,7 @@ mod tests {
             );
             assert!(three < 0.7, "{name}: three V-cycles, {three} per cycle");
             // Preconditioned CG on top: 1e-8 in a handful of cycles.
-            let n = d.sigma_t.len();
+            let n = d.len();
             let mut mg = DiffusionMultigrid::new(&d).unwrap();
             let r: Vec<f64> = (0..n).map(|i| ((i * 31) % 17) as f64 - 8.0).collect();
             let mut y = vec![0.0; n];
