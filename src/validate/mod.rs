@@ -4,18 +4,18 @@
 //!
 //! The work is the pipeline's own: [`solve_scene`] + [`render_view`] for the solved methods,
 //! the `montecarlo` path tracer for the reference and the `path-trace` method, and
-//! [`montecarlo::compare::compare_images`] for every error figure.
+//! [`montecarlo::compare::compare_images`] for every error figure. This module runs the
+//! methods and measures them; `report.rs` writes report.md, `images.rs` the side-by-side
+//! pictures.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use gather::image_io::tone_map;
 use gather::Image;
 use indicatif::{ProgressBar, ProgressStyle};
-use montecarlo::compare::{compare_images, downscale_channel0};
+use montecarlo::compare::compare_images;
 use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions};
 use scene::Scene;
 use scene::SolveMethod;
@@ -23,17 +23,17 @@ use serde::Serialize;
 
 use crate::engine::pipeline::{render_view, solve_scene};
 use crate::engine::SolveHooks;
+use images::{error_scale_bar, side_by_side, write_png};
+use report::utc_now;
+
+mod images;
+mod report;
+
+pub use images::{ERROR_MAP_BLOCK, ERROR_MAP_SCALE};
 
 /// Pixels count in an error figure when the reference exceeds this fraction of its maximum
 /// (the convention of docs/validation.md).
 pub const MASK_THRESHOLD: f64 = 0.01;
-
-/// Relative error at which the error map saturates (full blue or full red).
-pub const ERROR_MAP_SCALE: f64 = 0.2;
-
-/// Widest panel in the side-by-side images; wider cameras are block-averaged down so that the
-/// committed images stay small.
-const MAX_PANEL_WIDTH: u32 = 256;
 
 /// Seeds of the path-traced reference and of the `path-trace` method: different, so the
 /// method's noise is independent of the reference's.
@@ -671,334 +671,9 @@ fn status_kib(key: &str) -> Option<u64> {
         .ok()
 }
 
-// ---- Images -----------------------------------------------------------------------------
-
-/// An 8-bit RGB picture.
-struct Rgb {
-    width: u32,
-    height: u32,
-    data: Vec<u8>,
-}
-
-impl Rgb {
-    fn filled(width: u32, height: u32, value: u8) -> Rgb {
-        Rgb {
-            width,
-            height,
-            data: vec![value; (width * height * 3) as usize],
-        }
-    }
-
-    fn put(&mut self, x: u32, y: u32, rgb: [u8; 3]) {
-        let i = ((y * self.width + x) * 3) as usize;
-        self.data[i..i + 3].copy_from_slice(&rgb);
-    }
-}
-
-/// Block means of channel 0 for the panels (partial blocks at the edges dropped).
-fn downscale(image: &Image, factor: u32) -> Result<Image> {
-    downscale_channel0(image, factor).map_err(|e| anyhow::anyhow!("downscaling a panel: {e}"))
-}
-
-/// Diverging false colour of a relative error: blue (−scale) – white (0) – red (+scale).
-fn error_colour(relative: f64) -> [u8; 3] {
-    let t = (relative / ERROR_MAP_SCALE).clamp(-1.0, 1.0);
-    let fade = ((1.0 - t.abs()) * 255.0 + 0.5) as u8;
-    if t < 0.0 {
-        [fade, fade, 255]
-    } else {
-        [255, fade, fade]
-    }
-}
-
-/// Grey of pixels outside the error mask.
-const MASKED: [u8; 3] = [48, 48, 48];
-const GAP: u32 = 4;
-
-/// Side of the pixel blocks the error map averages over: per-pixel errors would show mostly
-/// the reference's noise, block means show the method's systematic error.
-pub const ERROR_MAP_BLOCK: u32 = 4;
-
-/// Exposure of the panels: the reference's maximum maps to `1 − e^−1` (63 %, sRGB 82 % white).
-fn panel_exposure(reference: &Image) -> f64 {
-    let max = reference.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
-    if max > 0.0 {
-        1.0 / max
-    } else {
-        1.0
-    }
-}
-
-/// reference | method | relative error `(x − r)/r` of `ERROR_MAP_BLOCK`² block means (blocks
-/// whose reference is below the mask threshold grey), channel 0. Both radiance panels share
-/// one exposure.
-fn side_by_side(reference: &Image, method: &Image) -> Result<Rgb> {
-    let factor = reference.width.div_ceil(MAX_PANEL_WIDTH).max(1);
-    let r = downscale(reference, factor)?;
-    let x = downscale(method, factor)?;
-    let exposure = panel_exposure(&r);
-    let (w, h) = (r.width, r.height);
-    let mut out = Rgb::filled(3 * w + 2 * GAP, h, 255);
-    for y in 0..h {
-        for i in 0..w {
-            out.put(i, y, [tone_map(r.get(i, y, 0), exposure); 3]);
-            out.put(w + GAP + i, y, [tone_map(x.get(i, y, 0), exposure); 3]);
-            out.put(2 * (w + GAP) + i, y, MASKED);
-        }
-    }
-    let block = ERROR_MAP_BLOCK.min(w).min(h).max(1);
-    let (rb, xb) = (downscale(&r, block)?, downscale(&x, block)?);
-    let max = rb.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
-    for by in 0..rb.height {
-        for bx in 0..rb.width {
-            let (rv, xv) = (rb.get(bx, by, 0) as f64, xb.get(bx, by, 0) as f64);
-            if !(rv > MASK_THRESHOLD * max && rv > 0.0) {
-                continue;
-            }
-            let colour = error_colour((xv - rv) / rv);
-            for y in by * block..(by + 1) * block {
-                for i in bx * block..(bx + 1) * block {
-                    out.put(2 * (w + GAP) + i, y, colour);
-                }
-            }
-        }
-    }
-    Ok(out)
-}
-
-/// The error map's colour scale, −scale on the left to +scale on the right.
-fn error_scale_bar() -> Rgb {
-    let (w, h) = (256, 12);
-    let mut out = Rgb::filled(w, h, 0);
-    for x in 0..w {
-        let rel = ERROR_MAP_SCALE * (2.0 * (x as f64 + 0.5) / w as f64 - 1.0);
-        for y in 0..h {
-            out.put(x, y, error_colour(rel));
-        }
-    }
-    out
-}
-
-/// The smallest PNG: the report's images are committed (docs/validation/).
-fn write_png(path: &Path, picture: &Rgb) -> Result<()> {
-    gather::image_io::write_png(
-        path,
-        picture.width,
-        picture.height,
-        3,
-        &picture.data,
-        gather::PngCompression::Best,
-    )?;
-    Ok(())
-}
-
 fn write_text(path: &Path, text: &str) -> Result<()> {
     medium::atomic_file::write_bytes(path, text.as_bytes())
         .with_context(|| format!("writing {}", path.display()))
-}
-
-// ---- Report -----------------------------------------------------------------------------
-
-fn percent(x: f64) -> String {
-    format!("{:.1} %", 100.0 * x)
-}
-
-fn signed_percent(x: f64) -> String {
-    format!("{:+.1} %", 100.0 * x)
-}
-
-fn mib(bytes: Option<u64>) -> String {
-    bytes.map_or("—".into(), |b| {
-        format!("{:.1}", b as f64 / (1024.0 * 1024.0))
-    })
-}
-
-impl ValidationReport {
-    /// The report as Markdown: one table and one image per method and scene.
-    pub fn markdown(&self) -> String {
-        let s = &self.settings;
-        let mut md = String::new();
-        let _ = writeln!(md, "# Validation report (generated)\n");
-        let _ = writeln!(
-            md,
-            "Generated by `{}` — volrad {}, {}, {} threads. Do not edit: rerun the command. \
-             What the figures mean and the hand-checked history are in [../validation.md](../validation.md).\n",
-            self.command, self.volrad_version, self.generated_utc, self.threads
-        );
-        let _ = writeln!(
-            md,
-            "- **Reference:** volrad's own path tracer (`render --path-trace`: exact \
-             per-cell free paths, next-event estimation, unlimited depth), {} paths per pixel. \
-             Where the scene directory holds Mitsuba 3 images (`<camera>.pfm` with \
-             `<camera>_stderr.pfm`), every image is also compared with those.",
-            s.reference_spp
-        );
-        let _ = writeln!(
-            md,
-            "- **Error:** relative RMS over the pixels above {:.0} % of the reference maximum, \
-             with the reference's own noise (its per-pixel standard error) taken out: \
-             `sqrt(max(0, Σ[(x−r)² − s²]) / Σ r²)` (`crates/montecarlo/src/compare.rs`); channel 0. **Mean:** \
-             relative difference of the image means over the same pixels. The method's own \
-             noise (path tracing, two-pass photons) counts as error.",
-            100.0 * MASK_THRESHOLD
-        );
-        let _ = writeln!(
-            md,
-            "- **Methods:** each solve uses the scene's `[solve]` settings with the method \
-             replaced (and that method's default iteration), then renders {} stratified \
-             samples per pixel from the solution (first bounce exact, higher orders from the \
-             solution). `path-trace` is the path tracer at {} paths per pixel with an \
-             independent seed. The zonal methods treat higher orders as isotropic, so on an \
-             anisotropic scene they show that approximation's error.",
-            s.render_spp, s.path_trace_spp
-        );
-        let _ = writeln!(
-            md,
-            "- **Time:** wall time of the solve (light pass, operator build, iterations) and of \
-             the render, on this machine with {} threads (noisy if other work was running). \
-             **Peak RSS:** growth of the process's peak resident memory during solve + render \
-             over the resident memory before (Linux `/proc/self/status` VmHWM after a reset; \
-             — where unavailable). **Solution:** size of the file `volrad solve -o` would write.",
-            self.threads
-        );
-        let _ = writeln!(
-            md,
-            "- **Images:** reference | method | relative error `(x − r)/r` of {1}×{1}-pixel \
-             block means (blocks average the reference's noise down), blue −{0:.0} % to white 0 \
-             to red +{0:.0} % ![scale](error-scale.png); grey: below the mask. Both radiance \
-             panels share one exposure, the reference's maximum at 82 % white.\n",
-            100.0 * ERROR_MAP_SCALE,
-            ERROR_MAP_BLOCK
-        );
-        if s.quick {
-            let _ = writeln!(
-                md,
-                "**Quick run:** few samples; the figures are dominated by noise.\n"
-            );
-        }
-        for scene in &self.scenes {
-            let r = &scene.reference;
-            let _ = writeln!(md, "## {}\n", scene.name);
-            let _ = writeln!(
-                md,
-                "`{}`: {}×{}×{} cells, phase {}, camera `{}` {}×{}. Reference: {} spp in {:.1} s, \
-                 mean per-pixel noise {}.",
-                scene.path,
-                scene.dims[0],
-                scene.dims[1],
-                scene.dims[2],
-                scene.phase,
-                scene.camera,
-                scene.width,
-                scene.height,
-                r.spp,
-                r.seconds,
-                percent(r.relative_noise)
-            );
-            match (&r.vs_mitsuba, &r.mitsuba_files) {
-                (Some(c), Some((mean, err))) => {
-                    let _ = writeln!(
-                        md,
-                        "The path-traced reference against Mitsuba (`{mean}`, `{err}`; both images' \
-                         noise taken out): relative RMS {} (raw {}), mean {}.\n",
-                        percent(c.relative_rms),
-                        percent(c.relative_rms_raw),
-                        signed_percent(c.mean_ratio_error)
-                    );
-                }
-                _ => {
-                    let _ = writeln!(md, "No Mitsuba reference beside this scene.\n");
-                }
-            }
-            let has_mitsuba = r.vs_mitsuba.is_some();
-            let _ = write!(md, "| method | rel. RMS vs path tracer | mean |");
-            if has_mitsuba {
-                let _ = write!(md, " rel. RMS vs Mitsuba | mean |");
-            }
-            let _ = writeln!(
-                md,
-                " solve s | render s | peak RSS growth MiB | solution MiB | iterations |"
-            );
-            let _ = write!(md, "|---|---|---|");
-            if has_mitsuba {
-                let _ = write!(md, "---|---|");
-            }
-            let _ = writeln!(md, "---|---|---|---|---|");
-            for m in &scene.methods {
-                let _ = write!(
-                    md,
-                    "| {} | {} | {} |",
-                    m.method.name(),
-                    percent(m.vs_path_tracer.relative_rms),
-                    signed_percent(m.vs_path_tracer.mean_ratio_error)
-                );
-                if has_mitsuba {
-                    match &m.vs_mitsuba {
-                        Some(c) => {
-                            let _ = write!(
-                                md,
-                                " {} | {} |",
-                                percent(c.relative_rms),
-                                signed_percent(c.mean_ratio_error)
-                            );
-                        }
-                        None => {
-                            let _ = write!(md, " — | — |");
-                        }
-                    }
-                }
-                let iterations = match (m.iterations, m.converged) {
-                    (Some(n), Some(true)) => n.to_string(),
-                    (Some(n), Some(false)) => format!("{n} (not converged)"),
-                    _ => "—".into(),
-                };
-                let _ = writeln!(
-                    md,
-                    " {} | {:.2} | {} | {} | {} |",
-                    m.solve_seconds.map_or("—".into(), |t| format!("{t:.2}")),
-                    m.render_seconds,
-                    mib(m.peak_rss_growth_bytes),
-                    mib(m.solution_file_bytes),
-                    iterations
-                );
-            }
-            let _ = writeln!(md);
-            for m in &scene.methods {
-                let _ = writeln!(
-                    md,
-                    "**{}** — reference | method | error\n\n![{} {}]({})\n",
-                    m.method.name(),
-                    scene.name,
-                    m.method.name(),
-                    m.image
-                );
-            }
-        }
-        md
-    }
-}
-
-/// The current UTC time as `YYYY-MM-DD HH:MM UTC`.
-fn utc_now() -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    let (days, rest) = (secs / 86_400, secs % 86_400);
-    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
-    let z = days as i64 + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}-{month:02}-{day:02} {:02}:{:02} UTC",
-        rest / 3600,
-        (rest % 3600) / 60
-    )
 }
 
 #[cfg(test)]
@@ -1016,14 +691,5 @@ mod tests {
         assert!(err.to_string().contains("`monte-carlo`"), "{err}");
         let ok = parse_methods(&["zonal".into(), " two-pass".into(), "zonal".into()]).unwrap();
         assert_eq!(ok, vec![ValidateMethod::Zonal, ValidateMethod::TwoPass]);
-    }
-
-    #[test]
-    fn error_colours_are_signed_and_saturate() {
-        assert_eq!(error_colour(0.0), [255, 255, 255]);
-        assert_eq!(error_colour(-1.0), [0, 0, 255]);
-        assert_eq!(error_colour(ERROR_MAP_SCALE), [255, 0, 0]);
-        let half = error_colour(0.5 * ERROR_MAP_SCALE);
-        assert!(half[0] == 255 && half[1] > 100 && half[1] < 150);
     }
 }
