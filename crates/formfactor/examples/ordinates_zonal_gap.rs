@@ -15,7 +15,7 @@ fn main() {
 
 /// Where the ordinates–zonal gap comes from: angular (bins `6 n²`, `ZONAL_N=4,6,8`) or
 /// spatial (both methods on grids refined `r`×, `ZONAL_R=1,2,3`; the 7³ zonal solution is the
-/// reference). `cargo test --release --test ordinates_zonal explore -- --ignored --nocapture`
+/// reference). `cargo run --release -p formfactor --example ordinates_zonal_gap`
 fn explore_ordinates_zonal_gap() {
     let list = |key: &str, default: &str| -> Vec<usize> {
         std::env::var(key)

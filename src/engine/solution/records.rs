@@ -1,5 +1,5 @@
 //! NOTE: a change to any record's fields changes the file layout: bump FORMAT_VERSION in
-//! container.rs and refresh the golden file (`VOLRAD_BLESS=1 cargo test --test solution_file`,
+//! container.rs and refresh the golden file (`VOLRAD_BLESS=1 cargo test --test it solution_file`,
 //! which rewrites `tests/data/solution-golden/`).
 //!
 //! The metadata records of a solution file: plain structs and enums owned by the solution

@@ -6,12 +6,9 @@
 //! to be declared as a struct, enum, trait or type alias in the section's crate, or anywhere
 //! in the workspace for the sections that span crates).
 
+use crate::fixtures::root;
 use std::fs;
 use std::path::{Path, PathBuf};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// Every `.rs` file below `dir`.
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {

@@ -2,19 +2,8 @@
 //! errors, the zonal method agrees with the path-traced reference, the images decode, and
 //! bad input is refused by name.
 
+use crate::fixtures::{s, stderr, volrad};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn volrad(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_volrad"))
-        .args(args)
-        .output()
-        .expect("the volrad binary runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// An 8×8×6 procedural cloud, isotropic, albedo 0.9, one small camera.
 fn tiny_scene(dir: &Path) -> PathBuf {
@@ -49,10 +38,6 @@ height = 24
     let path = dir.join("tiny.toml");
     std::fs::write(&path, text).unwrap();
     path
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 #[test]

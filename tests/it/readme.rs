@@ -3,14 +3,10 @@
 //! fails here, not in front of a new user.
 
 use std::fs;
-use std::path::PathBuf;
 
+use crate::fixtures::root;
 use clap::Parser;
 use volrad::cli::Cli;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// Splits a shell line into words: whitespace separates, single and double quotes group, a
 /// `#` outside quotes starts a comment, `\` at the end of a line continues it (joined before).

@@ -1,19 +1,8 @@
 //! End-to-end behaviour of the `volrad` binary: solve once, render many views from the
 //! stored solution, and refuse bad input with clear errors (never a half-written file).
 
+use crate::fixtures::{s, stderr, volrad};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn volrad(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_volrad"))
-        .args(args)
-        .output()
-        .expect("the volrad binary runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// A small cloud scene (generator, 12×12×10) with two tiny cameras.
 fn small_scene(dir: &Path, method: &str, phase: &str) -> PathBuf {
@@ -60,10 +49,6 @@ height = 30
     let path = dir.join(format!("scene-{method}.toml"));
     std::fs::write(&path, text).unwrap();
     path
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 #[test]

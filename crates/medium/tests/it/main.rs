@@ -1,0 +1,5 @@
+//! The `medium` crate's integration tests: one test binary, a module per area.
+
+mod light_pass;
+mod volume_generators;
+mod volume_io;

@@ -1,0 +1,13 @@
+//! volrad's integration tests: one test binary (one link of the whole program), a module
+//! per area, shared fixtures in `fixtures`.
+
+mod fixtures;
+
+mod architecture;
+mod bench_albedo;
+mod cli;
+mod readme;
+mod reference_cloud24;
+mod service;
+mod solution_file;
+mod validate;
