@@ -8,15 +8,15 @@ use std::time::Instant;
 
 use criterion::{black_box, Criterion};
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
-use medium::{generators, CellValues, ChannelMedium, Grid};
+use medium::{generators, CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 use rayon::prelude::*;
 use solver::{Method, SolveControl, SolveOptions, TransportOperator};
 // Benchmarks run with the product's allocator, which the volrad crate sets.
 use volrad as _;
 
 /// Max's generated cloud scaled so its largest axis-parallel optical depth is `depth` (h = 1),
-/// as for the built-in scene.
-fn cloud_channel(dims: [usize; 3], depth: f64, albedo: f32) -> (Grid, ChannelMedium) {
+/// as for the built-in scene (grey, isotropic).
+fn cloud_medium(dims: [usize; 3], depth: f64, albedo: f32) -> Medium {
     let grid = Grid::new(dims, 1.0).unwrap();
     let density = generators::cloud(dims, 7);
     let mut max_column: f64 = 0.0;
@@ -50,7 +50,14 @@ fn cloud_channel(dims: [usize; 3], depth: f64, albedo: f32) -> (Grid, ChannelMed
         albedo: CellValues::Uniform(albedo),
         emission: CellValues::Uniform(0.0),
     };
-    (grid, channel)
+    Medium::new(
+        grid,
+        vec![channel],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap()
 }
 
 fn peak_rss_mb() -> f64 {
@@ -68,26 +75,26 @@ fn peak_rss_mb() -> f64 {
 
 fn criterion_part() {
     let mut c = Criterion::default().sample_size(10).configure_from_args();
-    let (grid8, ch8) = cloud_channel([8, 8, 8], 10.0, 0.99);
+    let cloud8 = cloud_medium([8, 8, 8], 10.0, 0.99);
     c.bench_function("exact build 8³ cloud", |b| {
-        b.iter(|| FormFactorMatrix::build(&grid8, &ch8, &ExactOptions::default(), None).unwrap())
+        b.iter(|| FormFactorMatrix::build(&cloud8, 0, &ExactOptions::default(), None).unwrap())
     });
-    let (grid16, ch16) = cloud_channel([16, 16, 16], 10.0, 0.99);
+    let cloud16 = cloud_medium([16, 16, 16], 10.0, 0.99);
     c.bench_function("hierarchical build 16³ cloud", |b| {
         b.iter(|| {
-            HierarchicalOperator::build(&grid16, &ch16, &HierarchicalOptions::default()).unwrap()
+            HierarchicalOperator::build(&cloud16, 0, &HierarchicalOptions::default()).unwrap()
         })
     });
-    let exact16 = FormFactorMatrix::build(&grid16, &ch16, &ExactOptions::default(), None).unwrap();
-    let x = vec![1.0; grid16.cell_count()];
+    let exact16 = FormFactorMatrix::build(&cloud16, 0, &ExactOptions::default(), None).unwrap();
+    let x = vec![1.0; cloud16.grid().cell_count()];
     let mut y = vec![0.0; x.len()];
     c.bench_function("exact apply 16³ cloud (own rayon CSR loop)", |b| {
         b.iter(|| exact16.apply(black_box(&x), &mut y))
     });
     c.bench_function("exact apply 16³ cloud (sprs serial product)", |b| {
         b.iter(|| {
-            for (i, row) in exact16.matrix.outer_iterator().enumerate() {
-                y[i] = exact16.albedo[i] * row.dot(black_box(&x[..]));
+            for (i, row) in exact16.matrix().outer_iterator().enumerate() {
+                y[i] = exact16.albedo()[i] * row.dot(black_box(&x[..]));
             }
         })
     });
@@ -95,9 +102,9 @@ fn criterion_part() {
 }
 
 fn bandwidth_part() {
-    let (grid, ch) = cloud_channel([16, 16, 16], 10.0, 0.99);
-    let exact = FormFactorMatrix::build(&grid, &ch, &ExactOptions::default(), None).unwrap();
-    let x = vec![1.0; grid.cell_count()];
+    let cloud = cloud_medium([16, 16, 16], 10.0, 0.99);
+    let exact = FormFactorMatrix::build(&cloud, 0, &ExactOptions::default(), None).unwrap();
+    let x = vec![1.0; cloud.grid().cell_count()];
     let mut y = vec![0.0; x.len()];
     let reps = 20;
     let t = Instant::now();
@@ -105,7 +112,7 @@ fn bandwidth_part() {
         exact.apply(&x, &mut y);
     }
     let apply_s = t.elapsed().as_secs_f64() / reps as f64;
-    let bytes = exact.report.entries as f64 * 16.0;
+    let bytes = exact.report().entries as f64 * 16.0;
     let big = vec![1.0f64; 1 << 25];
     let t = Instant::now();
     let mut s = 0.0;
@@ -116,8 +123,8 @@ fn bandwidth_part() {
     black_box(s);
     println!(
         "exact 16³ cloud: {} nonzeros, build {:.2} s, apply {:.2} ms = {:.1} GB/s of matrix; parallel read bandwidth {:.1} GB/s",
-        exact.report.entries,
-        exact.report.seconds,
+        exact.report().entries,
+        exact.report().seconds,
         apply_s * 1e3,
         bytes / apply_s / 1e9,
         stream / 1e9
@@ -127,17 +134,17 @@ fn bandwidth_part() {
 fn hierarchical_part() {
     let options = HierarchicalOptions::default();
     for dims in [[16, 16, 16], [32, 32, 32], [64, 64, 64], [64, 64, 48]] {
-        let (grid, ch) = cloud_channel(dims, 10.0, 0.99);
-        let op = HierarchicalOperator::build(&grid, &ch, &options).unwrap();
-        let r = &op.report;
+        let cloud = cloud_medium(dims, 10.0, 0.99);
+        let op = HierarchicalOperator::build(&cloud, 0, &options).unwrap();
+        let r = op.report();
         println!(
             "hierarchical {dims:?}: build {:.2} s, {} active of {} cells, links {} ({:.1}/active cell, per level {:?}), near {} ({:.1}/active cell), operator {:.0} MB, max raw column sum {:.6}, {} cells scaled (min d {:.6})",
             r.seconds,
             r.active_cells,
-            grid.cell_count(),
+            cloud.grid().cell_count(),
             op.link_count(),
             op.link_count() as f64 / r.active_cells as f64,
-            op.links_per_level,
+            op.links_per_level(),
             op.near_entries(),
             op.near_entries() as f64 / r.active_cells as f64,
             op.memory_bytes() as f64 / 1e6,
@@ -151,11 +158,11 @@ fn hierarchical_part() {
 fn target_part() {
     // The target: 64×64×48 cloud, albedo 0.99, hierarchical + Gauss–Seidel to 1e-5.
     let start = Instant::now();
-    let (grid, ch) = cloud_channel([64, 64, 48], 10.0, 0.99);
-    let op = HierarchicalOperator::build(&grid, &ch, &HierarchicalOptions::default()).unwrap();
+    let cloud = cloud_medium([64, 64, 48], 10.0, 0.99);
+    let op = HierarchicalOperator::build(&cloud, 0, &HierarchicalOptions::default()).unwrap();
     let built = start.elapsed().as_secs_f64();
     // Unshadowed unit irradiance: E_i = a σt_i / 4π.
-    let source: Vec<f64> = ch
+    let source: Vec<f64> = cloud.channels()[0]
         .sigma_t
         .iter()
         .map(|&s| 0.99 * s as f64 / (4.0 * std::f64::consts::PI))

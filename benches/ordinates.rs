@@ -13,7 +13,7 @@ use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use glam::DVec3;
 use medium::generators::cloud;
 use medium::light_pass::LightPass;
-use medium::{CellValues, ChannelMedium, Grid, Light, PhaseFunction};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 use solver::operator::TransportOperator;
 // Benchmarks run with the product's allocator, which the volrad crate sets.
 use volrad as _;
@@ -28,8 +28,7 @@ fn sigma_t_scale() -> f32 {
 }
 
 struct Case {
-    grid: Grid,
-    channel: ChannelMedium,
+    medium: Medium,
     op: OrdinatesOperator,
     external: Vec<f64>,
 }
@@ -41,11 +40,18 @@ fn case(dims: [usize; 3]) -> Case {
         albedo: CellValues::Uniform(0.99),
         emission: CellValues::Uniform(0.0),
     };
-    let t0 = Instant::now();
-    let op = OrdinatesOperator::from_channel(
+    let medium = Medium::new(
         grid,
-        &channel,
+        vec![channel],
         PhaseFunction::HenyeyGreenstein { g: 0.85 },
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let t0 = Instant::now();
+    let op = OrdinatesOperator::new(
+        &medium,
+        0,
         DirectionBins::max96(),
         OrdinatesOptions::default(),
     )
@@ -54,15 +60,14 @@ fn case(dims: [usize; 3]) -> Case {
         direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
         irradiance: 1.0,
     }];
-    let pass = LightPass::compute(&grid, &channel, &lights).unwrap();
-    let external = op.external_density_from_pass(&pass, &channel).unwrap();
+    let pass = LightPass::compute(&grid, &medium.channels()[0], &lights).unwrap();
+    let external = op.external_density_from_pass(&pass).unwrap();
     eprintln!(
         "{dims:?}: operator + light pass + first-bounce density built in {:.2} s",
         t0.elapsed().as_secs_f64()
     );
     Case {
-        grid,
-        channel,
+        medium,
         op,
         external,
     }
@@ -77,7 +82,8 @@ fn solve(c: &Case) {
     let (iterations, change) = (run.iterations, run.final_change);
     let secs = t0.elapsed().as_secs_f64();
     let balance = c.op.energy_balance(&run.solution, &c.external);
-    let n = c.grid.cell_count();
+    let (grid, channel) = (c.medium.grid(), &c.medium.channels()[0]);
+    let n = grid.cell_count();
     let m = c.op.bins().len();
     // State: g, E, the previous iterate and the external density (f64 each), plus the
     // operator's scratch (density and per-piece sweep output).
@@ -87,14 +93,14 @@ fn solve(c: &Case) {
          ({:.2} s/iteration), final change {change:.2e}, energy imbalance {:.2e}, \
          state {:.0} MB ({:.1} bytes per cell per bin), mean σt {:.3}, max σt {:.3}, \
          cells with σt > 0: {:.1} %",
-        c.grid.dims,
+        grid.dims,
         secs / iterations as f64,
         balance.relative_imbalance(),
         state as f64 / 1e6,
         state as f64 / (n * m) as f64,
-        c.channel.sigma_t.iter().map(|&s| s as f64).sum::<f64>() / n as f64,
-        c.channel.max_sigma_t(),
-        100.0 * c.channel.sigma_t.iter().filter(|&&s| s > 0.0).count() as f64 / n as f64,
+        channel.sigma_t.iter().map(|&s| s as f64).sum::<f64>() / n as f64,
+        channel.max_sigma_t(),
+        100.0 * channel.sigma_t.iter().filter(|&&s| s > 0.0).count() as f64 / n as f64,
     );
 }
 

@@ -211,8 +211,15 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
             .iter_mut()
             .for_each(|s| *s = (*s as f64 * sigma_scale) as f32);
     }
+    // The operators take a medium (valid by construction): channel 0 changed, checked again.
+    let medium = scene
+        .medium
+        .clone()
+        .with_channel(0, channel)
+        .with_context(|| format!("σ-scale {sigma_scale}: the scaled medium"))?;
+    let channel = &medium.channels()[0];
     let light_pass =
-        LightPass::compute(grid, &channel, &scene.lights).context("computing the light pass")?;
+        LightPass::compute(grid, channel, &scene.lights).context("computing the light pass")?;
     match scene.solve.method {
         SolveMethod::DiscreteOrdinates => {
             let n = (1..=8)
@@ -220,19 +227,16 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
                 .with_context(|| {
                     format!("{} bins: expected 6n² for n = 1..=8", scene.solve.bins)
                 })?;
-            let op = OrdinatesOperator::from_channel(
-                *grid,
-                &channel,
-                scene.medium.phase(),
+            let op = OrdinatesOperator::new(
+                &medium,
+                0,
                 DirectionBins::cube(n)?,
                 OrdinatesOptions::default(),
             )?;
             // The external density is (scattered light pass) + emission; split the two by
             // computing it once without emission.
-            let with_emission = op.external_density_from_pass(&light_pass, &channel)?;
-            let mut dark = channel.clone();
-            dark.emission = CellValues::Uniform(0.0);
-            let scattered = op.external_density_from_pass(&light_pass, &dark)?;
+            let with_emission = op.external_density_from_pass(&light_pass)?;
+            let scattered = op.first_bounce_density_from_pass(&light_pass)?;
             let emitted: Vec<f64> = with_emission
                 .iter()
                 .zip(&scattered)
@@ -249,7 +253,7 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
             })
         }
         SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
-            let full = light_pass.zonal_source(&channel);
+            let full = light_pass.zonal_source(channel);
             let emission_part: Vec<f64> = (0..full.len())
                 .map(|i| channel.emission.get(i) as f64)
                 .collect();
@@ -260,14 +264,14 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
                 .collect();
             let op: Box<dyn TransportOperator> = if scene.solve.method == SolveMethod::Zonal {
                 Box::new(
-                    FormFactorMatrix::build(grid, &channel, &ExactOptions::default(), None)
+                    FormFactorMatrix::build(&medium, 0, &ExactOptions::default(), None)
                         .context("building the exact form factors")?,
                 )
             } else {
                 Box::new(
                     HierarchicalOperator::build(
-                        grid,
-                        &channel,
+                        &medium,
+                        0,
                         &HierarchicalOptions {
                             tolerance: HIERARCHY_TOLERANCE,
                             ..HierarchicalOptions::default()

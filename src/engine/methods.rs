@@ -95,7 +95,6 @@ pub fn solve_zonal(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
-    let grid = scene.medium.grid();
     let channel = &scene.medium.channels()[c];
     let source = light_pass.zonal_source(channel);
     if channel.albedo.max() == 0.0 {
@@ -124,19 +123,19 @@ pub fn solve_zonal(
     }
     let (g, report) = match settings.method {
         SolveMethod::Zonal => {
-            let op = FormFactorMatrix::build(grid, channel, &ExactOptions::default(), None)
+            let op = FormFactorMatrix::build(&scene.medium, c, &ExactOptions::default(), None)
                 .context("building the exact form factors")?;
             tracing::info!(
-                entries = op.report.entries,
-                seconds = op.report.seconds,
+                entries = op.report().entries,
+                seconds = op.report().seconds,
                 "form factors built"
             );
             run_solver(&op, &source, settings, hooks)?
         }
         _ => {
             let op = HierarchicalOperator::build(
-                grid,
-                channel,
+                &scene.medium,
+                c,
                 &HierarchicalOptions {
                     tolerance: HIERARCHY_TOLERANCE,
                     ..HierarchicalOptions::default()
@@ -144,8 +143,8 @@ pub fn solve_zonal(
             )
             .context("building the hierarchical form factors")?;
             tracing::info!(
-                links = op.report.entries,
-                seconds = op.report.seconds,
+                links = op.report().entries,
+                seconds = op.report().seconds,
                 "hierarchy built"
             );
             run_solver(&op, &source, settings, hooks)?
@@ -189,16 +188,9 @@ pub fn solve_ordinates(
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     let bins = DirectionBins::cube(face_divisions(settings.bins)?)?;
-    let channel = &scene.medium.channels()[c];
-    let op = OrdinatesOperator::from_channel(
-        *scene.medium.grid(),
-        channel,
-        scene.medium.phase(),
-        bins,
-        ordinates_options(settings),
-    )?;
+    let op = OrdinatesOperator::new(&scene.medium, c, bins, ordinates_options(settings))?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source.
-    let external = op.external_density_from_pass(light_pass, channel)?;
+    let external = op.external_density_from_pass(light_pass)?;
     let mut source = vec![0.0; op.len()];
     op.transport(&external, &mut source);
     let (radiance, report) = run_solver(&op, &source, settings, hooks)?;

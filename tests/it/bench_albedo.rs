@@ -73,13 +73,14 @@ fn runs_of<'a>(runs: &'a [AlbedoRun], method: &str) -> Vec<&'a AlbedoRun> {
 fn scaled_operator_equals_operator_built_at_that_albedo() {
     let dir = tempfile::tempdir().unwrap();
     let scene = scene(dir.path(), "zonal", 2.0);
-    let grid = &scene.medium.grid();
     let mut unit = scene.medium.channels()[0].clone();
     unit.albedo = CellValues::Uniform(1.0);
     let mut at = unit.clone();
     at.albedo = CellValues::Uniform(0.7);
-    let k1 = FormFactorMatrix::build(grid, &unit, &ExactOptions::default(), None).unwrap();
-    let ka = FormFactorMatrix::build(grid, &at, &ExactOptions::default(), None).unwrap();
+    let unit = scene.medium.clone().with_channel(0, unit).unwrap();
+    let at = scene.medium.clone().with_channel(0, at).unwrap();
+    let k1 = FormFactorMatrix::build(&unit, 0, &ExactOptions::default(), None).unwrap();
+    let ka = FormFactorMatrix::build(&at, 0, &ExactOptions::default(), None).unwrap();
     let scaled = AlbedoScaled::new(&k1, 0.7);
     let x: Vec<f64> = (0..k1.len()).map(|i| 1.0 + (i % 7) as f64).collect();
     let (mut y_scaled, mut y_built) = (vec![0.0; x.len()], vec![0.0; x.len()]);
@@ -109,9 +110,8 @@ fn scaled_sweeps_without_rows_reach_the_jacobi_solution() {
     let scene = scene(dir.path(), "zonal-hierarchical", 2.0);
     let mut unit = scene.medium.channels()[0].clone();
     unit.albedo = CellValues::Uniform(1.0);
-    let k1 =
-        HierarchicalOperator::build(scene.medium.grid(), &unit, &HierarchicalOptions::default())
-            .unwrap();
+    let unit = scene.medium.clone().with_channel(0, unit).unwrap();
+    let k1 = HierarchicalOperator::build(&unit, 0, &HierarchicalOptions::default()).unwrap();
     assert!(k1.rows().is_none());
     let op = AlbedoScaled::new(&k1, 0.8);
     let source: Vec<f64> = (0..op.len()).map(|i| (i % 5) as f64 * 0.1 + 0.05).collect();

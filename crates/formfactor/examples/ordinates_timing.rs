@@ -11,7 +11,7 @@ use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use glam::DVec3;
 use medium::generators::cloud;
 use medium::light_pass::LightPass;
-use medium::{CellValues, ChannelMedium, Grid, Light, PhaseFunction};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 use solver::operator::TransportOperator;
 
 fn main() {
@@ -25,10 +25,17 @@ fn main() {
         albedo: CellValues::Uniform(0.99),
         emission: CellValues::Uniform(0.0),
     };
-    let op = OrdinatesOperator::from_channel(
+    let medium = Medium::new(
         grid,
-        &channel,
+        vec![channel],
         PhaseFunction::HenyeyGreenstein { g: 0.85 },
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let op = OrdinatesOperator::new(
+        &medium,
+        0,
         DirectionBins::max96(),
         OrdinatesOptions::default(),
     )
@@ -52,7 +59,7 @@ fn main() {
             })
     };
     if std::env::var("ORDINATES_SOLVE").is_ok() {
-        solve(&grid, &channel, &op);
+        solve(&grid, &medium.channels()[0], &op);
         return;
     }
     if std::env::var("ORDINATES_ONLY_GS").is_ok() {
@@ -88,7 +95,7 @@ fn solve(grid: &Grid, channel: &ChannelMedium, op: &OrdinatesOperator) {
         irradiance: 1.0,
     }];
     let pass = LightPass::compute(grid, channel, &lights).unwrap();
-    let external = op.external_density_from_pass(&pass, channel).unwrap();
+    let external = op.external_density_from_pass(&pass).unwrap();
     let mut e = vec![0.0; op.len()];
     op.transport(&external, &mut e);
     let run = op.sweep_until_change(&e, 1e-5, 1000);

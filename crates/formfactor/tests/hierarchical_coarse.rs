@@ -2,7 +2,7 @@
 //! two-level methods) against the same matrix probed with one application per aggregate.
 
 use formfactor::{HierarchicalOperator, HierarchicalOptions, NearQuadrature};
-use medium::{CellValues, ChannelMedium, Grid};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use solver::TransportOperator;
@@ -27,6 +27,18 @@ fn cloud(dims: [usize; 3], peak: f64, seed: u64) -> Vec<f32> {
     out
 }
 
+/// The grey, isotropic one-channel medium of `channel` on `grid`.
+fn grey(grid: Grid, channel: ChannelMedium) -> Medium {
+    Medium::new(
+        grid,
+        vec![channel],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap()
+}
+
 #[test]
 fn coarse_operator_from_links_equals_the_probed_galerkin_matrix() {
     // 20×20×18 cells: 8-cell aggregates clipped at the far faces (3×3×3 = 27 aggregates).
@@ -38,8 +50,8 @@ fn coarse_operator_from_links_equals_the_probed_galerkin_matrix() {
         emission: CellValues::Uniform(0.0),
     };
     let op = HierarchicalOperator::build(
-        &grid,
-        &channel,
+        &grey(grid, channel),
+        0,
         &HierarchicalOptions {
             near: NearQuadrature {
                 radius: 2,
@@ -101,8 +113,8 @@ fn small_cloud_operator(dims: [usize; 3], peak: f64, albedo: f32) -> Hierarchica
         emission: CellValues::Uniform(0.0),
     };
     HierarchicalOperator::build(
-        &grid,
-        &channel,
+        &grey(grid, channel),
+        0,
         &HierarchicalOptions {
             near: NearQuadrature {
                 radius: 2,

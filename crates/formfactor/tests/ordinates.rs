@@ -10,7 +10,8 @@ use formfactor::ordinates::{
     PhaseMatrix,
 };
 use glam::DVec3;
-use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use medium::light_pass::LightPass;
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 use rand::{Rng, SeedableRng};
 use solver::operator::TransportOperator;
 
@@ -43,6 +44,18 @@ fn blob_channel(grid: &Grid, peak: f64, albedo: f32) -> ChannelMedium {
         albedo: CellValues::PerCell(alb),
         emission: CellValues::Uniform(0.0),
     }
+}
+
+/// The one-channel medium of `channel` on `grid`.
+fn medium(grid: Grid, channel: &ChannelMedium, phase: PhaseFunction) -> Medium {
+    Medium::new(
+        grid,
+        vec![channel.clone()],
+        phase,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap()
 }
 
 #[test]
@@ -177,10 +190,9 @@ fn operator(
     n: usize,
     periodic: bool,
 ) -> OrdinatesOperator {
-    OrdinatesOperator::from_channel(
-        grid,
-        channel,
-        PhaseFunction::HenyeyGreenstein { g },
+    OrdinatesOperator::new(
+        &medium(grid, channel, PhaseFunction::HenyeyGreenstein { g }),
+        0,
         DirectionBins::cube(n).unwrap(),
         OrdinatesOptions {
             periodic_xy: periodic,
@@ -231,12 +243,15 @@ fn one_sweep_conserves_energy() {
 fn refined_sweep_conserves_energy_and_refuses_bad_options() {
     let mut r = rng(11);
     let grid = Grid::new([5, 4, 6], 0.7).unwrap();
-    let ch = blob_channel(&grid, 3.0, 0.9);
+    let blob = medium(
+        grid,
+        &blob_channel(&grid, 3.0, 0.9),
+        PhaseFunction::HenyeyGreenstein { g: 0.5 },
+    );
     let make = |refinement: usize, periodic_xy: bool| {
-        OrdinatesOperator::from_channel(
-            grid,
-            &ch,
-            PhaseFunction::HenyeyGreenstein { g: 0.5 },
+        OrdinatesOperator::new(
+            &blob,
+            0,
             DirectionBins::cube(3).unwrap(),
             OrdinatesOptions {
                 transport_refinement: refinement,
@@ -276,11 +291,14 @@ fn refined_sweep_conserves_energy_and_refuses_bad_options() {
 #[test]
 fn exact_transmission_exceeds_the_mean_chord_and_conserves() {
     let grid = Grid::new([5, 4, 6], 0.7).unwrap();
-    let ch = blob_channel(&grid, 3.0, 0.9);
-    let op = OrdinatesOperator::from_channel(
+    let blob = medium(
         grid,
-        &ch,
+        &blob_channel(&grid, 3.0, 0.9),
         PhaseFunction::Isotropic,
+    );
+    let op = OrdinatesOperator::new(
+        &blob,
+        0,
         DirectionBins::cube(4).unwrap(),
         OrdinatesOptions {
             exact_transmission: true,
@@ -483,6 +501,39 @@ fn infinite_medium_limit() {
 }
 
 #[test]
+fn the_external_density_is_the_first_bounce_plus_the_channels_emission() {
+    let grid = Grid::new([4, 3, 5], 1.0).unwrap();
+    let mut ch = blob_channel(&grid, 2.0, 0.9);
+    ch.emission = CellValues::PerCell(
+        (0..grid.cell_count())
+            .map(|i| (i % 3) as f32 * 0.1)
+            .collect(),
+    );
+    let op = operator(grid, &ch, 0.5, 2, false);
+    let lights = [
+        Light::Directional {
+            direction: DVec3::new(0.3, 0.2, -0.9).normalize(),
+            irradiance: 1.0,
+        },
+        Light::Point {
+            position: DVec3::new(-1.0, 1.5, 2.5),
+            intensity: 3.0,
+        },
+    ];
+    let pass = LightPass::compute(&grid, &ch, &lights).unwrap();
+    let all = op.external_density_from_pass(&pass).unwrap();
+    let first = op.first_bounce_density_from_pass(&pass).unwrap();
+    assert!(first.iter().any(|&v| v > 0.0));
+    let m = op.bins().len();
+    for (c, (a, f)) in all.chunks(m).zip(first.chunks(m)).enumerate() {
+        let e = ch.emission.get(c) as f64;
+        for (x, y) in a.iter().zip(f) {
+            assert!((x - y - e).abs() <= 1e-12 * x.abs().max(1.0), "cell {c}");
+        }
+    }
+}
+
+#[test]
 fn refuses_mismatched_inputs() {
     let grid = Grid::new([2, 2, 2], 1.0).unwrap();
     let ch = blob_channel(&grid, 1.0, 0.5);
@@ -495,18 +546,37 @@ fn refuses_mismatched_inputs() {
         })
     ));
     assert!(op.external_density(None, &[(DVec3::Z, &[1.0; 7])]).is_err());
-    let bad = ChannelMedium {
-        sigma_t: vec![1.0; 5],
-        ..ch
-    };
-    assert!(OrdinatesOperator::from_channel(
-        grid,
-        &bad,
-        PhaseFunction::Isotropic,
-        DirectionBins::cube(1).unwrap(),
-        OrdinatesOptions::default()
-    )
-    .is_err());
+    // A channel the medium does not have.
+    assert!(matches!(
+        OrdinatesOperator::new(
+            &medium(grid, &ch, PhaseFunction::Isotropic),
+            1,
+            DirectionBins::cube(1).unwrap(),
+            OrdinatesOptions::default()
+        ),
+        Err(OrdinatesError::Channel {
+            channel: 1,
+            channels: 1
+        })
+    ));
+    // A light pass of another grid, and one whose fields were cut short.
+    let light = [Light::Directional {
+        direction: DVec3::NEG_Z,
+        irradiance: 1.0,
+    }];
+    let other = Grid::new([2, 2, 3], 1.0).unwrap();
+    let foreign = LightPass::compute(&other, &blob_channel(&other, 1.0, 0.5), &light).unwrap();
+    assert_eq!(
+        op.external_density_from_pass(&foreign),
+        Err(OrdinatesError::ForeignLightPass)
+    );
+    let mut short = LightPass::compute(&grid, &ch, &light).unwrap();
+    assert!(op.external_density_from_pass(&short).is_ok());
+    short.fields[0].cell_irradiance.pop();
+    assert!(matches!(
+        op.first_bounce_density_from_pass(&short),
+        Err(OrdinatesError::Length { .. })
+    ));
 }
 
 #[test]

@@ -12,7 +12,7 @@ mod blob;
 use blob::iterate;
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix};
-use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 use solver::operator::TransportOperator;
 
 #[test]
@@ -30,6 +30,14 @@ fn isotropic_ordinates_agree_with_zonal() {
         albedo: CellValues::Uniform(0.9),
         emission: CellValues::Uniform(0.0),
     };
+    let medium = Medium::new(
+        grid,
+        vec![channel],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
     let n = grid.cell_count();
     let uniform = std::env::var("ZONAL_SOURCE_LAYER").is_err();
     // Uniform emission (or, with ZONAL_SOURCE_LAYER set, one emitting layer).
@@ -43,16 +51,15 @@ fn isotropic_ordinates_agree_with_zonal() {
         })
         .collect();
 
-    let zonal = FormFactorMatrix::build(&grid, &channel, &ExactOptions::default(), None).unwrap();
+    let zonal = FormFactorMatrix::build(&medium, 0, &ExactOptions::default(), None).unwrap();
     let g_zonal = iterate(&zonal, &emission);
 
     // The same problem by discrete ordinates (96 bins), sweeping each cell whole and as
     // 2×2×2 sub-cells.
     let gap = |refinement: usize| -> f64 {
-        let op = OrdinatesOperator::from_channel(
-            grid,
-            &channel,
-            PhaseFunction::Isotropic,
+        let op = OrdinatesOperator::new(
+            &medium,
+            0,
             DirectionBins::cube(4).unwrap(),
             OrdinatesOptions {
                 transport_refinement: refinement,

@@ -3,7 +3,7 @@
 //! light pass's: crates/medium/tests/light_pass.rs).
 
 use formfactor::{ExactOptions, FormFactorError, FormFactorMatrix, NearQuadrature};
-use medium::{CellValues, ChannelMedium, Grid};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use solver::TransportOperator;
@@ -14,6 +14,18 @@ fn channel(sigma_t: Vec<f32>, albedo: f32) -> ChannelMedium {
         albedo: CellValues::Uniform(albedo),
         emission: CellValues::Uniform(0.0),
     }
+}
+
+/// The grey, isotropic one-channel medium of `channel` on `grid`.
+fn grey(grid: &Grid, channel: &ChannelMedium) -> Medium {
+    Medium::new(
+        *grid,
+        vec![channel.clone()],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap()
 }
 
 /// Random medium: σt·h uniform in [0, max_tau] with a fraction of empty cells.
@@ -36,7 +48,8 @@ fn column_sums_never_exceed_one() {
     let grid = Grid::new([6, 5, 6], h).unwrap();
     for (max_tau, seed) in [(5.0, 1u64), (0.01, 2), (1.0, 3)] {
         let ch = channel(random_sigma(grid.cell_count(), max_tau, h, 0.2, seed), 0.9);
-        let f = FormFactorMatrix::build(&grid, &ch, &ExactOptions::default(), None).unwrap();
+        let f =
+            FormFactorMatrix::build(&grey(&grid, &ch), 0, &ExactOptions::default(), None).unwrap();
         let sums = f.column_sums();
         let max = sums.iter().copied().fold(0.0, f64::max);
         assert!(max <= 1.0 + 1e-12, "σt·h ≤ {max_tau}: column sum {max}");
@@ -45,7 +58,7 @@ fn column_sums_never_exceed_one() {
         for (i, &s) in ch.sigma_t.iter().enumerate() {
             if s == 0.0 {
                 assert_eq!(sums[i], 0.0);
-                assert_eq!(f.matrix.outer_view(i).unwrap().nnz(), 0);
+                assert_eq!(f.matrix().outer_view(i).unwrap().nnz(), 0);
             }
         }
     }
@@ -56,7 +69,7 @@ fn thick_homogeneous_cube_column_sums_approach_one() {
     // σt·h = 5: light emitted at the centre of a 7³ cube is almost all extinguished inside.
     let grid = Grid::new([7, 7, 7], 1.0).unwrap();
     let ch = channel(vec![5.0; grid.cell_count()], 1.0);
-    let f = FormFactorMatrix::build(&grid, &ch, &ExactOptions::default(), None).unwrap();
+    let f = FormFactorMatrix::build(&grey(&grid, &ch), 0, &ExactOptions::default(), None).unwrap();
     let sums = f.column_sums();
     let centre = grid.index(3, 3, 3);
     assert!(
@@ -74,8 +87,8 @@ fn exact_operator_is_reciprocal() {
     let grid = Grid::new([5, 6, 5], h).unwrap();
     let sigma = random_sigma(grid.cell_count(), 2.0, h, 0.1, 7);
     let f = FormFactorMatrix::build(
-        &grid,
-        &channel(sigma.clone(), 0.5),
+        &grey(&grid, &channel(sigma.clone(), 0.5)),
+        0,
         &ExactOptions::default(),
         None,
     )
@@ -125,7 +138,8 @@ fn self_term_matches_independent_quadrature() {
     for tau in [0.1, 1.0, 5.0] {
         let ch = channel(vec![(tau / 2.0) as f32], 1.0);
         let expected = 1.0 - cube_escape_probability(tau);
-        let f = FormFactorMatrix::build(&grid, &ch, &ExactOptions::default(), None).unwrap();
+        let f =
+            FormFactorMatrix::build(&grey(&grid, &ch), 0, &ExactOptions::default(), None).unwrap();
         let got = f.get(0, 0);
         let rel = (got - expected).abs() / expected;
         assert!(
@@ -140,22 +154,23 @@ fn threshold_drops_entries_with_bounded_reported_energy() {
     let h = 1.0;
     let grid = Grid::new([8, 8, 8], h).unwrap();
     let ch = channel(random_sigma(grid.cell_count(), 0.5, h, 0.0, 11), 0.8);
-    let full = FormFactorMatrix::build(&grid, &ch, &ExactOptions::default(), None).unwrap();
+    let full =
+        FormFactorMatrix::build(&grey(&grid, &ch), 0, &ExactOptions::default(), None).unwrap();
     let options = ExactOptions {
         threshold: 1e-3,
         ..Default::default()
     };
-    let cut = FormFactorMatrix::build(&grid, &ch, &options, None).unwrap();
+    let cut = FormFactorMatrix::build(&grey(&grid, &ch), 0, &options, None).unwrap();
     assert!(
-        cut.report.entries < full.report.entries * 4 / 5,
+        cut.report().entries < full.report().entries * 4 / 5,
         "{} vs {}",
-        cut.report.entries,
-        full.report.entries
+        cut.report().entries,
+        full.report().entries
     );
     let (a, b) = (full.column_sums(), cut.column_sums());
     let worst = a.iter().zip(&b).map(|(x, y)| x - y).fold(0.0, f64::max);
     assert!(worst > 0.0);
-    assert!(worst <= cut.report.max_dropped_column_sum * (1.0 + 1e-9) + 1e-15);
+    assert!(worst <= cut.report().max_dropped_column_sum * (1.0 + 1e-9) + 1e-15);
 }
 
 #[test]
@@ -166,7 +181,7 @@ fn apply_matches_sparse_product_with_albedo() {
         .map(|i| 0.3 + 0.01 * i as f32)
         .collect();
     ch.albedo = CellValues::PerCell(albedo.clone());
-    let f = FormFactorMatrix::build(&grid, &ch, &ExactOptions::default(), None).unwrap();
+    let f = FormFactorMatrix::build(&grey(&grid, &ch), 0, &ExactOptions::default(), None).unwrap();
     let x: Vec<f64> = (0..grid.cell_count())
         .map(|i| (i as f64 * 0.37).sin() + 1.5)
         .collect();
@@ -174,7 +189,7 @@ fn apply_matches_sparse_product_with_albedo() {
     f.apply(&x, &mut y);
     // Serial reference through sprs's own row iterator.
     let reference: Vec<f64> = f
-        .matrix
+        .matrix()
         .outer_iterator()
         .map(|row| row.iter().map(|(j, v)| v * x[j]).sum())
         .collect();
@@ -210,12 +225,15 @@ fn bad_input() {
         ..Default::default()
     };
     assert!(matches!(
-        FormFactorMatrix::build(&grid, &ch, &bad, None),
+        FormFactorMatrix::build(&grey(&grid, &ch), 0, &bad, None),
         Err(FormFactorError::Option { .. })
     ));
-    let wrong = Grid::new([3, 1, 1], 1.0).unwrap();
-    assert!(matches!(
-        FormFactorMatrix::build(&wrong, &ch, &ExactOptions::default(), None),
-        Err(FormFactorError::Length { .. })
-    ));
+    // A channel the medium does not have.
+    assert_eq!(
+        FormFactorMatrix::build(&grey(&grid, &ch), 1, &ExactOptions::default(), None).err(),
+        Some(FormFactorError::Channel {
+            channel: 1,
+            channels: 1
+        })
+    );
 }

@@ -185,7 +185,9 @@ impl<'a> SingleScatter<'a> {
                 medium.channels().len()
             ))
         })?;
-        if pass.grid != *medium.grid() || pass.sigma_t.len() != ch.sigma_t.len() {
+        // The medium is valid by construction; a light pass (public fields) is not, and must
+        // be for this grid, with one σt per cell.
+        if pass.grid != *medium.grid() || pass.sigma_t.len() != pass.grid.cell_count() {
             return Err(GatherError::Render(
                 "the light pass was computed for a different grid".into(),
             ));

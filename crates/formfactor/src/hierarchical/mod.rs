@@ -21,14 +21,14 @@
 use std::time::Instant;
 
 use glam::DVec3;
-use medium::{traversal::Ray, ChannelMedium, Grid};
+use medium::{traversal::Ray, Grid, Medium};
 use rayon::prelude::*;
 use solver::TransportOperator;
 
 use crate::zonal::kernel::{escape, geometry_factor, interception, mean_chord, NearStencil};
 use crate::zonal::{
-    active_cells, albedo_vec, check_channel, far_entry, near_columns, near_entry,
-    symmetrizer_weights, validate_near, BuildReport, FormFactorError, NearQuadrature,
+    active_cells, albedo_vec, channel_of, far_entry, near_columns, near_entry, symmetrizer_weights,
+    validate_near, BuildReport, FormFactorError, NearQuadrature,
 };
 
 /// Options of [`HierarchicalOperator::build`].
@@ -90,13 +90,21 @@ impl Level {
 }
 
 /// The hierarchical zonal operator `K = diag(a)·F`.
+///
+/// # Invariants
+/// Built only by [`HierarchicalOperator::build`], from one channel of a valid [`Medium`]; the
+/// fields are private and nothing changes them afterwards, so the pyramid, the near field,
+/// the energy scaling `d` and the albedo all describe that channel's `n` cells, and the
+/// symmetriser weights `w_i = 1/(a_i σt_i)` are those of this albedo and σt. (As for
+/// [`FormFactorMatrix`](crate::FormFactorMatrix): another albedo means another build, or a
+/// uniform factor applied outside, which keeps `w`.)
 #[derive(Clone, Debug)]
 pub struct HierarchicalOperator {
-    pub grid: Grid,
-    pub albedo: Vec<f64>,
-    pub report: BuildReport,
+    grid: Grid,
+    albedo: Vec<f64>,
+    report: BuildReport,
     /// Unordered cluster links per level (level 0 = cell pairs beyond the near radius).
-    pub links_per_level: Vec<usize>,
+    links_per_level: Vec<usize>,
     levels: Vec<Level>,
     alpha: Vec<f64>,
     beta: Vec<f64>,
@@ -124,12 +132,14 @@ enum Outcome {
 }
 
 impl HierarchicalOperator {
+    /// Builds the operator for channel `channel` of `medium`.
     pub fn build(
-        grid: &Grid,
-        channel: &ChannelMedium,
+        medium: &Medium,
+        channel: usize,
         options: &HierarchicalOptions,
     ) -> Result<Self, FormFactorError> {
-        check_channel(grid, channel)?;
+        let channel = channel_of(medium, channel)?;
+        let grid = medium.grid();
         validate_near(&options.near)?;
         if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
             return Err(FormFactorError::Option {
@@ -395,6 +405,25 @@ impl HierarchicalOperator {
         Ok(op)
     }
 
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The albedo per cell, the `a` of `K = diag(a)·F`.
+    pub fn albedo(&self) -> &[f64] {
+        &self.albedo
+    }
+
+    /// What the build did.
+    pub fn report(&self) -> &BuildReport {
+        &self.report
+    }
+
+    /// Unordered cluster links per level (level 0 = cell pairs beyond the near radius).
+    pub fn links_per_level(&self) -> &[usize] {
+        &self.links_per_level
+    }
+
     /// Total unordered links (all levels, leaf far pairs included).
     pub fn link_count(&self) -> usize {
         self.links_per_level.iter().sum()
@@ -484,9 +513,14 @@ impl HierarchicalOperator {
     }
 
     /// Column sums `Σ_i F_ij`, by applying the transpose to ones (`Fᵀ1 = diag(σt)⁻¹ F σt`
-    /// by reciprocity); inactive columns are 0.
-    pub fn column_sums(&self, sigma_t: &[f32]) -> Vec<f64> {
-        let s: Vec<f64> = sigma_t.iter().map(|&s| s as f64).collect();
+    /// by reciprocity, with the σt the operator was built for); inactive columns are 0.
+    pub fn column_sums(&self) -> Vec<f64> {
+        // The finest pyramid level's "mean" σt is the cells' own.
+        let s: Vec<f64> = self.levels[0]
+            .sigma_mean
+            .iter()
+            .map(|&s| s as f64)
+            .collect();
         let mut y = vec![0.0; s.len()];
         self.apply_form_factors(&s, &mut y);
         y.iter()

@@ -38,6 +38,8 @@ pub enum OrdinatesError {
     },
     #[error("invalid medium: {0}")]
     Medium(String),
+    #[error("the light pass was computed for another grid")]
+    ForeignLightPass,
     #[error("invalid option: {0}")]
     Option(String),
 }

@@ -22,7 +22,7 @@
 use std::sync::Mutex;
 
 use glam::DVec3;
-use medium::{light_pass::LightPass, ChannelMedium, Grid, Light, Medium, PhaseFunction};
+use medium::{light_pass::LightPass, Grid, Light, Medium, PhaseFunction};
 use rayon::prelude::*;
 use solver::operator::TransportOperator;
 
@@ -479,10 +479,18 @@ fn piece_classes(pieces: &[Piece]) -> (Vec<usize>, Vec<usize>) {
 }
 
 /// The discrete-ordinates operator `K` for one colour channel (see the module doc).
+///
+/// # Invariants
+/// Built only by [`OrdinatesOperator::new`], from one channel of a valid [`Medium`]: σt, σs
+/// and the emission (`n` values each, finite, `0 ≤ σs ≤ σt`) and the phase function are that
+/// channel's, and the per-cell sweep coefficients and the phase matrix are derived from them
+/// once; the fields are private, so they stay consistent.
 pub struct OrdinatesOperator {
     grid: Grid,
     sigma_t: Vec<f64>,
     sigma_s: Vec<f64>,
+    /// The channel's emission per cell (the isotropic part of the external density).
+    emission: Vec<f64>,
     /// Class of each piece ([`piece_classes`]).
     piece_class: Vec<usize>,
     /// Class-major cell coefficients, `classes × cells`.
@@ -511,42 +519,25 @@ pub struct SweepSolve {
 }
 
 impl OrdinatesOperator {
-    /// The operator for channel `channel` of `medium`.
+    /// The operator for channel `channel` of `medium` (whose σt, albedo, emission and phase
+    /// function are valid by [`Medium`]'s invariants; a changed medium is built through
+    /// [`Medium::with_channel`] or [`Medium::new`]).
     pub fn new(
         medium: &Medium,
         channel: usize,
         bins: DirectionBins,
         options: OrdinatesOptions,
     ) -> Result<Self, OrdinatesError> {
-        let ch = medium
+        let channel = medium
             .channels()
             .get(channel)
             .ok_or(OrdinatesError::Channel {
                 channel,
                 channels: medium.channels().len(),
             })?;
-        Self::from_channel(*medium.grid(), ch, medium.phase(), bins, options)
-    }
-
-    /// The operator for one channel's optical properties.
-    pub fn from_channel(
-        grid: Grid,
-        channel: &ChannelMedium,
-        phase: PhaseFunction,
-        bins: DirectionBins,
-        options: OrdinatesOptions,
-    ) -> Result<Self, OrdinatesError> {
+        let grid = *medium.grid();
+        let phase = medium.phase();
         let n = grid.cell_count();
-        if channel.sigma_t.len() != n {
-            return Err(OrdinatesError::Length {
-                what: "sigma_t",
-                got: channel.sigma_t.len(),
-                expected: n,
-            });
-        }
-        phase
-            .validate()
-            .map_err(|e| OrdinatesError::Medium(e.to_string()))?;
         let r = options.transport_refinement;
         if !(1..=MAX_TRANSPORT_REFINEMENT).contains(&r) {
             return Err(OrdinatesError::Option(format!(
@@ -559,12 +550,10 @@ impl OrdinatesOperator {
             ));
         }
         let sigma_t: Vec<f64> = channel.sigma_t.iter().map(|&s| s as f64).collect();
-        if sigma_t.iter().any(|s| !(s.is_finite() && *s >= 0.0)) {
-            return Err(OrdinatesError::Medium("σt must be finite and ≥ 0".into()));
-        }
         let sigma_s: Vec<f64> = (0..n)
             .map(|i| sigma_t[i] * channel.albedo.get(i) as f64)
             .collect();
+        let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
         let k = options
             .phase_quadrature
             .unwrap_or_else(|| default_quadrature(&bins));
@@ -620,6 +609,7 @@ impl OrdinatesOperator {
             grid,
             sigma_t,
             sigma_s,
+            emission,
             bins,
             phase,
             matrix,
@@ -916,17 +906,42 @@ impl OrdinatesOperator {
         Ok(density)
     }
 
-    /// [`external_density`](Self::external_density) from a light pass and the channel's
-    /// emission. Point and spot lights use `p(ω_l·d)` at bin centres for the direction `d`
-    /// from the light to each cell centre, renormalised per cell (a bin-centre approximation).
-    pub fn external_density_from_pass(
+    /// [`external_density`](Self::external_density) from a light pass (which must be for
+    /// this operator's grid) and the channel's emission. Point and spot lights use `p(ω_l·d)`
+    /// at bin centres for the direction `d` from the light to each cell centre, renormalised
+    /// per cell (a bin-centre approximation).
+    pub fn external_density_from_pass(&self, pass: &LightPass) -> Result<Vec<f64>, OrdinatesError> {
+        self.density_from_pass(pass, Some(&self.emission))
+    }
+
+    /// The first-bounce part of
+    /// [`external_density_from_pass`](Self::external_density_from_pass): the light pass
+    /// scattered once, without the emission.
+    pub fn first_bounce_density_from_pass(
         &self,
         pass: &LightPass,
-        channel: &ChannelMedium,
+    ) -> Result<Vec<f64>, OrdinatesError> {
+        self.density_from_pass(pass, None)
+    }
+
+    fn density_from_pass(
+        &self,
+        pass: &LightPass,
+        emission: Option<&[f64]>,
     ) -> Result<Vec<f64>, OrdinatesError> {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
+        if pass.grid != self.grid {
+            return Err(OrdinatesError::ForeignLightPass);
+        }
+        // (The pass's fields are public: their lengths are not guaranteed.)
+        if let Some(f) = pass.fields.iter().find(|f| f.cell_irradiance.len() != n) {
+            return Err(OrdinatesError::Length {
+                what: "cell irradiance",
+                got: f.cell_irradiance.len(),
+                expected: n,
+            });
+        }
         let mut directional = Vec::new();
         let mut irr_store = Vec::new();
         for f in &pass.fields {
@@ -942,7 +957,7 @@ impl OrdinatesOperator {
                 directional.push((direction, irr.as_slice()));
             }
         }
-        let mut density = self.external_density(Some(&emission), &directional)?;
+        let mut density = self.external_density(emission, &directional)?;
         let omega = self.bins.solid_angles();
         let centres = self.bins.centres();
         for (f, irr) in pass.fields.iter().zip(&irr_store) {

@@ -18,7 +18,7 @@ pub mod kernel;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use medium::{ChannelMedium, Grid};
+use medium::{ChannelMedium, Grid, Medium};
 use rayon::prelude::*;
 use solver::{RowAccess, TransportOperator};
 use sprs::CsMat;
@@ -35,6 +35,8 @@ pub enum FormFactorError {
         got: usize,
         expected: usize,
     },
+    #[error("channel {channel} does not exist (the medium has {channels})")]
+    Channel { channel: usize, channels: usize },
     #[error("invalid option {name}: {reason}")]
     Option { name: &'static str, reason: String },
 }
@@ -196,40 +198,57 @@ pub(crate) fn albedo_vec(channel: &ChannelMedium) -> Vec<f64> {
         .collect()
 }
 
-pub(crate) fn check_channel(grid: &Grid, channel: &ChannelMedium) -> Result<(), FormFactorError> {
-    if channel.sigma_t.len() != grid.cell_count() {
-        return Err(FormFactorError::Length {
-            what: "sigma_t",
-            got: channel.sigma_t.len(),
-            expected: grid.cell_count(),
-        });
-    }
-    Ok(())
+/// Channel `channel` of `medium` (valid by [`Medium`]'s invariants: σt and albedo match the
+/// grid, finite, in range), or an error naming the channels there are.
+pub(crate) fn channel_of(
+    medium: &Medium,
+    channel: usize,
+) -> Result<&ChannelMedium, FormFactorError> {
+    medium
+        .channels()
+        .get(channel)
+        .ok_or(FormFactorError::Channel {
+            channel,
+            channels: medium.channels().len(),
+        })
 }
 
 /// The exact zonal operator `K = diag(a)·F` with `F` in CSR form.
+///
+/// # Invariants
+/// Built only by [`FormFactorMatrix::build`], from one channel of a valid [`Medium`]; the
+/// fields are private and nothing changes them afterwards, so:
+/// - `F` is `n × n` for the grid's `n` cells, and the albedo and σt (`n` values each) are the
+///   channel's;
+/// - `F/σt` is symmetric (reciprocity, to rounding) and every column sum of `F` is at most 1;
+/// - the symmetriser weights `w_i = 1/(a_i σt_i)` ([`TransportOperator::symmetrizer`]) are
+///   those of this albedo and σt: an operator for another albedo is built anew (or, for a
+///   uniform factor, wrapped as `bench albedo`'s `AlbedoScaled` does: `a·K` keeps `w`).
 #[derive(Clone, Debug)]
 pub struct FormFactorMatrix {
-    pub grid: Grid,
+    grid: Grid,
     /// `F` (not including the albedo), rows = receivers, columns = emitters.
-    pub matrix: CsMat<f64>,
-    pub albedo: Vec<f64>,
-    pub sigma_t: Vec<f32>,
-    pub report: BuildReport,
+    matrix: CsMat<f64>,
+    albedo: Vec<f64>,
+    sigma_t: Vec<f32>,
+    report: BuildReport,
+    /// `symmetrizer_weights(sigma_t, albedo)`.
     weights: Option<Vec<f64>>,
 }
 
 impl FormFactorMatrix {
-    /// Builds `F` for one channel. `progress(done, total)` is called as rows complete.
+    /// Builds `F` for channel `channel` of `medium`. `progress(done, total)` is called as rows
+    /// complete.
     pub fn build(
-        grid: &Grid,
-        channel: &ChannelMedium,
+        medium: &Medium,
+        channel: usize,
         options: &ExactOptions,
         progress: Option<&(dyn Fn(usize, usize) + Sync)>,
     ) -> Result<Self, FormFactorError> {
-        check_channel(grid, channel)?;
+        let channel = channel_of(medium, channel)?;
         options.validate()?;
         let start = Instant::now();
+        let grid = medium.grid();
         let sigma_t = &channel.sigma_t;
         let n = grid.cell_count();
         let (active, active_index) = active_cells(sigma_t);
@@ -321,6 +340,30 @@ impl FormFactorMatrix {
             report,
             weights,
         })
+    }
+
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// `F` (not including the albedo) in CSR form, rows = receivers, columns = emitters.
+    pub fn matrix(&self) -> &CsMat<f64> {
+        &self.matrix
+    }
+
+    /// The albedo per cell, the `a` of `K = diag(a)·F`.
+    pub fn albedo(&self) -> &[f64] {
+        &self.albedo
+    }
+
+    /// σt per cell, as the medium stores it.
+    pub fn sigma_t(&self) -> &[f32] {
+        &self.sigma_t
+    }
+
+    /// What the build did.
+    pub fn report(&self) -> &BuildReport {
+        &self.report
     }
 
     /// `F_ij` (0 when not stored).

@@ -5,7 +5,7 @@ use std::f64::consts::PI;
 
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix};
-use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 use solver::operator::TransportOperator;
 
 /// Source iteration `x ← e + K x` to a relative change of 1e-10.
@@ -29,8 +29,8 @@ pub fn iterate(op: &dyn TransportOperator, e: &[f64]) -> Vec<f64> {
 }
 
 /// The blob of of tests/ordinates_zonal.rs' `isotropic_ordinates_agree_with_zonal` on a grid refined `r`× per axis
-/// (the same piecewise-constant medium), uniform emission 1.
-pub fn refined_blob(r: usize) -> (Grid, ChannelMedium) {
+/// (the same piecewise-constant medium, isotropic scattering); the emission is the callers'.
+pub fn refined_blob(r: usize) -> Medium {
     let coarse = Grid::new([7, 7, 7], 1.0).unwrap();
     let grid = Grid::new([7 * r, 7 * r, 7 * r], 1.0 / r as f64).unwrap();
     let c = coarse.center();
@@ -47,7 +47,14 @@ pub fn refined_blob(r: usize) -> (Grid, ChannelMedium) {
         albedo: CellValues::Uniform(0.9),
         emission: CellValues::Uniform(0.0),
     };
-    (grid, channel)
+    Medium::new(
+        grid,
+        vec![channel],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap()
 }
 
 /// Scattered source `σs ∫I dω / 4π` (ordinates) or `g − e` (zonal) averaged back onto the
@@ -62,20 +69,21 @@ pub fn coarse_average(grid: &Grid, r: usize, fine: &[f64]) -> Vec<f64> {
 }
 
 pub fn scattered_zonal(r: usize) -> Vec<f64> {
-    let (grid, channel) = refined_blob(r);
+    let blob = refined_blob(r);
+    let grid = *blob.grid();
     let e = vec![1.0; grid.cell_count()];
-    let zonal = FormFactorMatrix::build(&grid, &channel, &ExactOptions::default(), None).unwrap();
+    let zonal = FormFactorMatrix::build(&blob, 0, &ExactOptions::default(), None).unwrap();
     let g = iterate(&zonal, &e);
     coarse_average(&grid, r, &g.iter().map(|v| v - 1.0).collect::<Vec<_>>())
 }
 
 pub fn scattered_ordinates(r: usize, n: usize) -> Vec<f64> {
-    let (grid, channel) = refined_blob(r);
+    let blob = refined_blob(r);
+    let grid = *blob.grid();
     let e = vec![1.0; grid.cell_count()];
-    let op = OrdinatesOperator::from_channel(
-        grid,
-        &channel,
-        PhaseFunction::Isotropic,
+    let op = OrdinatesOperator::new(
+        &blob,
+        0,
         DirectionBins::cube(n).unwrap(),
         OrdinatesOptions {
             exact_transmission: std::env::var("ZONAL_EXACT_T").is_ok_and(|v| v == "1"),

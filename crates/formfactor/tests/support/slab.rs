@@ -5,7 +5,7 @@
 use formfactor::ordinates::bins::face_bilinear;
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use glam::DVec3;
-use medium::{CellValues, ChannelMedium, Grid, PhaseFunction};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 use solver::operator::TransportOperator;
 
 pub struct SlabResult {
@@ -46,14 +46,15 @@ pub fn solve_slab_with(
         phase_quadrature: base.phase_quadrature.or((n > 6).then_some(3)),
         ..base
     };
-    let op = OrdinatesOperator::from_channel(
+    let medium = Medium::new(
         grid,
-        &channel,
+        vec![channel],
         PhaseFunction::HenyeyGreenstein { g },
-        DirectionBins::cube(n).unwrap(),
-        options,
+        Interpolation::Nearest,
+        None,
     )
     .unwrap();
+    let op = OrdinatesOperator::new(&medium, 0, DirectionBins::cube(n).unwrap(), options).unwrap();
     // Exact cell means of E0 T_L for the beam: layer at depth t (from the top) sees
     // e^{−σ t h/μ0} (1 − e^{−σh/μ0}) / (σh/μ0).
     let a = sigma / mu0;
