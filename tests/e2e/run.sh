@@ -12,4 +12,4 @@ if [ ! -d tests/e2e/node_modules/playwright-core ]; then
   (cd tests/e2e && npm ci --no-audit --no-fund --silent)
 fi
 cargo build -p volrad --bin volrad --quiet
-VOLRAD_BIN=target/debug/volrad CHROMIUM="$(command -v chromium)" node tests/e2e/viewer.mjs "$@"
+VOLRAD_BIN="${CARGO_TARGET_DIR:-target}/debug/volrad" CHROMIUM="$(command -v chromium)" node tests/e2e/viewer.mjs "$@"
