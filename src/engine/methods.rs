@@ -106,19 +106,9 @@ pub fn solve_zonal(
                 source: source.iter().map(|&v| v as f32).collect(),
                 higher_order: vec![0.0; source.len()],
             },
-            Some(SolveReport {
-                method: settings.iteration.to_string(),
-                iterations: 0,
-                converged: true,
-                final_residual: 0.0,
-                residual_history: vec![0.0],
-                seconds: 0.0,
-                seconds_per_iteration: 0.0,
-                operator_applications: 0,
-                operator_sweeps: 0,
-                cancelled: false,
-                stop_reason: solver::StopReason::Converged,
-            }),
+            Some(SolveReport::without_iterations(
+                settings.iteration.to_string(),
+            )),
         ));
     }
     let (g, report) = match settings.method {

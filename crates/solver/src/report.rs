@@ -66,3 +66,23 @@ pub struct SolveReport {
     pub cancelled: bool,
     pub stop_reason: StopReason,
 }
+
+impl SolveReport {
+    /// The report of a system that needed no iteration (nothing couples the unknowns, so
+    /// `g = E` exactly): converged, zero residual, no operator applied.
+    pub fn without_iterations(method: impl Into<String>) -> SolveReport {
+        SolveReport {
+            method: method.into(),
+            iterations: 0,
+            converged: true,
+            final_residual: 0.0,
+            residual_history: vec![0.0],
+            seconds: 0.0,
+            seconds_per_iteration: 0.0,
+            operator_applications: 0,
+            operator_sweeps: 0,
+            cancelled: false,
+            stop_reason: StopReason::Converged,
+        }
+    }
+}
