@@ -100,6 +100,15 @@ pub struct Piece {
     transmission: Option<([f64; SOURCE_TABLE_LEN], [f64; 2])>,
 }
 
+impl Piece {
+    /// Escape slot ([`SweepEnergy::escaped`]) of the piece's flux leaving along `axis`:
+    /// `2 axis + forward`.
+    #[inline]
+    fn side(&self, axis: usize) -> usize {
+        2 * axis + usize::from(self.forward[axis])
+    }
+}
+
 /// Source-escape table: `τ0` from 10^-2 to 10^2, 10 points per decade (log-linear).
 const SOURCE_TABLE_LEN: usize = 41;
 const SOURCE_TABLE_MIN_LOG10: f64 = -2.0;
@@ -344,6 +353,30 @@ impl SweepEnergy {
             *a += b;
         }
     }
+
+    /// Tallies one swept (sub-)cell of side `h` (units of `Ω h²`): source density `sd`
+    /// emitted, and the parts of `inflow` and of the source that the cell extinguishes.
+    #[inline(always)]
+    fn tally_cell(&mut self, ct: &CellTerms, inflow: f64, sd: f64, h: f64) {
+        self.emitted += sd * h;
+        self.extinguished += inflow * (1.0 - ct.transmit) + sd * (h - ct.source_out);
+    }
+
+    /// Ends a piece's sweep through (sub-)cells of side `h`: when tallying, the z outflow of
+    /// the last layer (`last_layer`, before splitting among faces) escapes; then the tally
+    /// goes from per-`(Ω h²)` units to power.
+    fn finish_sweep(mut self, piece: &Piece, h: f64, last_layer: &[f64], tally: bool) -> Self {
+        if tally {
+            self.escaped[piece.side(2)] += piece.fractions[2] * last_layer.iter().sum::<f64>();
+        }
+        let unit = piece.solid_angle * h * h;
+        self.emitted *= unit;
+        self.extinguished *= unit;
+        for e in &mut self.escaped {
+            *e *= unit;
+        }
+        self
+    }
 }
 
 /// Energy balance of a solution: external source power vs absorbed + escaped.
@@ -403,6 +436,33 @@ struct CellTerms {
     source_out: f64,
     /// Cell-average radiance per unit source density: `h · source_track`.
     source_mean: f64,
+}
+
+impl CellTerms {
+    /// Outflow of the cell (before splitting among faces) for `inflow` and source density
+    /// `sd`.
+    #[inline(always)]
+    fn outflow(&self, inflow: f64, sd: f64) -> f64 {
+        inflow * self.transmit + sd * self.source_out
+    }
+
+    /// Cell-average radiance for `inflow` and source density `sd`: inflow part + source part
+    /// (module doc).
+    #[inline(always)]
+    fn mean_radiance(&self, inflow: f64, sd: f64) -> f64 {
+        inflow * self.inflow_mean + sd * self.source_mean
+    }
+}
+
+/// Position along an axis of `len` cells at step `t` of a sweep: `t` travelling forward,
+/// `len − 1 − t` backward.
+#[inline(always)]
+fn at(t: usize, len: usize, fwd: bool) -> usize {
+    if fwd {
+        t
+    } else {
+        len - 1 - t
+    }
 }
 
 /// Column length of bin-major scratch for `n` cells: padded by one cache line so that the
@@ -1035,6 +1095,24 @@ impl OrdinatesOperator {
         total
     }
 
+    /// Piece `p`, its bin's column of the bin-major `density` and its class's cell
+    /// coefficients: what either sweep reads.
+    #[inline]
+    fn piece_inputs<'a>(
+        &'a self,
+        p: usize,
+        density: &'a [f64],
+    ) -> (&'a Piece, &'a [f64], &'a [CellTerms]) {
+        let piece = &self.pieces[p];
+        let n = self.grid.cell_count();
+        let (column, class) = (piece.bin * self.stride, self.piece_class[p]);
+        (
+            piece,
+            &density[column..column + n],
+            &self.terms[class * n..(class + 1) * n],
+        )
+    }
+
     /// One piece's sweep through its bin's densities (bin-major `density`): writes
     /// `weight · I_avg` per cell into `out` (length N). Tallies power only when `tally`.
     fn sweep_piece(
@@ -1048,12 +1126,9 @@ impl OrdinatesOperator {
         if self.options.transport_refinement > 1 {
             return self.sweep_piece_refined(p, density, out, buf, tally);
         }
-        let piece = &self.pieces[p];
+        let (piece, density, terms) = self.piece_inputs(p, density);
         let [nx, ny, nz] = self.grid.dims;
-        let n = self.grid.cell_count();
         let h = self.grid.cell_size;
-        let density = &density[piece.bin * self.stride..piece.bin * self.stride + n];
-        let terms = &self.terms[self.piece_class[p] * n..(self.piece_class[p] + 1) * n];
         let [fx, fy, fz] = piece.fractions;
         let weight = piece.weight;
         let periodic = self.options.periodic_xy;
@@ -1066,19 +1141,9 @@ impl OrdinatesOperator {
         };
         // Wrapped inflows from other cells lag one pass: iterate such layers to convergence.
         let lagged = periodic && (nx > 1 || ny > 1);
-        #[inline(always)]
-        fn at(t: usize, len: usize, fwd: bool) -> usize {
-            if fwd {
-                t
-            } else {
-                len - 1 - t
-            }
-        }
         let [fwx, fwy, fwz] = piece.forward;
         let layer = nx * ny;
         let mut energy = SweepEnergy::default();
-        // Escape slots: axis a leaves through side 2a + forward.
-        let side = |a: usize| 2 * a + usize::from(piece.forward[a]);
         buf.out.fill(0.0);
         for tz in 0..nz {
             let base = layer * at(tz, nz, fwz);
@@ -1116,8 +1181,8 @@ impl OrdinatesOperator {
                             let lc = at(tx, nx, fwx) + nx * at(ty, ny, fwy);
                             let inflow = inflow_of(&buf.out, &buf.inz, tx, ty);
                             let ct = &terms[lc];
-                            let new = (inflow * ct.transmit + dens[lc] * ct.source_out)
-                                / (1.0 - self_loop * ct.transmit);
+                            let new =
+                                ct.outflow(inflow, dens[lc]) / (1.0 - self_loop * ct.transmit);
                             change = change.max((new - buf.out[lc]).abs());
                             scale = scale.max(new.abs());
                             buf.out[lc] = new;
@@ -1135,11 +1200,9 @@ impl OrdinatesOperator {
                             inflow_of(&buf.out, &buf.inz, tx, ty) + self_loop * buf.out[lc];
                         let ct = &terms[lc];
                         let sd = dens[lc];
-                        out[lc] = weight * (inflow * ct.inflow_mean + sd * ct.source_mean);
+                        out[lc] = weight * ct.mean_radiance(inflow, sd);
                         if tally {
-                            energy.emitted += sd * h;
-                            energy.extinguished +=
-                                inflow * (1.0 - ct.transmit) + sd * (h - ct.source_out);
+                            energy.tally_cell(ct, inflow, sd, h);
                         }
                     }
                 }
@@ -1157,42 +1220,28 @@ impl OrdinatesOperator {
                         let other = fx * up_x + in_y + fz * buf.out[lc];
                         let ct = &terms[lc];
                         let sd = dens[lc];
-                        let mut o = other * ct.transmit + sd * ct.source_out;
+                        let mut o = ct.outflow(other, sd);
                         if self_loop != 0.0 {
                             o /= 1.0 - self_loop * ct.transmit;
                         }
                         buf.out[lc] = o;
                         up_x = o;
                         let inflow = other + self_loop * o;
-                        // Cell-average radiance: inflow part + source part (module doc).
-                        out[lc] = weight * (inflow * ct.inflow_mean + sd * ct.source_mean);
+                        out[lc] = weight * ct.mean_radiance(inflow, sd);
                         if tally {
-                            energy.emitted += sd * h;
-                            energy.extinguished +=
-                                inflow * (1.0 - ct.transmit) + sd * (h - ct.source_out);
+                            energy.tally_cell(ct, inflow, sd, h);
                             if !periodic && tx == nx - 1 {
-                                energy.escaped[side(0)] += fx * o;
+                                energy.escaped[piece.side(0)] += fx * o;
                             }
                             if !periodic && ty == ny - 1 {
-                                energy.escaped[side(1)] += fy * o;
+                                energy.escaped[piece.side(1)] += fy * o;
                             }
                         }
                     }
                 }
             }
         }
-        // z outflow of the last layer escapes.
-        if tally {
-            energy.escaped[side(2)] += fz * buf.out.iter().sum::<f64>();
-        }
-        // Per-(Ω h²) units to power.
-        let unit = piece.solid_angle * h * h;
-        energy.emitted *= unit;
-        energy.extinguished *= unit;
-        for e in &mut energy.escaped {
-            *e *= unit;
-        }
-        energy
+        energy.finish_sweep(piece, h, &buf.out, tally)
     }
 
     /// [`sweep_piece`](Self::sweep_piece) through `r³` sub-cells per cell
@@ -1206,27 +1255,16 @@ impl OrdinatesOperator {
         buf: &mut LayerBuffers,
         tally: bool,
     ) -> SweepEnergy {
-        let piece = &self.pieces[p];
+        let (piece, density, terms) = self.piece_inputs(p, density);
         let r = self.options.transport_refinement;
         let [nx, ny, nz] = self.grid.dims;
         let [fnx, fny, fnz] = [nx * r, ny * r, nz * r];
         let n = self.grid.cell_count();
         let h = self.grid.cell_size / r as f64;
-        let density = &density[piece.bin * self.stride..piece.bin * self.stride + n];
-        let terms = &self.terms[self.piece_class[p] * n..(self.piece_class[p] + 1) * n];
         let [fx, fy, fz] = piece.fractions;
         let share = piece.weight / (r * r * r) as f64;
-        #[inline(always)]
-        fn at(t: usize, len: usize, fwd: bool) -> usize {
-            if fwd {
-                t
-            } else {
-                len - 1 - t
-            }
-        }
         let [fwx, fwy, fwz] = piece.forward;
         let mut energy = SweepEnergy::default();
-        let side = |a: usize| 2 * a + usize::from(piece.forward[a]);
         buf.out[..fnx * fny].fill(0.0);
         out[..n].fill(0.0);
         for tz in 0..fnz {
@@ -1245,34 +1283,23 @@ impl OrdinatesOperator {
                     let inflow = fx * up_x + in_y + fz * buf.out[lc];
                     let ct = &terms[c];
                     let sd = density[c];
-                    let o = inflow * ct.transmit + sd * ct.source_out;
+                    let o = ct.outflow(inflow, sd);
                     buf.out[lc] = o;
                     up_x = o;
-                    out[c] += share * (inflow * ct.inflow_mean + sd * ct.source_mean);
+                    out[c] += share * ct.mean_radiance(inflow, sd);
                     if tally {
-                        energy.emitted += sd * h;
-                        energy.extinguished +=
-                            inflow * (1.0 - ct.transmit) + sd * (h - ct.source_out);
+                        energy.tally_cell(ct, inflow, sd, h);
                         if tx == fnx - 1 {
-                            energy.escaped[side(0)] += fx * o;
+                            energy.escaped[piece.side(0)] += fx * o;
                         }
                         if ty == fny - 1 {
-                            energy.escaped[side(1)] += fy * o;
+                            energy.escaped[piece.side(1)] += fy * o;
                         }
                     }
                 }
             }
         }
-        if tally {
-            energy.escaped[side(2)] += fz * buf.out[..fnx * fny].iter().sum::<f64>();
-        }
-        let unit = piece.solid_angle * h * h;
-        energy.emitted *= unit;
-        energy.extinguished *= unit;
-        for e in &mut energy.escaped {
-            *e *= unit;
-        }
-        energy
+        energy.finish_sweep(piece, h, &buf.out[..fnx * fny], tally)
     }
 
     /// Energy balance of a solution `I` of `I = T(external) + K I`: transports
