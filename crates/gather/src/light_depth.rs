@@ -594,7 +594,7 @@ impl LightDepthModel {
             }
         }
         // Sub-cells converge to the exact T_L and beat the exit-face model from refinement 2
-        // on (tests/single_scatter.rs), so the finest affordable lattice is the fallback; the
+        // on (tests/it/single_scatter.rs), so the finest affordable lattice is the fallback; the
         // exit face only when the grid is too big to refine at all.
         Ok(None)
     }

@@ -50,7 +50,7 @@ pub struct OrdinatesOptions {
     pub match_asymmetry: bool,
     /// Transmit each cell's inflow by the exact mean `⟨e^{−σt ℓ}⟩` over its chords
     /// ([`Piece`]), not by `e^{−σt ⟨ℓ⟩}` of the mean chord. Off by default: on the 7³ blob
-    /// of `tests/ordinates_zonal.rs` it doubles the gap to zonal (3.5 % → 7.3 % RMS), because
+    /// of `tests/it/ordinates_zonal.rs` it doubles the gap to zonal (3.5 % → 7.3 % RMS), because
     /// the mean chord's smaller transmission partly offsets the scheme's sideways spreading.
     pub exact_transmission: bool,
     /// Sweep each cell as `r × r × r` sub-cells (1..=4; the unknowns stay per cell, the

@@ -1,5 +1,5 @@
 //! Source iteration, and the isotropic blob of the ordinates–zonal comparison on refined
-//! grids. Shared by tests/ordinates_zonal.rs and examples/ordinates_zonal_gap.rs.
+//! grids. Shared by tests/it/ordinates_zonal.rs and examples/ordinates_zonal_gap.rs.
 
 use std::f64::consts::PI;
 
@@ -28,7 +28,7 @@ pub fn iterate(op: &dyn TransportOperator, e: &[f64]) -> Vec<f64> {
     panic!("no convergence");
 }
 
-/// The blob of of tests/ordinates_zonal.rs' `isotropic_ordinates_agree_with_zonal` on a grid refined `r`× per axis
+/// The blob of tests/it/ordinates_zonal.rs' `isotropic_ordinates_agree_with_zonal` on a grid refined `r`× per axis
 /// (the same piecewise-constant medium, isotropic scattering); the emission is the callers'.
 pub fn refined_blob(r: usize) -> Medium {
     let coarse = Grid::new([7, 7, 7], 1.0).unwrap();

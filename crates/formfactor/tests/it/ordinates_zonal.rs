@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 
 // The refined-blob helpers serve examples/ordinates_zonal_gap.rs; the tests use `iterate`.
-#[path = "support/blob.rs"]
+#[path = "../support/blob.rs"]
 #[allow(dead_code)]
 mod blob;
 

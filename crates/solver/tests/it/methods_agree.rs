@@ -1,8 +1,6 @@
 //! Every method reaches the direct solution on random contractive systems.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use solver::{
     solve, DenseOperator, Method, Smoother, SolveControl, SolveOptions, StopReason,
     TransportOperator,

@@ -1,11 +1,9 @@
 //! Stopping behaviour: cancellation, divergence, singular systems, refused input, parsing,
 //! the report's serialization, and the spectral-radius estimate.
 
-mod common;
-
 use std::sync::atomic::Ordering;
 
-use common::*;
+use crate::common::*;
 use solver::{
     predicted_iterations, solve, spectral_radius, DenseOperator, Method, Smoother, SolveControl,
     SolveError, SolveOptions, SolveReport, StopReason,

@@ -1,7 +1,7 @@
 //! Plane-parallel slab against DISORT (tests/data/disort.json): flux reflectance and diffuse
 //! transmittance of the discrete-ordinates solution, one periodic column of cells.
 
-#[path = "support/slab.rs"]
+#[path = "../support/slab.rs"]
 #[allow(dead_code)] // solve_slab_with serves examples/slab_explorer.rs
 mod slab;
 
