@@ -43,7 +43,7 @@ use gather::{InScattering, RayCarry, ViewSegment};
 use glam::DVec3;
 use medium::phase::rotate_about;
 use medium::traversal::Ray;
-use medium::{Grid, Light, Medium};
+use medium::{ChannelMedium, Grid, Light, Medium, PhaseFunction};
 use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -325,6 +325,10 @@ fn phase_matrix(phase: &medium::PhaseFunction, bins: DirectionBins, q: usize) ->
 /// The energetization pass for channel `channel` of `medium` lit by `lights`, then the
 /// conversion to scattered radiance. `progress(done, total)` is called after each batch of
 /// photons (from worker threads). Deterministic for a seed, whatever the thread count.
+///
+/// Four stages: the options checked, the photons traced into per-voxel, per-bin power
+/// ([`trace_photons`]), each density cell's share of its voxel ([`cell_shares`]) and the
+/// power turned into scattered radiance by the bin-to-bin phase matrix ([`voxel_sources`]).
 pub fn energetize(
     medium: &Medium,
     channel: usize,
@@ -339,6 +343,35 @@ pub fn energetize(
             channel,
             channels: medium.channels().len(),
         })?;
+    check_options(options, lights)?;
+    let grid = medium.grid();
+    let layout = VoxelLayout::new(grid, options.storage_factor);
+    let (power, energy) = trace_photons(medium, ch, lights, options, &layout, progress);
+    let cell_share = cell_shares(grid, ch, &layout);
+    let voxel_source = voxel_sources(&medium.phase(), options, &power);
+    let m = options.bins.count();
+    let mut voxel_max = vec![0.0f32; layout.optical_count];
+    for (o, q) in voxel_source.chunks(m).enumerate() {
+        voxel_max[o] = q.iter().copied().fold(0.0, f32::max);
+    }
+    let max_source = (0..grid.cell_count())
+        .map(|c| cell_share[c] as f64 * voxel_max[layout.voxel_of[c] as usize] as f64)
+        .fold(0.0, f64::max);
+    Ok(TwoPassSolution {
+        grid: *grid,
+        storage_factor: options.storage_factor,
+        optical_dims: layout.optical_dims,
+        bins: options.bins,
+        voxel_source,
+        cell_share,
+        energy,
+        include_first_bounce: options.include_first_bounce,
+        max_source,
+    })
+}
+
+/// Refuses options that cannot produce a result and lights with bad parameters.
+fn check_options(options: &EnergetizeOptions, lights: &[Light]) -> Result<(), MonteCarloError> {
     if options.photons_per_light == 0 {
         return Err(MonteCarloError::Options(
             "photons_per_light must be at least 1".into(),
@@ -365,15 +398,45 @@ pub fn energetize(
             message: e.to_string(),
         })?;
     }
-    let grid = medium.grid();
-    let factor = options.storage_factor;
-    let odims = grid.dims.map(|d| d.div_ceil(factor));
-    let optical_count = odims[0] * odims[1] * odims[2];
-    let m = options.bins.count();
-    let voxel_of: Vec<u32> = (0..grid.cell_count())
-        .map(|c| optical_index(grid, factor, odims, c) as u32)
-        .collect();
+    Ok(())
+}
 
+/// The optical voxels of a storage factor: their dims, count and each density cell's voxel.
+struct VoxelLayout {
+    optical_dims: [usize; 3],
+    optical_count: usize,
+    voxel_of: Vec<u32>,
+}
+
+impl VoxelLayout {
+    fn new(grid: &Grid, factor: usize) -> VoxelLayout {
+        let optical_dims = grid.dims.map(|d| d.div_ceil(factor));
+        let voxel_of = (0..grid.cell_count())
+            .map(|c| optical_index(grid, factor, optical_dims, c) as u32)
+            .collect();
+        VoxelLayout {
+            optical_dims,
+            optical_count: optical_dims[0] * optical_dims[1] * optical_dims[2],
+            voxel_of,
+        }
+    }
+}
+
+/// Traces every light's photons (in seeded batches spread over [`GROUPS`] tallies, summed in
+/// a fixed order) and returns the scattered power per optical voxel and incoming bin, with
+/// the energy bookkeeping.
+fn trace_photons(
+    medium: &Medium,
+    ch: &ChannelMedium,
+    lights: &[Light],
+    options: &EnergetizeOptions,
+    layout: &VoxelLayout,
+    progress: Option<&(dyn Fn(u64, u64) + Sync)>,
+) -> (Vec<f64>, PhotonEnergy) {
+    let grid = medium.grid();
+    let m = options.bins.count();
+    let optical_count = layout.optical_count;
+    let voxel_of = &layout.voxel_of;
     let batches_per_light = options.photons_per_light.div_ceil(BATCH);
     let total_batches = batches_per_light * lights.len() as u64;
     let total_photons = options.photons_per_light * lights.len() as u64;
@@ -464,15 +527,18 @@ pub fn energetize(
         }
         energy.add(&t.energy);
     }
-    drop(tallies);
+    (power, energy)
+}
 
-    // Each cell's share of its optical voxel's power, by interception (σs V).
+/// Each density cell's share of its optical voxel's power, by interception (σs V).
+fn cell_shares(grid: &Grid, ch: &ChannelMedium, layout: &VoxelLayout) -> Vec<f32> {
+    let voxel_of = &layout.voxel_of;
     let volume = grid.cell_volume();
-    let mut voxel_sigma_s = vec![0.0f64; optical_count];
+    let mut voxel_sigma_s = vec![0.0f64; layout.optical_count];
     for c in 0..grid.cell_count() {
         voxel_sigma_s[voxel_of[c] as usize] += ch.sigma_s(c) as f64 * volume;
     }
-    let cell_share: Vec<f32> = (0..grid.cell_count())
+    (0..grid.cell_count())
         .map(|c| {
             let total = voxel_sigma_s[voxel_of[c] as usize];
             if total > 0.0 {
@@ -481,10 +547,15 @@ pub fn energetize(
                 0.0
             }
         })
-        .collect();
+        .collect()
+}
 
-    let p = phase_matrix(&medium.phase(), options.bins, options.phase_quadrature);
-    let mut voxel_source = vec![0.0f32; optical_count * m];
+/// Scattered radiance per optical voxel and outgoing bin: the power per incoming bin through
+/// the bin-averaged phase matrix.
+fn voxel_sources(phase: &PhaseFunction, options: &EnergetizeOptions, power: &[f64]) -> Vec<f32> {
+    let m = options.bins.count();
+    let p = phase_matrix(phase, options.bins, options.phase_quadrature);
+    let mut voxel_source = vec![0.0f32; power.len()];
     voxel_source
         .par_chunks_mut(m)
         .zip(power.par_chunks(m))
@@ -494,24 +565,7 @@ pub fn energetize(
                 *q = row.iter().zip(incident).map(|(a, b)| a * b).sum::<f64>() as f32;
             }
         });
-    let mut voxel_max = vec![0.0f32; optical_count];
-    for (o, q) in voxel_source.chunks(m).enumerate() {
-        voxel_max[o] = q.iter().copied().fold(0.0, f32::max);
-    }
-    let max_source = (0..grid.cell_count())
-        .map(|c| cell_share[c] as f64 * voxel_max[voxel_of[c] as usize] as f64)
-        .fold(0.0, f64::max);
-    Ok(TwoPassSolution {
-        grid: *grid,
-        storage_factor: factor,
-        optical_dims: odims,
-        bins: options.bins,
-        voxel_source,
-        cell_share,
-        energy,
-        include_first_bounce: options.include_first_bounce,
-        max_source,
-    })
+    voxel_source
 }
 
 impl TwoPassSolution {
