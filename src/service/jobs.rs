@@ -79,6 +79,81 @@ pub struct Service {
     pub(crate) inner: Arc<Inner>,
 }
 
+/// What the cache holds for one scene id after a restart.
+struct Recovered {
+    scene: Option<Arc<Scene>>,
+    state: JobState,
+    solution: Option<Arc<Solution>>,
+    note: Option<String>,
+    bytes: u64,
+    /// The scene is known but has no valid solution: solve it again.
+    requeue: bool,
+}
+
+/// Reads one id's scene and solution back from the cache: a valid solution is served, a
+/// corrupt one deleted (and solved again when its scene is known, else reported as failed),
+/// a scene without a solution queued; `None` when there is nothing to recover.
+fn recover(cache: &CacheDir, id: &str) -> Option<Recovered> {
+    let scene = match std::fs::read_to_string(cache.scene_path(id)) {
+        Ok(text) => match parse_scene(cache, &text) {
+            Ok(s) => Some(Arc::new(s)),
+            Err(e) => {
+                tracing::warn!("cache: scene {id} no longer parses: {e}");
+                None
+            }
+        },
+        Err(_) => None,
+    };
+    let sol_path = cache.solution_path(id);
+    let (state, solution, note, bytes, requeue) = if sol_path.exists() {
+        match Solution::read(&sol_path) {
+            Ok(sol) => (
+                JobState::Done,
+                Some(Arc::new(sol)),
+                None,
+                cache::file_len(&sol_path),
+                false,
+            ),
+            Err(e) => {
+                let _ = std::fs::remove_file(&sol_path);
+                let note = format!("the cached solution was corrupt and was deleted: {e}");
+                tracing::warn!("cache: {id}: {note}");
+                if scene.is_some() {
+                    (
+                        JobState::Queued,
+                        None,
+                        Some(format!("{note}; solving again")),
+                        0,
+                        true,
+                    )
+                } else {
+                    (
+                        JobState::Failed {
+                            reason: format!("corrupt: {note}"),
+                        },
+                        None,
+                        Some(note),
+                        0,
+                        false,
+                    )
+                }
+            }
+        }
+    } else if scene.is_some() {
+        (JobState::Queued, None, None, 0, true)
+    } else {
+        return None;
+    };
+    Some(Recovered {
+        scene,
+        state,
+        solution,
+        note,
+        bytes,
+        requeue,
+    })
+}
+
 /// Shortest id prefix the API accepts for a scene (the viewer shows 12 characters).
 pub const MIN_ID_PREFIX: usize = 8;
 
@@ -118,55 +193,20 @@ impl Service {
         // Solutions read from the cache, to be prepared for rendering off the startup path.
         let mut loaded = Vec::new();
         for id in cache.known_ids() {
-            let scene = match std::fs::read_to_string(cache.scene_path(&id)) {
-                Ok(text) => match parse_scene(&cache, &text) {
-                    Ok(s) => Some(Arc::new(s)),
-                    Err(e) => {
-                        tracing::warn!("cache: scene {id} no longer parses: {e}");
-                        None
-                    }
-                },
-                Err(_) => None,
-            };
-            let sol_path = cache.solution_path(&id);
-            let (state, solution, note, bytes) = if sol_path.exists() {
-                match Solution::read(&sol_path) {
-                    Ok(sol) => (
-                        JobState::Done,
-                        Some(Arc::new(sol)),
-                        None,
-                        cache::file_len(&sol_path),
-                    ),
-                    Err(e) => {
-                        let _ = std::fs::remove_file(&sol_path);
-                        let note = format!("the cached solution was corrupt and was deleted: {e}");
-                        tracing::warn!("cache: {id}: {note}");
-                        if scene.is_some() {
-                            requeue.push(id.clone());
-                            (
-                                JobState::Queued,
-                                None,
-                                Some(format!("{note}; solving again")),
-                                0,
-                            )
-                        } else {
-                            (
-                                JobState::Failed {
-                                    reason: format!("corrupt: {note}"),
-                                },
-                                None,
-                                Some(note),
-                                0,
-                            )
-                        }
-                    }
-                }
-            } else if scene.is_some() {
-                requeue.push(id.clone());
-                (JobState::Queued, None, None, 0)
-            } else {
+            let Some(Recovered {
+                scene,
+                state,
+                solution,
+                note,
+                bytes,
+                requeue: again,
+            }) = recover(&cache, &id)
+            else {
                 continue;
             };
+            if again {
+                requeue.push(id.clone());
+            }
             if let Some(sol) = &solution {
                 loaded.push((id.clone(), Arc::downgrade(sol)));
             }
