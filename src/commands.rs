@@ -179,7 +179,11 @@ fn plan_views(args: &RenderArgs, cameras: &[CameraSpec], grid: &medium::Grid) ->
                 name: Some(c.name.clone()),
                 ..request.clone()
             };
-            views.push(named.camera(cameras, grid)?);
+            // Each view keeps its camera's name (a moved eye would rename them all alike, and
+            // their files would overwrite each other).
+            let mut view = named.camera(cameras, grid)?;
+            view.name = c.name.clone();
+            views.push(view);
         }
         views
     } else {

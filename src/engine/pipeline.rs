@@ -153,12 +153,10 @@ pub fn render_view_through(
         );
     }
     let camera = Camera::from_spec(camera)?;
-    let options = RenderOptions {
-        model: solution.render.model,
-        spp: spp.unwrap_or(solution.render.spp),
-        background: solution.background,
-        ..RenderOptions::default()
-    };
+    let mut options = RenderOptions::from_settings(&solution.render, solution.background);
+    if let Some(spp) = spp {
+        options.spp = spp;
+    }
     let sources = solution
         .channels
         .iter()

@@ -461,6 +461,25 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     for camera in ["front", "side"] {
         assert!(out.join(format!("{camera}.png")).is_file(), "{camera}");
     }
+    // A moved eye applies to every camera, and each still writes its own file.
+    let moved = dir.path().join("moved/");
+    let o = volrad(&[
+        "-q",
+        "render",
+        s(&hg),
+        "--eye",
+        "6,8,-30",
+        "--width",
+        "16",
+        "--height",
+        "12",
+        "-o",
+        &format!("{}/", moved.display()),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for camera in ["front", "side"] {
+        assert!(moved.join(format!("{camera}.png")).is_file(), "{camera}");
+    }
     // The scene sets no exposure: the picture is exposed automatically, its bright end near
     // white rather than the dim grey a fixed exposure of 1 gave.
     let png = image::open(out.join("front.png")).unwrap().to_luma8();

@@ -2,17 +2,10 @@
 
 use std::path::PathBuf;
 
-/// Everything that can go wrong while building a medium or reading a scene or volume.
+/// Everything that can go wrong while building a medium or reading or writing a volume.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum MediumError {
-    /// A scene file is malformed or has a value out of range. `key` is the dotted TOML path.
-    #[error("{file}: `{key}`: {message}")]
-    Scene {
-        file: PathBuf,
-        key: String,
-        message: String,
-    },
     /// A volume file cannot be read or does not match what was declared.
     #[error("{file}: {message}")]
     Volume { file: PathBuf, message: String },

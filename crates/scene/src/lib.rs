@@ -46,16 +46,14 @@ mod settings;
 
 use std::path::{Path, PathBuf};
 
-pub use gather::{CameraSpec, OpticalModel, Projection, RenderOptions, RenderSettings};
+pub use gather::{CameraSpec, OpticalModel, Projection, RenderSettings};
 use medium::generators::Generator;
 use medium::volume_io::VolumeData;
 use medium::{Light, Medium};
 
 use crate::check::Ctx;
 use crate::raw::RawScene;
-pub use crate::settings::{
-    phase_spelling, solve_method_names, SolveMethod, SolveSettings, UnknownSolveMethod,
-};
+pub use crate::settings::{phase_spelling, SolveMethod, SolveSettings, UnknownSolveMethod};
 
 /// A validated scene: the medium, its lighting, how to solve it and how to look at it.
 #[derive(Clone, Debug)]
@@ -173,12 +171,6 @@ impl Scene {
         )?;
         scene.origin = SceneOrigin::BuiltIn("backlit cloud");
         Ok(scene)
-    }
-
-    /// The render options the scene states: its `[render]` model and spp over its
-    /// background; gather's defaults for the rest.
-    pub fn render_options(&self) -> RenderOptions {
-        RenderOptions::from_settings(&self.render, self.background)
     }
 }
 

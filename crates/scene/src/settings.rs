@@ -97,7 +97,7 @@ impl fmt::Display for SolveMethod {
 pub struct UnknownSolveMethod(pub String);
 
 /// The methods' spellings, comma-separated, for messages and help.
-pub fn solve_method_names() -> String {
+fn solve_method_names() -> String {
     SolveMethod::ALL.map(SolveMethod::name).join(", ")
 }
 
