@@ -65,7 +65,7 @@ pub fn cancel_on_ctrl_c(control: Arc<SolveControl>) {
                 .and_then(|m| m.lock().ok().and_then(|g| g.clone()));
             match slot {
                 Some(c) if !c.is_cancelled() => {
-                    eprintln!("\ncancelling the solve (Ctrl-C again to quit at once)");
+                    eprintln!("\ncancelling (Ctrl-C again to quit at once)");
                     c.cancel();
                 }
                 _ => std::process::exit(130),

@@ -1,5 +1,6 @@
-//! Views from the command line: which camera a render uses (a scene camera, overridden by
-//! `--eye`, `--target`, …), orbits around the volume, and the output path of each view.
+//! Views: which camera a render uses (a scene camera by name, overridden by the command
+//! line's `--eye`, `--target`, … or the service's query), orbits around the volume, and the
+//! output path of each view.
 
 use std::path::{Path, PathBuf};
 
