@@ -79,6 +79,15 @@ pub struct ValidateArgs {
     /// Samples per pixel of renders from a solution (default 16, quick 4).
     #[arg(long)]
     pub spp: Option<u32>,
+    /// Views per scene: its first camera and the rest turned about the camera's up axis
+    /// through its target in equal steps (default 8, quick 2).
+    #[arg(long)]
+    pub views: Option<usize>,
+    /// Validate every scene once per value: KEY=v1,v2,… with KEY albedo, g (Henyey–Greenstein)
+    /// or sigma-t-factor (times the scene's sigma_t_scale); repeatable, the cases are every
+    /// combination (e.g. --vary albedo=0.5,0.9,0.99,1 --vary g=0,0.6,0.85,0.95).
+    #[arg(long = "vary", value_name = "KEY=VALUES")]
+    pub vary: Vec<String>,
 }
 
 #[derive(Debug, Subcommand)]

@@ -452,12 +452,24 @@ pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
     if let Some(n) = args.spp {
         settings.render_spp = n;
     }
+    match args.views {
+        Some(0) => bail!("--views must be at least 1"),
+        Some(n) if n > 360 => bail!("--views {n}: at most 360 views per scene"),
+        Some(n) => settings.views = n,
+        None => {}
+    }
+    let variations = args
+        .vary
+        .iter()
+        .map(|v| crate::validate::parse_variation(v))
+        .collect::<Result<Vec<_>>>()?;
     let command = std::iter::once("volrad".to_string())
         .chain(std::env::args().skip(1))
         .collect::<Vec<_>>()
         .join(" ");
     let options = ValidateOptions {
         scenes,
+        variations,
         methods,
         out: args.output.clone(),
         settings,
@@ -468,11 +480,14 @@ pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
     if !quiet {
         for scene in &report.scenes {
             for m in &scene.methods {
+                let worst = m.worst_view();
                 eprintln!(
-                    "{:<24} {:<20} {:>6.2} % vs path tracer",
+                    "{:<24} {:<20} {:>6.2} % vs path tracer (worst of {} views: {})",
                     scene.name,
                     m.method.name(),
-                    100.0 * m.vs_path_tracer.relative_rms
+                    100.0 * worst.vs_path_tracer.relative_rms,
+                    m.views.len(),
+                    worst.camera
                 );
             }
         }

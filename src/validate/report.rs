@@ -3,10 +3,15 @@
 use std::fmt::Write as _;
 
 use super::images::{ERROR_MAP_BLOCK, ERROR_MAP_SCALE};
-use super::{ValidationReport, MASK_THRESHOLD};
+use super::{MethodResult, SceneResult, ValidateMethod, ValidationReport, MASK_THRESHOLD};
 
 fn percent(x: f64) -> String {
     format!("{:.1} %", 100.0 * x)
+}
+
+/// Whole percent, for floors.
+fn percent0(x: f64) -> String {
+    format!("{:.0} %", 100.0 * x)
 }
 
 fn signed_percent(x: f64) -> String {
@@ -20,7 +25,8 @@ fn mib(bytes: Option<u64>) -> String {
 }
 
 impl ValidationReport {
-    /// The report as Markdown: one table and one image per method and scene.
+    /// The report as Markdown: the worst view per method over every case, then per case a
+    /// table per method, a table per view and the pictures.
     pub fn markdown(&self) -> String {
         let s = &self.settings;
         let mut md = String::new();
@@ -33,10 +39,17 @@ impl ValidationReport {
         );
         let _ = writeln!(
             md,
+            "- **Views:** each scene's first camera and {} more at the same distance and \
+             elevation, turned about the camera's up axis through its target in equal steps \
+             (`front+090` is a quarter turn), so each scene is seen front-, side- and back-lit.",
+            s.views.saturating_sub(1)
+        );
+        let _ = writeln!(
+            md,
             "- **Reference:** volrad's own path tracer (`render --path-trace`: exact \
-             per-cell free paths, next-event estimation, unlimited depth), {} paths per pixel. \
-             Where the scene directory holds Mitsuba 3 images (`<camera>.pfm` with \
-             `<camera>_stderr.pfm`), every image is also compared with those.",
+             per-cell free paths, next-event estimation, unlimited depth), {} paths per pixel \
+             per view. Where the scene directory holds Mitsuba 3 images (`<camera>.pfm` with \
+             `<camera>_stderr.pfm`), the first view is also compared with those.",
             s.reference_spp
         );
         let _ = writeln!(
@@ -50,26 +63,32 @@ impl ValidationReport {
         );
         let _ = writeln!(
             md,
-            "- **Methods:** each solve uses the scene's `[solve]` settings with the method \
-             replaced (and that method's default iteration), then renders {} stratified \
-             samples per pixel from the solution (first bounce exact, higher orders from the \
-             solution). `path-trace` is the path tracer at {} paths per pixel with an \
+            "- **Methods:** each method is solved once per case with the scene's `[solve]` \
+             settings (the method replaced, with its default iteration) and rendered from every \
+             view with {} stratified samples per pixel (first bounce exact, higher orders from \
+             the solution). `path-trace` is the path tracer at {} paths per pixel with an \
              independent seed. The zonal methods treat higher orders as isotropic, so on an \
              anisotropic scene they show that approximation's error.",
             s.render_spp, s.path_trace_spp
         );
         let _ = writeln!(
             md,
+            "- **Floors** (issue #18, every view): zonal and zonal-hierarchical 2 % where \
+             scattering is isotropic; discrete ordinates 3 % up to g = 0.85, 5 % beyond; image \
+             means within 1 %. Other methods have none."
+        );
+        let _ = writeln!(
+            md,
             "- **Time:** wall time of the solve (light pass, operator build, iterations) and of \
-             the render, on this machine with {} threads (noisy if other work was running). \
-             **Peak RSS:** growth of the process's peak resident memory during solve + render \
-             over the resident memory before (Linux `/proc/self/status` VmHWM after a reset; \
-             — where unavailable). **Solution:** size of the file `volrad solve -o` would write.",
+             one view's render, on this machine with {} threads (noisy if other work was running). \
+             **Peak RSS:** growth of the process's peak resident memory during the solve and \
+             renders over the resident memory before (Linux `/proc/self/status` VmHWM after a \
+             reset; — where unavailable). **Solution:** size of the file `volrad solve -o` would write.",
             self.threads
         );
         let _ = writeln!(
             md,
-            "- **Images:** reference | method | relative error `(x − r)/r` of {1}×{1}-pixel \
+            "- **Images** (first and worst view): reference | method | relative error `(x − r)/r` of {1}×{1}-pixel \
              block means (blocks average the reference's noise down), blue −{0:.0} % to white 0 \
              to red +{0:.0} % ![scale](error-scale.png); grey: below the mask. Both radiance \
              panels share one exposure, the reference's maximum at 82 % white.\n",
@@ -82,105 +101,240 @@ impl ValidationReport {
                 "**Quick run:** few samples; the figures are dominated by noise.\n"
             );
         }
+        self.summary(&mut md);
         for scene in &self.scenes {
-            let r = &scene.reference;
-            let _ = writeln!(md, "## {}\n", scene.name);
+            scene_section(&mut md, scene);
+        }
+        md
+    }
+
+    /// The worst view of each method over every case, and how many cases are within floor.
+    fn summary(&self, md: &mut String) {
+        let _ = writeln!(md, "## Worst view per method\n");
+        let _ = writeln!(
+            md,
+            "| method | cases | worst rel. RMS | case, view | worst mean | case, view | floor | cases within floor |"
+        );
+        let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
+        let mut methods: Vec<ValidateMethod> = Vec::new();
+        for m in self.scenes.iter().flat_map(|s| &s.methods) {
+            if !methods.contains(&m.method) {
+                methods.push(m.method);
+            }
+        }
+        for method in methods {
+            let runs: Vec<(&SceneResult, &MethodResult)> = self
+                .scenes
+                .iter()
+                .flat_map(|s| s.methods.iter().map(move |m| (s, m)))
+                .filter(|(_, m)| m.method == method)
+                .collect();
+            let worst = runs.iter().max_by(|a, b| {
+                let rms = |r: &(&SceneResult, &MethodResult)| {
+                    r.1.worst_view().vs_path_tracer.relative_rms
+                };
+                rms(a).total_cmp(&rms(b))
+            });
+            let worst_mean = runs.iter().max_by(|a, b| {
+                let mean = |r: &(&SceneResult, &MethodResult)| {
+                    r.1.worst_mean_view().vs_path_tracer.mean_ratio_error.abs()
+                };
+                mean(a).total_cmp(&mean(b))
+            });
+            let (Some((ws, wm)), Some((ms, mm))) = (worst, worst_mean) else {
+                continue;
+            };
+            let floored: Vec<bool> = runs.iter().filter_map(|(_, m)| m.within_floor()).collect();
+            let floors: Vec<String> = {
+                let mut f: Vec<String> = runs
+                    .iter()
+                    .filter_map(|(_, m)| m.floor)
+                    .map(|f| format!("{} / ±{}", percent0(f.relative_rms), percent0(f.mean)))
+                    .collect();
+                f.dedup();
+                f
+            };
             let _ = writeln!(
                 md,
-                "`{}`: {}×{}×{} cells, phase {}, camera `{}` {}×{}. Reference: {} spp in {:.1} s, \
-                 mean per-pixel noise {}.",
-                scene.path,
-                scene.dims[0],
-                scene.dims[1],
-                scene.dims[2],
-                scene.phase,
-                scene.camera,
-                scene.width,
-                scene.height,
-                r.spp,
-                r.seconds,
-                percent(r.relative_noise)
+                "| {} | {} | {} | {}, {} | {} | {}, {} | {} | {} |",
+                method.name(),
+                runs.len(),
+                percent(wm.worst_view().vs_path_tracer.relative_rms),
+                ws.name,
+                wm.worst_view().camera,
+                signed_percent(mm.worst_mean_view().vs_path_tracer.mean_ratio_error),
+                ms.name,
+                mm.worst_mean_view().camera,
+                if floors.is_empty() {
+                    "—".to_string()
+                } else {
+                    floors.join(", ")
+                },
+                if floored.is_empty() {
+                    "—".to_string()
+                } else {
+                    format!(
+                        "{} of {}",
+                        floored.iter().filter(|&&b| b).count(),
+                        floored.len()
+                    )
+                }
             );
-            match (&r.vs_mitsuba, &r.mitsuba_files) {
-                (Some(c), Some((mean, err))) => {
-                    let _ = writeln!(
+        }
+        let _ = writeln!(md);
+    }
+}
+
+fn scene_section(md: &mut String, scene: &SceneResult) {
+    let r = &scene.reference;
+    let _ = writeln!(md, "## {}\n", scene.name);
+    let variant = if scene.variant.is_empty() {
+        String::new()
+    } else {
+        format!(" with {}", scene.variant)
+    };
+    let reference_seconds: f64 = r.views.iter().map(|v| v.seconds).sum();
+    let noise = r.views.iter().map(|v| v.relative_noise).sum::<f64>() / r.views.len().max(1) as f64;
+    let _ = writeln!(
+        md,
+        "`{}`{variant}: {}×{}×{} cells, phase `{}`, {} views of {}×{}. References: {} spp in \
+         {:.1} s, mean per-pixel noise {}.",
+        scene.path,
+        scene.dims[0],
+        scene.dims[1],
+        scene.dims[2],
+        scene.phase,
+        r.views.len(),
+        scene.width,
+        scene.height,
+        r.spp,
+        reference_seconds,
+        percent(noise)
+    );
+    match (&r.vs_mitsuba, &r.mitsuba_files) {
+        (Some(c), Some((mean, err))) => {
+            let _ = writeln!(
+                md,
+                "The first view's path-traced reference against Mitsuba (`{mean}`, `{err}`; both \
+                 images' noise taken out): relative RMS {} (raw {}), mean {}.\n",
+                percent(c.relative_rms),
+                percent(c.relative_rms_raw),
+                signed_percent(c.mean_ratio_error)
+            );
+        }
+        _ => {
+            let _ = writeln!(md, "No Mitsuba reference for this case.\n");
+        }
+    }
+    let has_mitsuba = r.vs_mitsuba.is_some();
+    let _ = write!(md, "| method | worst rel. RMS | worst mean | worst view |");
+    if has_mitsuba {
+        let _ = write!(md, " first view vs Mitsuba | mean |");
+    }
+    let _ = writeln!(
+        md,
+        " solve s | render s per view | peak RSS growth MiB | solution MiB | iterations | within floor |"
+    );
+    let _ = write!(md, "|---|---|---|---|");
+    if has_mitsuba {
+        let _ = write!(md, "---|---|");
+    }
+    let _ = writeln!(md, "---|---|---|---|---|---|");
+    for m in &scene.methods {
+        let worst = m.worst_view();
+        let _ = write!(
+            md,
+            "| {} | {} | {} | {} |",
+            m.method.name(),
+            percent(worst.vs_path_tracer.relative_rms),
+            signed_percent(m.worst_mean_view().vs_path_tracer.mean_ratio_error),
+            worst.camera
+        );
+        if has_mitsuba {
+            match &m.views[0].vs_mitsuba {
+                Some(c) => {
+                    let _ = write!(
                         md,
-                        "The path-traced reference against Mitsuba (`{mean}`, `{err}`; both images' \
-                         noise taken out): relative RMS {} (raw {}), mean {}.\n",
+                        " {} | {} |",
                         percent(c.relative_rms),
-                        percent(c.relative_rms_raw),
                         signed_percent(c.mean_ratio_error)
                     );
                 }
-                _ => {
-                    let _ = writeln!(md, "No Mitsuba reference beside this scene.\n");
+                None => {
+                    let _ = write!(md, " — | — |");
                 }
             }
-            let has_mitsuba = r.vs_mitsuba.is_some();
-            let _ = write!(md, "| method | rel. RMS vs path tracer | mean |");
-            if has_mitsuba {
-                let _ = write!(md, " rel. RMS vs Mitsuba | mean |");
+        }
+        let iterations = match (m.iterations, m.converged) {
+            (Some(n), Some(true)) => n.to_string(),
+            (Some(n), Some(false)) => format!("{n} (not converged)"),
+            _ => "—".into(),
+        };
+        let render =
+            m.views.iter().map(|v| v.render_seconds).sum::<f64>() / m.views.len().max(1) as f64;
+        let _ = writeln!(
+            md,
+            " {} | {:.2} | {} | {} | {} | {} |",
+            m.solve_seconds.map_or("—".into(), |t| format!("{t:.2}")),
+            render,
+            mib(m.peak_rss_growth_bytes),
+            mib(m.solution_file_bytes),
+            iterations,
+            match m.within_floor() {
+                Some(true) => "yes",
+                Some(false) => "**no**",
+                None => "—",
             }
-            let _ = writeln!(
+        );
+    }
+    let _ = writeln!(md);
+
+    // Every view: relative RMS / mean per method.
+    let _ = write!(md, "| view | turn | reference noise |");
+    for m in &scene.methods {
+        let _ = write!(md, " {} |", m.method.name());
+    }
+    let _ = writeln!(md);
+    let _ = write!(md, "|---|---|---|");
+    for _ in &scene.methods {
+        let _ = write!(md, "---|");
+    }
+    let _ = writeln!(md);
+    for (k, v) in r.views.iter().enumerate() {
+        let _ = write!(
+            md,
+            "| {} | {:.0}° | {} |",
+            v.camera,
+            v.degrees,
+            percent(v.relative_noise)
+        );
+        for m in &scene.methods {
+            let c = &m.views[k].vs_path_tracer;
+            let _ = write!(
                 md,
-                " solve s | render s | peak RSS growth MiB | solution MiB | iterations |"
+                " {} / {} |",
+                percent(c.relative_rms),
+                signed_percent(c.mean_ratio_error)
             );
-            let _ = write!(md, "|---|---|---|");
-            if has_mitsuba {
-                let _ = write!(md, "---|---|");
-            }
-            let _ = writeln!(md, "---|---|---|---|---|");
-            for m in &scene.methods {
-                let _ = write!(
-                    md,
-                    "| {} | {} | {} |",
-                    m.method.name(),
-                    percent(m.vs_path_tracer.relative_rms),
-                    signed_percent(m.vs_path_tracer.mean_ratio_error)
-                );
-                if has_mitsuba {
-                    match &m.vs_mitsuba {
-                        Some(c) => {
-                            let _ = write!(
-                                md,
-                                " {} | {} |",
-                                percent(c.relative_rms),
-                                signed_percent(c.mean_ratio_error)
-                            );
-                        }
-                        None => {
-                            let _ = write!(md, " — | — |");
-                        }
-                    }
-                }
-                let iterations = match (m.iterations, m.converged) {
-                    (Some(n), Some(true)) => n.to_string(),
-                    (Some(n), Some(false)) => format!("{n} (not converged)"),
-                    _ => "—".into(),
-                };
+        }
+        let _ = writeln!(md);
+    }
+    let _ = writeln!(md);
+    for m in &scene.methods {
+        for v in &m.views {
+            if let Some(image) = &v.image {
                 let _ = writeln!(
                     md,
-                    " {} | {:.2} | {} | {} | {} |",
-                    m.solve_seconds.map_or("—".into(), |t| format!("{t:.2}")),
-                    m.render_seconds,
-                    mib(m.peak_rss_growth_bytes),
-                    mib(m.solution_file_bytes),
-                    iterations
-                );
-            }
-            let _ = writeln!(md);
-            for m in &scene.methods {
-                let _ = writeln!(
-                    md,
-                    "**{}** — reference | method | error\n\n![{} {}]({})\n",
+                    "**{}**, view `{}` — reference | method | error\n\n![{} {} {}]({})\n",
                     m.method.name(),
+                    v.camera,
                     scene.name,
                     m.method.name(),
-                    m.image
+                    v.camera,
+                    image
                 );
             }
         }
-        md
     }
 }
 

@@ -62,9 +62,11 @@ fn quick_validation_reports_every_method_with_images() {
 
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     let row = |method: &str| -> (f64, f64) {
+        // The scene's table (the summary at the top has a row per method too).
         let line = md
             .lines()
-            .find(|l| l.starts_with(&format!("| {method} |")))
+            .filter(|l| l.starts_with(&format!("| {method} |")))
+            .last()
             .unwrap_or_else(|| panic!("no row for {method} in\n{md}"));
         let cells: Vec<&str> = line.split('|').map(str::trim).collect();
         let pct = |c: &str| c.trim_end_matches(" %").parse::<f64>().unwrap() / 100.0;
@@ -94,9 +96,13 @@ fn quick_validation_reports_every_method_with_images() {
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     let methods = json["scenes"][0]["methods"].as_array().unwrap();
     assert_eq!(methods.len(), 2);
-    let z = methods[0]["vs_path_tracer"]["relative_rms"]
-        .as_f64()
-        .unwrap();
+    // The table shows the worst of the views.
+    let z = methods[0]["views"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["vs_path_tracer"]["relative_rms"].as_f64().unwrap())
+        .fold(0.0, f64::max);
     assert!(
         (z - zonal_rms).abs() < 6e-4,
         "json {z} vs markdown {zonal_rms}"
@@ -123,6 +129,90 @@ fn quick_validation_reports_every_method_with_images() {
             assert!(lit > 20, "{name}: {lit} lit pixels");
         }
     }
+}
+
+#[test]
+fn variants_and_orbit_views_are_each_measured_and_the_worst_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let out = dir.path().join("report");
+    let o = volrad(&[
+        "-q",
+        "validate",
+        "--quick",
+        "--scene",
+        s(&scene),
+        "--methods",
+        "single-scatter,zonal",
+        "--views",
+        "4",
+        "--vary",
+        "albedo=0.3,0.95",
+        "--output",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let scenes = json["scenes"].as_array().unwrap();
+    assert_eq!(scenes.len(), 2, "one case per albedo");
+    assert_eq!(scenes[0]["name"], "tiny_a0.3");
+    assert_eq!(scenes[1]["variant"], "albedo 0.95");
+    // Single scattering misses more of the light at the higher albedo, in every view: the
+    // variant really changed the medium the solve and the reference saw.
+    let single_mean = |case: usize, view: usize| {
+        scenes[case]["methods"][0]["views"][view]["vs_path_tracer"]["mean_ratio_error"]
+            .as_f64()
+            .unwrap()
+    };
+    for view in 0..4 {
+        assert!(
+            single_mean(1, view) < single_mean(0, view) - 0.05,
+            "view {view}: albedo 0.95 {} vs 0.3 {}",
+            single_mean(1, view),
+            single_mean(0, view)
+        );
+    }
+    let views = scenes[0]["reference"]["views"].as_array().unwrap();
+    let names: Vec<&str> = views
+        .iter()
+        .map(|v| v["camera"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["front", "front+090", "front+180", "front+270"]);
+
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("## Worst view per method"), "{md}");
+    // The summary names, for each method, the case and view of its worst error.
+    let summary = md
+        .lines()
+        .find(|l| l.starts_with("| single-scatter | 2 |"))
+        .unwrap_or_else(|| panic!("no summary row in\n{md}"));
+    assert!(summary.contains("tiny_a0.95, front"), "{summary}");
+    // A table row per view, a picture of the first view and of the worst.
+    assert!(md.contains("| front+270 | 270° |"), "{md}");
+    let pictures = std::fs::read_dir(&out)
+        .unwrap()
+        .filter(|e| {
+            let n = e.as_ref().unwrap().file_name();
+            let n = n.to_string_lossy();
+            n.starts_with("tiny_a0.95_zonal") && n.ends_with(".png")
+        })
+        .count();
+    assert!((1..=2).contains(&pictures), "{pictures} pictures");
+
+    let o = volrad(&[
+        "-q",
+        "validate",
+        "--quick",
+        "--scene",
+        s(&scene),
+        "--vary",
+        "g=1.5",
+        "--output",
+        s(&out),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("g = 1.5"), "{}", stderr(&o));
 }
 
 #[test]

@@ -1,0 +1,301 @@
+//! What a validation run covers: the scene variants (`--vary albedo=…`, a cartesian product
+//! written into each scene's TOML before it is checked) and the views (an orbit around each
+//! scene's first camera).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use scene::{CameraSpec, Scene};
+
+/// A scene key `--vary` can sweep.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VaryKey {
+    /// `[medium] albedo`, a number in [0, 1].
+    Albedo,
+    /// The Henyey–Greenstein `g` of `[medium] phase` (0 writes `isotropic`).
+    G,
+    /// A factor on `[volume] sigma_t_scale` (which defaults to 1).
+    SigmaTFactor,
+}
+
+impl VaryKey {
+    const ALL: [(VaryKey, &'static str); 3] = [
+        (VaryKey::Albedo, "albedo"),
+        (VaryKey::G, "g"),
+        (VaryKey::SigmaTFactor, "sigma-t-factor"),
+    ];
+
+    pub fn name(self) -> &'static str {
+        Self::ALL
+            .iter()
+            .find(|(k, _)| *k == self)
+            .map_or("?", |(_, n)| n)
+    }
+
+    /// The short tag in case names (`a0.9`, `g0.85`, `s4`).
+    fn tag(self) -> &'static str {
+        match self {
+            VaryKey::Albedo => "a",
+            VaryKey::G => "g",
+            VaryKey::SigmaTFactor => "s",
+        }
+    }
+}
+
+/// One `--vary KEY=v1,v2,…`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Variation {
+    pub key: VaryKey,
+    pub values: Vec<f64>,
+}
+
+/// Parses `KEY=v1,v2,…` (keys: albedo, g, sigma-t-factor), checking each value's range.
+pub fn parse_variation(spec: &str) -> Result<Variation> {
+    let Some((key, values)) = spec.split_once('=') else {
+        bail!("--vary {spec}: expected KEY=v1,v2,… (keys: albedo, g, sigma-t-factor)");
+    };
+    let key = key.trim();
+    let Some(&(key, _)) = VaryKey::ALL.iter().find(|(_, n)| *n == key) else {
+        bail!("--vary {spec}: unknown key `{key}` (expected albedo, g or sigma-t-factor)");
+    };
+    let mut parsed = Vec::new();
+    for v in values.split(',') {
+        let x: f64 = v
+            .trim()
+            .parse()
+            .with_context(|| format!("--vary {spec}: `{}` is not a number", v.trim()))?;
+        let ok = match key {
+            VaryKey::Albedo => (0.0..=1.0).contains(&x),
+            VaryKey::G => x.abs() < 1.0,
+            VaryKey::SigmaTFactor => x.is_finite() && x > 0.0,
+        };
+        if !ok {
+            let range = match key {
+                VaryKey::Albedo => "in [0, 1]",
+                VaryKey::G => "in (−1, 1)",
+                VaryKey::SigmaTFactor => "positive",
+            };
+            bail!("--vary {spec}: {} = {x} must be {range}", key.name());
+        }
+        if !parsed.contains(&x) {
+            parsed.push(x);
+        }
+    }
+    if parsed.is_empty() {
+        bail!("--vary {spec}: no value");
+    }
+    Ok(Variation {
+        key,
+        values: parsed,
+    })
+}
+
+/// One scene of the run: a scene file as it is, or with the variation's values written in.
+pub struct SceneCase {
+    /// Unique name in the report and image files (`cloud24-isotropic_a0.9_g0.6`).
+    pub name: String,
+    pub path: PathBuf,
+    /// `albedo 0.9, g 0.6` for a variant; empty for the scene as written.
+    pub variant: String,
+    pub scene: Scene,
+}
+
+/// The scene at `path` once per combination of the variations (once as written when there
+/// are none). Every combination is checked here, before any work.
+pub fn scene_cases(
+    path: &Path,
+    base_name: &str,
+    variations: &[Variation],
+) -> Result<Vec<SceneCase>> {
+    if variations.is_empty() {
+        return Ok(vec![SceneCase {
+            name: base_name.to_string(),
+            path: path.to_path_buf(),
+            variant: String::new(),
+            scene: Scene::from_file(path)?,
+        }]);
+    }
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading the scene {}", path.display()))?;
+    let table: toml::Table = text
+        .parse()
+        .with_context(|| format!("{}: not valid TOML", path.display()))?;
+    let base_dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let mut cases = Vec::new();
+    for combination in combinations(variations) {
+        let mut edited = table.clone();
+        let mut name = base_name.to_string();
+        let mut variant = Vec::new();
+        for &(key, value) in &combination {
+            apply(&mut edited, key, value)
+                .with_context(|| format!("{}: --vary {}", path.display(), key.name()))?;
+            name.push_str(&format!("_{}{value}", key.tag()));
+            variant.push(format!("{} {value}", key.name()));
+        }
+        let edited_text = toml::to_string(&edited)?;
+        let scene = Scene::from_toml_str(&edited_text, base_dir, path)
+            .with_context(|| format!("{} with {}", path.display(), variant.join(", ")))?;
+        cases.push(SceneCase {
+            name,
+            path: path.to_path_buf(),
+            variant: variant.join(", "),
+            scene,
+        });
+    }
+    Ok(cases)
+}
+
+/// The cartesian product of the variations' values, in the order given.
+fn combinations(variations: &[Variation]) -> Vec<Vec<(VaryKey, f64)>> {
+    let mut out: Vec<Vec<(VaryKey, f64)>> = vec![Vec::new()];
+    for v in variations {
+        out = out
+            .into_iter()
+            .flat_map(|prefix| {
+                v.values.iter().map(move |&x| {
+                    let mut c = prefix.clone();
+                    c.push((v.key, x));
+                    c
+                })
+            })
+            .collect();
+    }
+    out
+}
+
+fn section<'t>(table: &'t mut toml::Table, name: &str) -> Result<&'t mut toml::Table> {
+    table
+        .entry(name)
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        .as_table_mut()
+        .with_context(|| format!("[{name}] is not a table"))
+}
+
+fn apply(table: &mut toml::Table, key: VaryKey, value: f64) -> Result<()> {
+    match key {
+        VaryKey::Albedo => {
+            section(table, "medium")?.insert("albedo".into(), toml::Value::Float(value));
+        }
+        VaryKey::G => {
+            let mut phase = toml::Table::new();
+            if value == 0.0 {
+                phase.insert("kind".into(), "isotropic".into());
+            } else {
+                phase.insert("kind".into(), "henyey-greenstein".into());
+                phase.insert("g".into(), toml::Value::Float(value));
+            }
+            section(table, "medium")?.insert("phase".into(), toml::Value::Table(phase));
+        }
+        VaryKey::SigmaTFactor => {
+            let volume = section(table, "volume")?;
+            let scale = match volume.get("sigma_t_scale") {
+                None => 1.0,
+                Some(toml::Value::Float(x)) => *x,
+                Some(toml::Value::Integer(i)) => *i as f64,
+                Some(other) => bail!("[volume] sigma_t_scale is {other}, not a number"),
+            };
+            volume.insert("sigma_t_scale".into(), toml::Value::Float(scale * value));
+        }
+    }
+    Ok(())
+}
+
+/// `views` cameras around `spec`'s target: the first is `spec` itself, the others turn its
+/// eye about the camera's up axis through the target in equal steps, at the same distance
+/// and elevation, so the light falls from every side (front-, side- and back-lit).
+pub fn orbit(spec: &CameraSpec, views: usize) -> Vec<CameraSpec> {
+    let axis = spec.up.normalize();
+    let offset = spec.eye - spec.target;
+    (0..views.max(1))
+        .map(|k| {
+            if k == 0 {
+                return spec.clone();
+            }
+            let degrees = 360.0 * k as f64 / views as f64;
+            let (sin, cos) = degrees.to_radians().sin_cos();
+            // Rodrigues' rotation of the eye offset about the up axis.
+            let rotated =
+                offset * cos + axis.cross(offset) * sin + axis * axis.dot(offset) * (1.0 - cos);
+            CameraSpec {
+                name: format!("{}+{degrees:03.0}", spec.name),
+                eye: spec.target + rotated,
+                ..spec.clone()
+            }
+        })
+        .collect()
+}
+
+/// The turn of an orbit view about the first, in degrees (0 for the scene's own camera).
+pub fn orbit_degrees(index: usize, views: usize) -> f64 {
+    360.0 * index as f64 / views.max(1) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gather::Projection;
+    use glam::DVec3;
+
+    #[test]
+    fn variations_parse_and_refuse_out_of_range_values_by_name() {
+        let v = parse_variation("g=0, 0.6,0.85,0.6").unwrap();
+        assert_eq!(v.key, VaryKey::G);
+        assert_eq!(v.values, vec![0.0, 0.6, 0.85]);
+        for (bad, needle) in [
+            ("albedo=1.2", "albedo = 1.2"),
+            ("g=1", "g = 1"),
+            ("sigma-t-factor=0", "positive"),
+            ("density=2", "`density`"),
+            ("albedo", "KEY="),
+            ("albedo=x", "`x`"),
+        ] {
+            let e = parse_variation(bad).unwrap_err();
+            assert!(format!("{e:#}").contains(needle), "{bad}: {e:#}");
+        }
+    }
+
+    #[test]
+    fn combinations_are_the_cartesian_product() {
+        let c = combinations(&[
+            parse_variation("albedo=0.5,0.9").unwrap(),
+            parse_variation("g=0,0.6,0.85").unwrap(),
+        ]);
+        assert_eq!(c.len(), 6);
+        assert_eq!(c[0], vec![(VaryKey::Albedo, 0.5), (VaryKey::G, 0.0)]);
+        assert_eq!(c[5], vec![(VaryKey::Albedo, 0.9), (VaryKey::G, 0.85)]);
+    }
+
+    #[test]
+    fn orbit_keeps_distance_and_elevation_and_turns_about_up() {
+        let spec = CameraSpec {
+            name: "front".into(),
+            eye: DVec3::new(10.0, -20.0, 15.0),
+            target: DVec3::new(10.0, 10.0, 5.0),
+            up: DVec3::Z,
+            projection: Projection::Perspective {
+                fov_y_degrees: 40.0,
+            },
+            width: 32,
+            height: 24,
+        };
+        let views = orbit(&spec, 8);
+        assert_eq!(views.len(), 8);
+        assert_eq!(views[0], spec);
+        assert_eq!(views[2].name, "front+090");
+        let d0 = spec.eye - spec.target;
+        for v in &views {
+            let d = v.eye - v.target;
+            assert!((d.length() - d0.length()).abs() < 1e-9);
+            assert!((d.z - d0.z).abs() < 1e-9, "elevation kept");
+        }
+        // Half way round, the eye is opposite: back-lit where the first was front-lit.
+        let back = views[4].eye - spec.target;
+        assert!((back.x + d0.x).abs() < 1e-9 && (back.y + d0.y).abs() < 1e-9);
+        // A quarter turn about +z takes −y to +x.
+        let quarter = views[2].eye - spec.target;
+        assert!((quarter.x - 30.0).abs() < 1e-9 && quarter.y.abs() < 1e-9);
+    }
+}
