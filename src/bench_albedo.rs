@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 use anyhow::{bail, Context, Result};
-use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use formfactor::ordinates::{DirectionBins, OrdinatesOperator};
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
 use medium::light_pass::LightPass;
 use medium::optical::CellValues;
@@ -227,12 +227,10 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
                 .with_context(|| {
                     format!("{} bins: expected 6n² for n = 1..=8", scene.solve.bins)
                 })?;
-            let op = OrdinatesOperator::new(
-                &medium,
-                0,
-                DirectionBins::cube(n)?,
-                OrdinatesOptions::default(),
-            )?;
+            let bins = DirectionBins::cube(n)?;
+            let options =
+                crate::engine::methods::ordinates_options(&scene.solve, &bins, &medium.phase());
+            let op = OrdinatesOperator::new(&medium, 0, bins, options)?;
             // The external density is (scattered light pass) + emission; split the two by
             // computing it once without emission.
             let with_emission = op.external_density_from_pass(&light_pass)?;

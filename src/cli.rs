@@ -83,9 +83,10 @@ pub struct ValidateArgs {
     /// through its target in equal steps (default 8, quick 2).
     #[arg(long)]
     pub views: Option<usize>,
-    /// Validate every scene once per value: KEY=v1,v2,… with KEY albedo, g (Henyey–Greenstein)
-    /// or sigma-t-factor (times the scene's sigma_t_scale); repeatable, the cases are every
-    /// combination (e.g. --vary albedo=0.5,0.9,0.99,1 --vary g=0,0.6,0.85,0.95).
+    /// Validate every scene once per value: KEY=v1,v2,… with KEY albedo, g (Henyey–Greenstein),
+    /// sigma-t-factor (times the scene's sigma_t_scale), bins or forward-peak-cone (the
+    /// [solve] keys); repeatable, the cases are every combination (e.g. --vary
+    /// albedo=0.5,0.9,0.99,1 --vary g=0,0.6,0.85,0.95).
     #[arg(long = "vary", value_name = "KEY=VALUES")]
     pub vary: Vec<String>,
 }

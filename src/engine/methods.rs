@@ -5,9 +5,12 @@ use std::f64::consts::PI;
 use std::fmt;
 
 use anyhow::{bail, Context, Result};
-use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use formfactor::ordinates::{
+    default_forward_truncation_degrees, DirectionBins, OrdinatesOperator, OrdinatesOptions,
+};
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
 use medium::light_pass::LightPass;
+use medium::PhaseFunction;
 use scene::{Scene, SolveMethod, SolveSettings};
 use serde::Serialize;
 use solver::{Method, SolveOptions, SolveReport, TransportOperator};
@@ -161,10 +164,17 @@ fn face_divisions(bins: usize) -> Result<usize> {
         .with_context(|| format!("{bins} bins: expected 6n² for n = 1..=8"))
 }
 
-/// The sweep options a scene's `[solve]` settings ask for.
-pub fn ordinates_options(settings: &SolveSettings) -> OrdinatesOptions {
+/// The sweep options a scene's `[solve]` settings ask for, for `phase` in `bins`.
+pub fn ordinates_options(
+    settings: &SolveSettings,
+    bins: &DirectionBins,
+    phase: &PhaseFunction,
+) -> OrdinatesOptions {
     OrdinatesOptions {
         transport_refinement: settings.transport_refinement,
+        forward_truncation_degrees: settings
+            .forward_peak_cone
+            .unwrap_or_else(|| default_forward_truncation_degrees(bins, phase)),
         ..OrdinatesOptions::default()
     }
 }
@@ -178,7 +188,8 @@ pub fn solve_ordinates(
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     let bins = DirectionBins::cube(face_divisions(settings.bins)?)?;
-    let op = OrdinatesOperator::new(&scene.medium, c, bins, ordinates_options(settings))?;
+    let options = ordinates_options(settings, &bins, &scene.medium.phase());
+    let op = OrdinatesOperator::new(&scene.medium, c, bins, options)?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source.
     let external = op.external_density_from_pass(light_pass)?;
     let mut source = vec![0.0; op.len()];
@@ -525,10 +536,42 @@ mod tests {
 
     #[test]
     fn transport_refinement_of_the_scene_reaches_the_sweep_options() {
-        let mut settings = SolveSettings::default_for(&medium::PhaseFunction::Isotropic);
-        assert_eq!(ordinates_options(&settings).transport_refinement, 1);
+        let iso = PhaseFunction::Isotropic;
+        let bins = DirectionBins::cube(4).unwrap();
+        let mut settings = SolveSettings::default_for(&iso);
+        assert_eq!(
+            ordinates_options(&settings, &bins, &iso).transport_refinement,
+            1
+        );
         settings.transport_refinement = 3;
-        assert_eq!(ordinates_options(&settings).transport_refinement, 3);
+        assert_eq!(
+            ordinates_options(&settings, &bins, &iso).transport_refinement,
+            3
+        );
+    }
+
+    /// The forward peak is truncated by default only where there is one (HG, g > 0), in one
+    /// bin's cone; the scene's cone (0: none) wins.
+    #[test]
+    fn forward_peak_cone_defaults_to_one_bin_and_the_scene_overrides_it() {
+        let hg = PhaseFunction::HenyeyGreenstein { g: 0.85 };
+        let back = PhaseFunction::HenyeyGreenstein { g: -0.3 };
+        let bins = DirectionBins::cube(4).unwrap();
+        let mut settings = SolveSettings::default_for(&hg);
+        let cone = |s: &SolveSettings, p: &PhaseFunction| {
+            ordinates_options(s, &bins, p).forward_truncation_degrees
+        };
+        assert!(
+            (cone(&settings, &hg) - 11.72).abs() < 0.01,
+            "{}",
+            cone(&settings, &hg)
+        );
+        assert_eq!(cone(&settings, &PhaseFunction::Isotropic), 0.0);
+        assert_eq!(cone(&settings, &back), 0.0);
+        settings.forward_peak_cone = Some(0.0);
+        assert_eq!(cone(&settings, &hg), 0.0);
+        settings.forward_peak_cone = Some(20.0);
+        assert_eq!(cone(&settings, &hg), 20.0);
     }
 
     /// A medium that does not scatter (albedo 0, an emitter in an absorber) is solved by

@@ -16,13 +16,19 @@ pub enum VaryKey {
     G,
     /// A factor on `[volume] sigma_t_scale` (which defaults to 1).
     SigmaTFactor,
+    /// `[solve] bins` (discrete ordinates).
+    Bins,
+    /// `[solve] forward_peak_cone` in degrees (discrete ordinates; 0: no truncation).
+    ForwardPeakCone,
 }
 
 impl VaryKey {
-    const ALL: [(VaryKey, &'static str); 3] = [
+    const ALL: [(VaryKey, &'static str); 5] = [
         (VaryKey::Albedo, "albedo"),
         (VaryKey::G, "g"),
         (VaryKey::SigmaTFactor, "sigma-t-factor"),
+        (VaryKey::Bins, "bins"),
+        (VaryKey::ForwardPeakCone, "forward-peak-cone"),
     ];
 
     pub fn name(self) -> &'static str {
@@ -38,6 +44,8 @@ impl VaryKey {
             VaryKey::Albedo => "a",
             VaryKey::G => "g",
             VaryKey::SigmaTFactor => "s",
+            VaryKey::Bins => "b",
+            VaryKey::ForwardPeakCone => "cone",
         }
     }
 }
@@ -49,14 +57,17 @@ pub struct Variation {
     pub values: Vec<f64>,
 }
 
-/// Parses `KEY=v1,v2,…` (keys: albedo, g, sigma-t-factor), checking each value's range.
+/// Parses `KEY=v1,v2,…` (keys: albedo, g, sigma-t-factor, bins, forward-peak-cone), checking each value's range.
 pub fn parse_variation(spec: &str) -> Result<Variation> {
     let Some((key, values)) = spec.split_once('=') else {
-        bail!("--vary {spec}: expected KEY=v1,v2,… (keys: albedo, g, sigma-t-factor)");
+        bail!("--vary {spec}: expected KEY=v1,v2,… (keys: albedo, g, sigma-t-factor, bins, forward-peak-cone)");
     };
     let key = key.trim();
     let Some(&(key, _)) = VaryKey::ALL.iter().find(|(_, n)| *n == key) else {
-        bail!("--vary {spec}: unknown key `{key}` (expected albedo, g or sigma-t-factor)");
+        bail!(
+            "--vary {spec}: unknown key `{key}` (expected albedo, g, sigma-t-factor, bins or \
+             forward-peak-cone)"
+        );
     };
     let mut parsed = Vec::new();
     for v in values.split(',') {
@@ -68,12 +79,17 @@ pub fn parse_variation(spec: &str) -> Result<Variation> {
             VaryKey::Albedo => (0.0..=1.0).contains(&x),
             VaryKey::G => x.abs() < 1.0,
             VaryKey::SigmaTFactor => x.is_finite() && x > 0.0,
+            // The scene checker refuses values it does not take, naming the key.
+            VaryKey::Bins => (1.0..=1e6).contains(&x) && x.fract() == 0.0,
+            VaryKey::ForwardPeakCone => x.is_finite() && x >= 0.0,
         };
         if !ok {
             let range = match key {
                 VaryKey::Albedo => "in [0, 1]",
                 VaryKey::G => "in (−1, 1)",
                 VaryKey::SigmaTFactor => "positive",
+                VaryKey::Bins => "a whole number",
+                VaryKey::ForwardPeakCone => "a non-negative number",
             };
             bail!("--vary {spec}: {} = {x} must be {range}", key.name());
         }
@@ -176,6 +192,12 @@ fn section<'t>(table: &'t mut toml::Table, name: &str) -> Result<&'t mut toml::T
 
 fn apply(table: &mut toml::Table, key: VaryKey, value: f64) -> Result<()> {
     match key {
+        VaryKey::Bins => {
+            section(table, "solve")?.insert("bins".into(), toml::Value::Integer(value as i64));
+        }
+        VaryKey::ForwardPeakCone => {
+            section(table, "solve")?.insert("forward_peak_cone".into(), toml::Value::Float(value));
+        }
         VaryKey::Albedo => {
             section(table, "medium")?.insert("albedo".into(), toml::Value::Float(value));
         }
@@ -251,6 +273,7 @@ mod tests {
             ("density=2", "`density`"),
             ("albedo", "KEY="),
             ("albedo=x", "`x`"),
+            ("bins=96.5", "whole number"),
         ] {
             let e = parse_variation(bad).unwrap_err();
             assert!(format!("{e:#}").contains(needle), "{bad}: {e:#}");

@@ -65,8 +65,7 @@ fn quick_validation_reports_every_method_with_images() {
         // The scene's table (the summary at the top has a row per method too).
         let line = md
             .lines()
-            .filter(|l| l.starts_with(&format!("| {method} |")))
-            .last()
+            .rfind(|l| l.starts_with(&format!("| {method} |")))
             .unwrap_or_else(|| panic!("no row for {method} in\n{md}"));
         let cells: Vec<&str> = line.split('|').map(str::trim).collect();
         let pct = |c: &str| c.trim_end_matches(" %").parse::<f64>().unwrap() / 100.0;

@@ -52,6 +52,7 @@ pub(crate) struct RawSolve {
     pub(crate) tolerance: Option<toml::Value>,
     pub(crate) max_iterations: Option<toml::Value>,
     pub(crate) transport_refinement: Option<toml::Value>,
+    pub(crate) forward_peak_cone: Option<toml::Value>,
     pub(crate) photons: Option<toml::Value>,
 }
 

@@ -370,6 +370,22 @@ impl Ctx<'_> {
                     }
                     out.transport_refinement = r as usize;
                 }
+                if let Some(c) = &s.forward_peak_cone {
+                    let key = "solve.forward_peak_cone";
+                    let degrees = self.non_negative(c, key)?;
+                    let truncatable =
+                        matches!(phase, PhaseFunction::HenyeyGreenstein { g } if *g > 0.0);
+                    if degrees >= 90.0 || (degrees > 0.0 && !truncatable) {
+                        return Err(self.err(
+                            key,
+                            format!(
+                                "{degrees}: expected degrees from 0 (no truncation) to below 90, \
+                                 and a cone only for a henyey-greenstein phase with g > 0"
+                            ),
+                        ));
+                    }
+                    out.forward_peak_cone = Some(degrees);
+                }
                 if let Some(n) = &s.photons {
                     let key = "solve.photons";
                     let n = self.integer(n, key, 1)? as u64;

@@ -129,6 +129,12 @@ pub struct SolveSettings {
     /// which shrinks the sweep's numerical diffusion at `r³` times the sweep cost; the
     /// unknowns stay per cell.
     pub transport_refinement: usize,
+    /// Discrete ordinates only: half-angle in degrees of the forward-peak cone truncated
+    /// by δ-M ([`OrdinatesOptions::forward_truncation_degrees`](formfactor::ordinates::OrdinatesOptions));
+    /// `None`: the default, one bin's cone for Henyey–Greenstein with `g > 0`
+    /// ([`default_forward_truncation_degrees`](formfactor::ordinates::default_forward_truncation_degrees));
+    /// `Some(0.0)`: none.
+    pub forward_peak_cone: Option<f64>,
     /// Two-pass only: photons per light of the energetization pass (its noise falls like
     /// `1/√photons`; bounds [`PHOTON_RANGE`](montecarlo::two_pass::PHOTON_RANGE)).
     pub photons: u64,
@@ -146,6 +152,7 @@ impl SolveSettings {
             tolerance: 1e-5,
             max_iterations: 2000,
             transport_refinement: 1,
+            forward_peak_cone: None,
             photons: montecarlo::two_pass::DEFAULT_PHOTONS,
         }
     }

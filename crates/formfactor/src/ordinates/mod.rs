@@ -19,8 +19,8 @@ pub use assembled::AssembledOrdinates;
 pub use bins::{DirectionBins, VALID_BINS};
 pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
-    EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve,
-    MAX_TRANSPORT_REFINEMENT,
+    default_forward_truncation_degrees, forward_peak_fraction, EnergyBalance, OrdinatesOperator,
+    OrdinatesOptions, SweepEnergy, SweepSolve, MAX_TRANSPORT_REFINEMENT,
 };
 
 /// What was wrong with an ordinates set-up.

@@ -25,6 +25,16 @@ impl PhaseMatrix {
     /// incoming bin `j` (different node sets, so the diagonal never evaluates a peaked `p`
     /// at `ω = ω'` only), then column renormalisation.
     pub fn new(bins: &DirectionBins, phase: &PhaseFunction, k: usize) -> Self {
+        Self::from_density(bins, |mu| phase.eval(mu), k)
+    }
+
+    /// [`new`](Self::new) for any phase density of the scattering angle's cosine (it need not
+    /// be normalised: the columns are renormalised).
+    pub fn from_density(
+        bins: &DirectionBins,
+        density: impl Fn(f64) -> f64 + Sync,
+        k: usize,
+    ) -> Self {
         let m = bins.len();
         let quad = |kk: usize| -> Vec<Vec<(DVec3, f64)>> {
             (0..m)
@@ -45,7 +55,7 @@ impl PhaseMatrix {
                 for &(w_out, a) in &out_q[l] {
                     let mut inner = 0.0;
                     for &(w_in, b) in &in_q[j] {
-                        inner += b * phase.eval(w_out.dot(w_in));
+                        inner += b * density(w_out.dot(w_in));
                     }
                     s += a * inner;
                 }

@@ -89,3 +89,29 @@ fn bad_transport_refinement_is_refused_naming_the_key() {
     let err = scene_with("transport_refinement = 5").unwrap_err();
     assert!(err.contains("1 to 4"), "{err}");
 }
+
+#[test]
+fn forward_peak_cone_is_read_and_bad_values_are_refused_naming_the_key() {
+    assert_eq!(scene_with("").unwrap().solve.forward_peak_cone, None);
+    assert_eq!(
+        scene_with("forward_peak_cone = 0")
+            .unwrap()
+            .solve
+            .forward_peak_cone,
+        Some(0.0)
+    );
+    assert_eq!(
+        scene_with("forward_peak_cone = 15.5")
+            .unwrap()
+            .solve
+            .forward_peak_cone,
+        Some(15.5)
+    );
+    for bad in ["-1", "90", "\"auto\""] {
+        let err = scene_with(&format!("forward_peak_cone = {bad}")).unwrap_err();
+        assert!(
+            err.contains("solve.forward_peak_cone") && err.contains("inline.toml"),
+            "{bad}: {err}"
+        );
+    }
+}
