@@ -14,6 +14,8 @@
 //!   `DISORT_ZONAL_LAYERS` deep (default 4 √τ: σt·h = 0.25 … 2) and wide enough for
 //!   `DISORT_ZONAL_REACH` optical depths (default 6) on each side of the centre column,
 //!   folded onto that column (the build is O(cells²): 3–90 s per τ);
+//! - `DISORT_CONE`: the δ-M forward-peak cone in degrees (`auto`: one bin's, as volrad's
+//!   default; unset or 0: none), for the g > 0 cases;
 //! - `DISORT_DETAIL=1`: every radiance.
 //!
 //! The transmitted radiances and T of cases whose DISORT `T_diffuse` is below 1e-6 (τ = 64 at
@@ -106,6 +108,7 @@ fn main() {
         .collect();
     let match_asymmetry = std::env::var("DISORT_NOMATCH").is_err();
     let pq: Option<usize> = std::env::var("DISORT_PQ").ok().map(|v| v.parse().unwrap());
+    let cone = std::env::var("DISORT_CONE").ok();
 
     for &nb in &bins {
         let n = ((nb / 6) as f64).sqrt().round() as usize;
@@ -117,20 +120,35 @@ fn main() {
                 ..Default::default()
             };
             println!(
-                "\n## discrete ordinates, {nb} bins, {nz} layers{}{}",
+                "\n## discrete ordinates, {nb} bins, {nz} layers{}{}{}",
                 if match_asymmetry {
                     ""
                 } else {
                     ", match_asymmetry off"
                 },
-                pq.map_or(String::new(), |k| format!(", phase quadrature {k}"))
+                pq.map_or(String::new(), |k| format!(", phase quadrature {k}")),
+                cone.as_ref()
+                    .map_or(String::new(), |c| format!(", forward-peak cone {c}"))
             );
             let start = Instant::now();
             let mut summary: BTreeMap<(u64, u64), Errors> = BTreeMap::new();
             for case in &cases {
                 let (tau, a, g, mu0) = case_parameters(case);
                 let t0 = Instant::now();
-                let res = solve_slab_with(tau, a, g, mu0, nz, n, base);
+                let degrees = match cone.as_deref() {
+                    _ if g <= 0.0 => 0.0,
+                    None => 0.0,
+                    Some("auto") => formfactor::ordinates::default_forward_truncation_degrees(
+                        &formfactor::ordinates::DirectionBins::cube(n).unwrap(),
+                        &medium::PhaseFunction::HenyeyGreenstein { g },
+                    ),
+                    Some(d) => d.parse().expect("DISORT_CONE: degrees or auto"),
+                };
+                let options = OrdinatesOptions {
+                    forward_truncation_degrees: degrees,
+                    ..base
+                };
+                let res = solve_slab_with(tau, a, g, mu0, nz, n, options);
                 let errors = measure(
                     case,
                     detail,
