@@ -14,6 +14,7 @@ use gather::light_depth::{LightDepth, LightDepthModel};
 use gather::RenderIndex;
 use medium::light_pass::{LightField, LightPass};
 use medium::{CellValues, ChannelMedium, Light, Medium};
+use rayon::prelude::*;
 use records::{ChannelRecord, FieldKind, MetaRecord};
 use scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
 
@@ -73,6 +74,9 @@ pub struct RenderCache {
     light_depth: std::sync::OnceLock<Result<LightDepthModel, String>>,
     /// The index, or why it could not be built.
     render_index: std::sync::OnceLock<Result<RenderIndex, String>>,
+    /// `ln` of a binned higher-order source (−∞ where it is 0), for interpolating between bin
+    /// centres geometrically.
+    log_source: std::sync::OnceLock<Vec<f32>>,
 }
 
 impl RenderCache {
@@ -85,6 +89,12 @@ impl RenderCache {
             })
             .as_ref()
             .map_err(|e| anyhow::anyhow!("first-bounce light-depth model: {e}"))
+    }
+
+    /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
+    pub fn log_source(&self, values: &[f32]) -> &[f32] {
+        self.log_source
+            .get_or_init(|| values.par_iter().map(|&v| v.ln()).collect())
     }
 
     /// Channel `channel`'s render index of `medium` (the solution's own, on every call) under
