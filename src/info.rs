@@ -31,6 +31,52 @@ pub struct SceneInfo {
     pub medium_bytes: usize,
     /// Rough memory a solve needs with the scene's method (unknowns, work vectors, operator).
     pub solve_memory_estimate_bytes: usize,
+    /// Largest optical depth of one cell (σt · cell size).
+    pub max_cell_optical_depth: f64,
+    /// What the discrete-ordinates solve will use (discrete ordinates only).
+    pub ordinates: Option<OrdinatesInfo>,
+}
+
+/// The discrete-ordinates settings a solve uses, with what volrad chose and the error class
+/// measured for them.
+#[derive(Debug, Serialize)]
+pub struct OrdinatesInfo {
+    pub bins: usize,
+    /// Half-angle of the δ-M forward-peak cone, degrees (0: none).
+    pub forward_peak_cone_degrees: f64,
+    /// Whether the cone is volrad's choice (the scene did not set one).
+    pub cone_chosen_by_volrad: bool,
+    /// Fraction of scattering treated as unscattered by the truncation.
+    pub forward_peak_fraction: f64,
+    /// The error class measured for this g and bin count (docs/validation.md).
+    pub expected_error: String,
+}
+
+/// The per-view error measured for discrete ordinates at asymmetry `g` with `bins` bins and
+/// a largest cell optical depth `tau_cell` (docs/validation.md: the cloud24 orbit and the
+/// DISORT slab tables).
+fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64) -> String {
+    let angular = if g <= 0.3 {
+        "about 2 % (DISORT slabs, τ ≤ 4)".to_string()
+    } else if g <= 0.7 {
+        "3–5 % per view, image mean within +3 % (cloud24, g = 0.6, 8 views)".to_string()
+    } else if bins >= 384 {
+        "about 3–8 % per view (cloud24, g = 0.85, 384 bins)".to_string()
+    } else {
+        format!(
+            "about 9 % per view, back-lit views up to +9 % bright at g = 0.85 with 96 bins \
+             (more above; {bins} bins here): set [solve] bins = 384 for about 3 % (5× the solve)"
+        )
+    };
+    if tau_cell > 0.25 {
+        format!(
+            "{angular}; cells up to optical depth {tau_cell:.2}: the sweep transmits too much \
+             through optically thick cells (DISORT τ = 16 slab at 0.25 per cell: +27 %), \
+             [solve] transport_refinement helps"
+        )
+    } else {
+        angular
+    }
 }
 
 impl SceneInfo {
@@ -64,6 +110,35 @@ impl SceneInfo {
             SolveMethod::DiscreteOrdinates => scene.solve.bins * scene.solve.bins * 8,
             _ => 0,
         };
+        let max_cell_optical_depth = hi * m.grid().cell_size;
+        let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
+            let phase = m.phase();
+            let n = (1..=8).find(|n| 6 * n * n == scene.solve.bins).unwrap_or(4);
+            let cone = scene.solve.forward_peak_cone.unwrap_or_else(|| {
+                formfactor::ordinates::DirectionBins::cube(n).map_or(0.0, |bins| {
+                    formfactor::ordinates::default_forward_truncation_degrees(&bins, &phase)
+                })
+            });
+            let fraction = match phase {
+                medium::PhaseFunction::HenyeyGreenstein { g } if cone > 0.0 && g > 0.0 => {
+                    formfactor::ordinates::forward_peak_fraction(g, cone.to_radians().cos())
+                }
+                _ => 0.0,
+            };
+            // Truncation sweeps σt − fσs: the cells the sweep sees are that much thinner.
+            let tau_cell = max_cell_optical_depth * (1.0 - fraction * smallest_albedo(m) as f64);
+            OrdinatesInfo {
+                bins: scene.solve.bins,
+                forward_peak_cone_degrees: cone,
+                cone_chosen_by_volrad: scene.solve.forward_peak_cone.is_none(),
+                forward_peak_fraction: fraction,
+                expected_error: expected_ordinates_error(
+                    phase.mean_cosine(),
+                    scene.solve.bins,
+                    tau_cell,
+                ),
+            }
+        });
         SceneInfo {
             origin: match &scene.origin {
                 SceneOrigin::File(p) => p.display().to_string(),
@@ -89,8 +164,20 @@ impl SceneInfo {
             iteration: scene.solve.iteration.to_string(),
             medium_bytes: m.memory_bytes(),
             solve_memory_estimate_bytes: vectors + operator,
+            max_cell_optical_depth,
+            ordinates,
         }
     }
+}
+
+/// The smallest single-scattering albedo of the medium's channels (the truncation thins a
+/// cell by `f·a`, so the smallest albedo thins least).
+fn smallest_albedo(m: &medium::Medium) -> f32 {
+    m.channels()
+        .iter()
+        .map(|c| c.albedo.max())
+        .fold(f32::INFINITY, f32::min)
+        .min(1.0)
 }
 
 fn mib(bytes: usize) -> f64 {
@@ -124,6 +211,26 @@ impl fmt::Display for SceneInfo {
         writeln!(f, "cameras          {}", self.cameras.join(", "))?;
         writeln!(f, "solve method     {}", self.method)?;
         writeln!(f, "iteration        {}", self.iteration)?;
+        if let Some(o) = &self.ordinates {
+            if o.forward_peak_cone_degrees > 0.0 {
+                writeln!(
+                    f,
+                    "direction bins   {}, forward peak within {:.1}° truncated (δ-M, {:.0} % of \
+ scattering){}",
+                    o.bins,
+                    o.forward_peak_cone_degrees,
+                    100.0 * o.forward_peak_fraction,
+                    if o.cone_chosen_by_volrad {
+                        ", chosen by volrad: one bin's cone"
+                    } else {
+                        ""
+                    }
+                )?;
+            } else {
+                writeln!(f, "direction bins   {}, no forward-peak truncation", o.bins)?;
+            }
+            writeln!(f, "expected error   {}", o.expected_error)?;
+        }
         writeln!(
             f,
             "memory           medium {:.1} MiB, solve ≈ {:.1} MiB",

@@ -555,6 +555,27 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     );
     assert!(!text.contains("HenyeyGreenstein"), "{text}");
 
+    // For discrete ordinates `info` says what volrad chose (the forward-peak cone of one of
+    // the 24 bins) and the error class measured for it, with the remedy.
+    let ordinates = small_scene(
+        dir.path(),
+        "discrete-ordinates",
+        r#"{ kind = "henyey-greenstein", g = 0.85 }"#,
+    );
+    let o = volrad(&["info", s(&ordinates)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("direction bins   24, forward peak within 23.6° truncated")
+            && text.contains("chosen by volrad")
+            && text.contains("expected error")
+            && text.contains("bins = 384"),
+        "{text}"
+    );
+    let o = volrad(&["info", s(&ordinates), "--json"]);
+    let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let f = info["ordinates"]["forward_peak_fraction"].as_f64().unwrap();
+    assert!(f > 0.0 && f < 0.85, "{f}");
+
     // A solve refuses a folder as its output before solving.
     let o = volrad(&["-q", "solve", s(&zonal), "-o", s(dir.path())]);
     assert!(
