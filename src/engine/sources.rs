@@ -4,7 +4,9 @@
 //! ordinates) or the two-pass method's stored field.
 
 use anyhow::Result;
+#[cfg(test)]
 use formfactor::ordinates::bins::face_bilinear;
+use formfactor::ordinates::bins::interpolate_bins;
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
 use gather::{InScattering, OpticalModel, RayCarry, ViewSegment};
 use glam::DVec3;
@@ -41,17 +43,9 @@ impl InScattering for CellSource<'_> {
     }
 }
 
-/// A per-cell, per-bin source looked up by direction between the bin centres of one cube
-/// face (`formfactor::ordinates::bins::face_bilinear`; the layout of
-/// `formfactor::ordinates::bins`: bin `f n² + i n + j`): geometric (bilinear in `ln`) between
-/// four positive centres, linear where one is 0 and towards a face's edges (extrapolated).
-///
-/// Why geometric: the gathered source of a forward-scattering medium falls off steeply with
-/// the angle from the light, and linear interpolation of such a convex function overshoots
-/// between centres. On the g = 0.85 cloud seen from 8 sides it made the back-lit views up to
-/// 2.5 points too bright (docs/validation.md); an exponential fall-off is interpolated
-/// exactly in `ln`. Extrapolation stays linear: `ln`-extrapolating a peak would grow without
-/// bound.
+/// A per-cell, per-bin source looked up by direction between bin centres
+/// (`formfactor::ordinates::bins::interpolate_bins`: geometric between positive centres; the
+/// layout of `formfactor::ordinates::bins`: bin `f n² + i n + j`).
 pub struct BinnedSource<'a> {
     values: &'a [f32],
     /// `ln` of `values` (−∞ for 0).
@@ -78,24 +72,12 @@ impl<'a> BinnedSource<'a> {
     #[inline]
     fn lookup(&self, cell: usize, w: DVec3) -> f64 {
         let base = cell * 6 * self.n * self.n;
-        let weights = face_bilinear(self.n, w);
-        if weights
-            .iter()
-            .all(|&(l, weight)| weight >= 0.0 && self.logs[base + l] > f32::NEG_INFINITY)
-        {
-            let ln: f64 = weights
-                .iter()
-                .map(|&(l, weight)| weight * self.logs[base + l] as f64)
-                .sum();
-            return ln.exp();
-        }
-        let value: f64 = weights
-            .iter()
-            .map(|&(l, weight)| weight * self.values[base + l] as f64)
-            .sum();
-        // Past a face's outer bin centres the extrapolation weights go negative; scattered
-        // radiance cannot, however peaked the field.
-        value.max(0.0)
+        interpolate_bins(
+            self.n,
+            w,
+            |l| self.values[base + l] as f64,
+            |l| self.logs[base + l] as f64,
+        )
     }
 }
 

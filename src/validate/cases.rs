@@ -225,26 +225,23 @@ fn apply(table: &mut toml::Table, key: VaryKey, value: f64) -> Result<()> {
     Ok(())
 }
 
-/// `views` cameras around `spec`'s target: the first is `spec` itself, the others turn its
-/// eye about the camera's up axis through the target in equal steps, at the same distance
-/// and elevation, so the light falls from every side (front-, side- and back-lit).
+/// `views` cameras around `spec`'s target ([`orbit_cameras`](crate::views::orbit_cameras):
+/// the same distance and elevation, turned about the camera's up axis in equal steps), so the
+/// light falls from every side. The first is `spec` itself; the others are named by their
+/// turn (`front+090`).
 pub fn orbit(spec: &CameraSpec, views: usize) -> Vec<CameraSpec> {
-    let axis = spec.up.normalize();
-    let offset = spec.eye - spec.target;
-    (0..views.max(1))
-        .map(|k| {
+    let n = views.max(1);
+    crate::views::orbit_cameras(spec, n as u32)
+        .into_iter()
+        .enumerate()
+        .map(|(k, camera)| {
             if k == 0 {
-                return spec.clone();
-            }
-            let degrees = 360.0 * k as f64 / views as f64;
-            let (sin, cos) = degrees.to_radians().sin_cos();
-            // Rodrigues' rotation of the eye offset about the up axis.
-            let rotated =
-                offset * cos + axis.cross(offset) * sin + axis * axis.dot(offset) * (1.0 - cos);
-            CameraSpec {
-                name: format!("{}+{degrees:03.0}", spec.name),
-                eye: spec.target + rotated,
-                ..spec.clone()
+                spec.clone()
+            } else {
+                CameraSpec {
+                    name: format!("{}+{:03.0}", spec.name, orbit_degrees(k, n)),
+                    ..camera
+                }
             }
         })
         .collect()
@@ -292,7 +289,7 @@ mod tests {
     }
 
     #[test]
-    fn orbit_keeps_distance_and_elevation_and_turns_about_up() {
+    fn orbit_starts_at_the_scene_camera_and_names_views_by_their_turn() {
         let spec = CameraSpec {
             name: "front".into(),
             eye: DVec3::new(10.0, -20.0, 15.0),
@@ -305,20 +302,12 @@ mod tests {
             height: 24,
         };
         let views = orbit(&spec, 8);
-        assert_eq!(views.len(), 8);
+        let names: Vec<&str> = views.iter().map(|v| v.name.as_str()).collect();
+        assert_eq!(names[..3], ["front", "front+045", "front+090"]);
         assert_eq!(views[0], spec);
-        assert_eq!(views[2].name, "front+090");
-        let d0 = spec.eye - spec.target;
-        for v in &views {
-            let d = v.eye - v.target;
-            assert!((d.length() - d0.length()).abs() < 1e-9);
-            assert!((d.z - d0.z).abs() < 1e-9, "elevation kept");
-        }
         // Half way round, the eye is opposite: back-lit where the first was front-lit.
-        let back = views[4].eye - spec.target;
+        let (d0, back) = (spec.eye - spec.target, views[4].eye - spec.target);
         assert!((back.x + d0.x).abs() < 1e-9 && (back.y + d0.y).abs() < 1e-9);
-        // A quarter turn about +z takes −y to +x.
-        let quarter = views[2].eye - spec.target;
-        assert!((quarter.x - 30.0).abs() < 1e-9 && quarter.y.abs() < 1e-9);
+        assert!((back.z - d0.z).abs() < 1e-9);
     }
 }

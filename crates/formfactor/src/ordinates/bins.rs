@@ -225,3 +225,39 @@ pub fn face_bilinear(n: usize, w: DVec3) -> [(usize, f64); 4] {
         (base + i1 * n + j1, fs * ft),
     ]
 }
+
+/// A per-bin field of one cell looked up towards unit `w` between the bin centres of one cube
+/// face ([`face_bilinear`]), as volrad's renderer reads the final gather's source: geometric
+/// (bilinear in `ln`) between four positive centres, linear next to a zero centre and towards
+/// a face's edges (extrapolated; never below 0). `value(l)` is bin `l`'s value and `ln(l)`
+/// its logarithm (−∞ for 0; a caller that looks up one field often keeps them).
+///
+/// Why geometric: the gathered source of a forward-scattering medium falls off steeply with
+/// the angle from the light, and linear interpolation of such a convex function overshoots
+/// between centres (on the g = 0.85 cloud seen from 8 sides, back-lit views up to 2.5 points
+/// too bright); an exponential fall-off is interpolated exactly in `ln`. Extrapolation stays
+/// linear: `ln`-extrapolating a peak would grow without bound.
+#[inline]
+pub fn interpolate_bins(
+    n: usize,
+    w: DVec3,
+    value: impl Fn(usize) -> f64,
+    ln: impl Fn(usize) -> f64,
+) -> f64 {
+    let weights = face_bilinear(n, w);
+    if weights
+        .iter()
+        .all(|&(l, weight)| weight >= 0.0 && ln(l) > f64::NEG_INFINITY)
+    {
+        return weights
+            .iter()
+            .map(|&(l, weight)| weight * ln(l))
+            .sum::<f64>()
+            .exp();
+    }
+    weights
+        .iter()
+        .map(|&(l, weight)| weight * value(l))
+        .sum::<f64>()
+        .max(0.0)
+}

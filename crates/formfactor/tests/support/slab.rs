@@ -4,7 +4,7 @@
 //! (tests/it/ordinates_slab.rs, tests/it/disort_slabs.rs) and the examples slab_explorer and
 //! disort_slabs.
 
-use formfactor::ordinates::bins::face_bilinear;
+use formfactor::ordinates::bins::interpolate_bins;
 use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
 use formfactor::{ExactOptions, FormFactorMatrix};
 use glam::DVec3;
@@ -148,11 +148,24 @@ pub fn case_radiances(case: &serde_json::Value, table: &str) -> Vec<(f64, f64, D
     out
 }
 
+/// Layer `k`'s final-gather source towards `view`, interpolated between bin centres as the
+/// renderer does ([`interpolate_bins`]).
+fn gathered_towards(res: &SlabResult, k: usize, view: DVec3) -> f64 {
+    let m = res.op.bins().len();
+    let layer = &res.gathered[k * m..(k + 1) * m];
+    interpolate_bins(
+        res.op.bins().face_divisions(),
+        view,
+        |l| layer[l],
+        |l| layer[l].ln(),
+    )
+}
+
 /// Reflected radiance leaving the top of the slab along the upward unit `view` (flow
 /// direction), as the final gather forms it: the exact first bounce (true phase function,
 /// analytic in depth) plus the higher orders from the solution, the library's final-gather
 /// source at the bin centres ([`OrdinatesOperator::gather_density`]: true phase function)
-/// interpolated to `view` as the renderer does ([`face_bilinear`]), constant per layer and
+/// interpolated to `view` as the renderer does ([`interpolate_bins`]), constant per layer and
 /// integrated along the view ray through the layers. Returns (first bounce, higher orders).
 pub fn reflected_radiance(
     res: &SlabResult,
@@ -164,15 +177,8 @@ pub fn reflected_radiance(
 ) -> (f64, f64) {
     let op = &res.op;
     let nz = op.grid().dims[2];
-    let m = op.bins().len();
     let first = reflected_first_bounce(tau, albedo, g, mu0, view);
-    let weights = face_bilinear(op.bins().face_divisions(), view);
-    let higher = column_integral(tau, nz, view.z, true, |k| {
-        weights
-            .iter()
-            .map(|&(l, w)| w * res.gathered[k * m + l])
-            .sum()
-    });
+    let higher = column_integral(tau, nz, view.z, true, |k| gathered_towards(res, k, view));
     (first, higher)
 }
 
@@ -190,15 +196,8 @@ pub fn transmitted_radiance(
 ) -> (f64, f64) {
     let op = &res.op;
     let nz = op.grid().dims[2];
-    let m = op.bins().len();
     let first = transmitted_first_bounce(tau, albedo, g, mu0, view);
-    let weights = face_bilinear(op.bins().face_divisions(), view);
-    let higher = column_integral(tau, nz, -view.z, false, |k| {
-        weights
-            .iter()
-            .map(|&(l, w)| w * res.gathered[k * m + l])
-            .sum()
-    });
+    let higher = column_integral(tau, nz, -view.z, false, |k| gathered_towards(res, k, view));
     (first, higher)
 }
 
