@@ -222,12 +222,7 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
         LightPass::compute(grid, channel, &scene.lights).context("computing the light pass")?;
     match scene.solve.method {
         SolveMethod::DiscreteOrdinates => {
-            let n = (1..=8)
-                .find(|n| 6 * n * n == scene.solve.bins)
-                .with_context(|| {
-                    format!("{} bins: expected 6n² for n = 1..=8", scene.solve.bins)
-                })?;
-            let bins = DirectionBins::cube(n)?;
+            let bins = DirectionBins::with_count(scene.solve.bins)?;
             let options =
                 crate::engine::methods::ordinates_options(&scene.solve, &bins, &medium.phase());
             let op = OrdinatesOperator::new(&medium, 0, bins, options)?;

@@ -2,6 +2,7 @@
 
 use std::fmt;
 
+use formfactor::ordinates::{forward_truncation_fraction, DirectionBins};
 use scene::Scene;
 use scene::{SceneOrigin, SolveMethod};
 use serde::Serialize;
@@ -110,23 +111,24 @@ impl SceneInfo {
             SolveMethod::DiscreteOrdinates => scene.solve.bins * scene.solve.bins * 8,
             _ => 0,
         };
-        let max_cell_optical_depth = hi * m.grid().cell_size;
+        let h = m.grid().cell_size;
+        let max_cell_optical_depth = hi * h;
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
             let phase = m.phase();
-            let n = (1..=8).find(|n| 6 * n * n == scene.solve.bins).unwrap_or(4);
-            let cone = scene.solve.forward_peak_cone.unwrap_or_else(|| {
-                formfactor::ordinates::DirectionBins::cube(n).map_or(0.0, |bins| {
-                    formfactor::ordinates::default_forward_truncation_degrees(&bins, &phase)
+            let options = DirectionBins::with_count(scene.solve.bins)
+                .map(|bins| crate::engine::methods::ordinates_options(&scene.solve, &bins, &phase))
+                .unwrap_or_default();
+            let cone = options.forward_truncation_degrees;
+            let fraction = forward_truncation_fraction(cone, &phase).unwrap_or(0.0);
+            // The sweep runs through σt − f σs: its thickest cell.
+            let tau_cell = m
+                .channels()
+                .iter()
+                .flat_map(|c| {
+                    (0..c.sigma_t.len()).map(|i| c.sigma_t[i] - fraction as f32 * c.sigma_s(i))
                 })
-            });
-            let fraction = match phase {
-                medium::PhaseFunction::HenyeyGreenstein { g } if cone > 0.0 && g > 0.0 => {
-                    formfactor::ordinates::forward_peak_fraction(g, cone.to_radians().cos())
-                }
-                _ => 0.0,
-            };
-            // Truncation sweeps σt − fσs: the cells the sweep sees are that much thinner.
-            let tau_cell = max_cell_optical_depth * (1.0 - fraction * smallest_albedo(m) as f64);
+                .fold(0.0f32, f32::max) as f64
+                * h;
             OrdinatesInfo {
                 bins: scene.solve.bins,
                 forward_peak_cone_degrees: cone,
@@ -170,16 +172,6 @@ impl SceneInfo {
     }
 }
 
-/// The smallest single-scattering albedo of the medium's channels (the truncation thins a
-/// cell by `f·a`, so the smallest albedo thins least).
-fn smallest_albedo(m: &medium::Medium) -> f32 {
-    m.channels()
-        .iter()
-        .map(|c| c.albedo.max())
-        .fold(f32::INFINITY, f32::min)
-        .min(1.0)
-}
-
 fn mib(bytes: usize) -> f64 {
     bytes as f64 / (1024.0 * 1024.0)
 }
@@ -216,7 +208,7 @@ impl fmt::Display for SceneInfo {
                 writeln!(
                     f,
                     "direction bins   {}, forward peak within {:.1}° truncated (δ-M, {:.0} % of \
- scattering){}",
+                     scattering){}",
                     o.bins,
                     o.forward_peak_cone_degrees,
                     100.0 * o.forward_peak_fraction,

@@ -157,13 +157,6 @@ pub fn solve_zonal(
     ))
 }
 
-/// Face divisions `n` of a `6 n²` bin count.
-fn face_divisions(bins: usize) -> Result<usize> {
-    (1..=8)
-        .find(|n| 6 * n * n == bins)
-        .with_context(|| format!("{bins} bins: expected 6n² for n = 1..=8"))
-}
-
 /// The sweep options a scene's `[solve]` settings ask for, for `phase` in `bins`.
 pub fn ordinates_options(
     settings: &SolveSettings,
@@ -187,7 +180,7 @@ pub fn solve_ordinates(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
-    let bins = DirectionBins::cube(face_divisions(settings.bins)?)?;
+    let bins = DirectionBins::with_count(settings.bins)?;
     let options = ordinates_options(settings, &bins, &scene.medium.phase());
     let op = OrdinatesOperator::new(&scene.medium, c, bins, options)?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source.
@@ -250,10 +243,9 @@ pub fn stored_bins(settings: &SolveSettings) -> Option<StoredBins> {
     if settings.method != SolveMethod::DiscreteOrdinates {
         return None;
     }
-    let n = face_divisions(settings.bins).ok()?;
-    let bins = DirectionBins::cube(n).ok()?;
+    let bins = DirectionBins::with_count(settings.bins).ok()?;
     Some(StoredBins {
-        face_resolution: n,
+        face_resolution: bins.face_divisions(),
         directions: bins.centres().iter().map(|d| d.to_array()).collect(),
         solid_angles: bins.solid_angles().to_vec(),
     })

@@ -1,7 +1,7 @@
 //! Validation of each section of a scene file into the libraries' settings types; one
 //! function per section, called in file order by [`Ctx::scene`].
 
-use formfactor::ordinates::{MAX_TRANSPORT_REFINEMENT, VALID_BINS};
+use formfactor::ordinates::{forward_truncation_fraction, MAX_TRANSPORT_REFINEMENT, VALID_BINS};
 use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
 use medium::generators::Generator;
 use medium::light_pass::MAX_LIGHTS;
@@ -373,17 +373,8 @@ impl Ctx<'_> {
                 if let Some(c) = &s.forward_peak_cone {
                     let key = "solve.forward_peak_cone";
                     let degrees = self.non_negative(c, key)?;
-                    let truncatable =
-                        matches!(phase, PhaseFunction::HenyeyGreenstein { g } if *g > 0.0);
-                    if degrees >= 90.0 || (degrees > 0.0 && !truncatable) {
-                        return Err(self.err(
-                            key,
-                            format!(
-                                "{degrees}: expected degrees from 0 (no truncation) to below 90, \
-                                 and a cone only for a henyey-greenstein phase with g > 0"
-                            ),
-                        ));
-                    }
+                    forward_truncation_fraction(degrees, phase)
+                        .map_err(|e| self.err(key, e.to_string()))?;
                     out.forward_peak_cone = Some(degrees);
                 }
                 if let Some(n) = &s.photons {

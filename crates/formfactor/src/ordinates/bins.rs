@@ -93,6 +93,14 @@ pub struct DirectionBins {
 const CENTRE_QUADRATURE: usize = 32;
 
 impl DirectionBins {
+    /// The set of `count` bins: `count` must be `6 n²` with `1 ≤ n ≤ 8` ([`VALID_BINS`]).
+    pub fn with_count(count: usize) -> Result<Self, OrdinatesError> {
+        let n = (1..=MAX_FACE_DIVISIONS)
+            .find(|n| 6 * n * n == count)
+            .ok_or(OrdinatesError::BinCount(count))?;
+        Self::cube(n)
+    }
+
     /// The `6·n²` bins of an `n × n × n` block of cubes, `1 ≤ n ≤ 8`.
     pub fn cube(n: usize) -> Result<Self, OrdinatesError> {
         if !(1..=MAX_FACE_DIVISIONS).contains(&n) {

@@ -19,8 +19,9 @@ pub use assembled::AssembledOrdinates;
 pub use bins::{DirectionBins, VALID_BINS};
 pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
-    default_forward_truncation_degrees, forward_peak_fraction, EnergyBalance, OrdinatesOperator,
-    OrdinatesOptions, SweepEnergy, SweepSolve, MAX_TRANSPORT_REFINEMENT,
+    default_forward_truncation_degrees, forward_peak_fraction, forward_truncation_fraction,
+    EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve,
+    MAX_TRANSPORT_REFINEMENT,
 };
 
 /// What was wrong with an ordinates set-up.
@@ -28,6 +29,8 @@ pub use sweep::{
 pub enum OrdinatesError {
     #[error("face divisions n = {0}: must be in 1..=8")]
     FaceDivisions(usize),
+    #[error("{0} bins: expected 6 n² for n = 1..=8 ({VALID_BINS:?})")]
+    BinCount(usize),
     #[error("channel {channel} does not exist (the medium has {channels})")]
     Channel { channel: usize, channels: usize },
     #[error("{what}: {got} values, expected {expected}")]

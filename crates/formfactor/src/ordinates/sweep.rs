@@ -99,6 +99,26 @@ pub fn default_forward_truncation_degrees(bins: &DirectionBins, phase: &PhaseFun
     }
 }
 
+/// The fraction `f` of `phase`'s scattering that δ-M truncation in a forward cone of
+/// `degrees` (half-angle) treats as unscattered ([`OrdinatesOptions::forward_truncation_degrees`]):
+/// `0` for no cone; a cone needs `0 < degrees < 90` and Henyey–Greenstein with `g > 0`. The one
+/// rule the operator, the scene checker and `volrad info` apply.
+pub fn forward_truncation_fraction(
+    degrees: f64,
+    phase: &PhaseFunction,
+) -> Result<f64, OrdinatesError> {
+    match *phase {
+        _ if degrees == 0.0 => Ok(0.0),
+        PhaseFunction::HenyeyGreenstein { g } if degrees > 0.0 && degrees < 90.0 && g > 0.0 => {
+            Ok(forward_peak_fraction(g, degrees.to_radians().cos()))
+        }
+        _ => Err(OrdinatesError::Option(format!(
+            "forward-peak cone {degrees}°: needs 0 < degrees < 90 and a Henyey–Greenstein phase \
+             function with g > 0 (0 turns truncation off)"
+        ))),
+    }
+}
+
 /// The mass of Henyey–Greenstein(`g`) above its value at `μc`, inside the cone `μ > μc`:
 /// `1 − 2π[∫_{−1}^{μc} p dμ + (1 − μc) p(μc)]`, with HG's closed-form integral
 /// `2π∫_{−1}^{μ} p dμ = (1 − g²)/(2g) · (1/√(1 + g² − 2gμ) − 1/(1 + g))`.
@@ -655,19 +675,8 @@ impl OrdinatesOperator {
             .map(|i| sigma_t[i] * channel.albedo.get(i) as f64)
             .collect();
         let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
-        let (f, truncated) = match (options.forward_truncation_degrees, phase) {
-            (0.0, _) => (0.0, None),
-            (d, PhaseFunction::HenyeyGreenstein { g }) if d > 0.0 && d < 90.0 && g > 0.0 => {
-                let mu_c = d.to_radians().cos();
-                (forward_peak_fraction(g, mu_c), Some((g, mu_c)))
-            }
-            (d, _) => {
-                return Err(OrdinatesError::Option(format!(
-                    "forward_truncation_degrees = {d}: needs 0 < degrees < 90 and a \
-                     Henyey–Greenstein phase function with g > 0 (the phase function is {phase:?})"
-                )))
-            }
-        };
+        let degrees = options.forward_truncation_degrees;
+        let f = forward_truncation_fraction(degrees, &phase)?;
         // Transport through σt* = σt − f σs: scattering into the peak is not an interaction.
         let sweep_sigma_t: Vec<f64> = sigma_t
             .iter()
@@ -677,10 +686,12 @@ impl OrdinatesOperator {
         let k = options
             .phase_quadrature
             .unwrap_or_else(|| default_quadrature(&bins));
-        let mut matrix = match truncated {
+        let mut matrix = if degrees > 0.0 {
             // p* ∝ p(min(μ, μc)): HG grows with μ, so this clips the peak flat.
-            Some((_, mu_c)) => PhaseMatrix::from_density(&bins, |mu| phase.eval(mu.min(mu_c)), k),
-            None => PhaseMatrix::new(&bins, &phase, k),
+            let mu_c = degrees.to_radians().cos();
+            PhaseMatrix::from_density(&bins, |mu| phase.eval(mu.min(mu_c)), k)
+        } else {
+            PhaseMatrix::new(&bins, &phase, k)
         };
         if options.match_asymmetry && !phase.is_isotropic() {
             // The δ-peak carries f of the asymmetry: g = f + (1 − f) g*.

@@ -82,6 +82,16 @@ fn refuses_bad_face_divisions() {
         DirectionBins::cube(9).unwrap_err(),
         OrdinatesError::FaceDivisions(9)
     );
+    // By count: every valid count is 6 n², anything else is refused naming it.
+    for count in formfactor::ordinates::VALID_BINS {
+        assert_eq!(DirectionBins::with_count(count).unwrap().len(), count);
+    }
+    for count in [0, 7, 100, 486] {
+        assert_eq!(
+            DirectionBins::with_count(count).unwrap_err(),
+            OrdinatesError::BinCount(count)
+        );
+    }
 }
 
 #[test]
