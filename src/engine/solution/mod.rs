@@ -136,6 +136,9 @@ impl Solution {
             {
                 tracing::warn!("preparing renders: {e:#}");
             }
+            if let ScatteredField::Binned { higher_order, .. } = &ch.scattered {
+                ch.render_cache.log_source(higher_order);
+            }
         }
     }
 }
