@@ -57,7 +57,9 @@ pub struct Variation {
     pub values: Vec<f64>,
 }
 
-/// Parses `KEY=v1,v2,…` (keys: albedo, g, sigma-t-factor, bins, forward-peak-cone), checking each value's range.
+/// Parses `KEY=v1,v2,…` (keys: albedo, g, sigma-t-factor, bins, forward-peak-cone). The values'
+/// ranges are the scene checker's: [`scene_cases`] refuses a variant it does not take, naming
+/// the key, before any work.
 pub fn parse_variation(spec: &str) -> Result<Variation> {
     let Some((key, values)) = spec.split_once('=') else {
         bail!("--vary {spec}: expected KEY=v1,v2,… (keys: albedo, g, sigma-t-factor, bins, forward-peak-cone)");
@@ -75,23 +77,8 @@ pub fn parse_variation(spec: &str) -> Result<Variation> {
             .trim()
             .parse()
             .with_context(|| format!("--vary {spec}: `{}` is not a number", v.trim()))?;
-        let ok = match key {
-            VaryKey::Albedo => (0.0..=1.0).contains(&x),
-            VaryKey::G => x.abs() < 1.0,
-            VaryKey::SigmaTFactor => x.is_finite() && x > 0.0,
-            // The scene checker refuses values it does not take, naming the key.
-            VaryKey::Bins => (1.0..=1e6).contains(&x) && x.fract() == 0.0,
-            VaryKey::ForwardPeakCone => x.is_finite() && x >= 0.0,
-        };
-        if !ok {
-            let range = match key {
-                VaryKey::Albedo => "in [0, 1]",
-                VaryKey::G => "in (−1, 1)",
-                VaryKey::SigmaTFactor => "positive",
-                VaryKey::Bins => "a whole number",
-                VaryKey::ForwardPeakCone => "a non-negative number",
-            };
-            bail!("--vary {spec}: {} = {x} must be {range}", key.name());
+        if !x.is_finite() {
+            bail!("--vary {spec}: `{}` is not a finite number", v.trim());
         }
         if !parsed.contains(&x) {
             parsed.push(x);
@@ -193,7 +180,13 @@ fn section<'t>(table: &'t mut toml::Table, name: &str) -> Result<&'t mut toml::T
 fn apply(table: &mut toml::Table, key: VaryKey, value: f64) -> Result<()> {
     match key {
         VaryKey::Bins => {
-            section(table, "solve")?.insert("bins".into(), toml::Value::Integer(value as i64));
+            // A fractional count stays a float, which the scene checker refuses by name.
+            let bins = if value.fract() == 0.0 {
+                toml::Value::Integer(value as i64)
+            } else {
+                toml::Value::Float(value)
+            };
+            section(table, "solve")?.insert("bins".into(), bins);
         }
         VaryKey::ForwardPeakCone => {
             section(table, "solve")?.insert("forward_peak_cone".into(), toml::Value::Float(value));
@@ -259,18 +252,15 @@ mod tests {
     use glam::DVec3;
 
     #[test]
-    fn variations_parse_and_refuse_out_of_range_values_by_name() {
+    fn variations_parse_and_refuse_unknown_keys_and_non_numbers() {
         let v = parse_variation("g=0, 0.6,0.85,0.6").unwrap();
         assert_eq!(v.key, VaryKey::G);
         assert_eq!(v.values, vec![0.0, 0.6, 0.85]);
         for (bad, needle) in [
-            ("albedo=1.2", "albedo = 1.2"),
-            ("g=1", "g = 1"),
-            ("sigma-t-factor=0", "positive"),
             ("density=2", "`density`"),
             ("albedo", "KEY="),
             ("albedo=x", "`x`"),
-            ("bins=96.5", "whole number"),
+            ("albedo=inf", "finite"),
         ] {
             let e = parse_variation(bad).unwrap_err();
             assert!(format!("{e:#}").contains(needle), "{bad}: {e:#}");

@@ -9,8 +9,8 @@
 //! The work is the pipeline's own: [`solve_scene`] + [`render_view`] for the solved methods,
 //! the `montecarlo` path tracer for the reference and the `path-trace` method, and
 //! [`montecarlo::compare::compare_images`] for every error figure. This module runs the
-//! methods and measures them; `cases.rs` makes the variants and views, `report.rs` writes report.md, `images.rs` the side-by-side
-//! pictures.
+//! methods and measures them; `cases.rs` makes the variants and views, `report.rs` writes
+//! report.md, `images.rs` the side-by-side pictures.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -279,16 +279,19 @@ pub struct MethodResult {
 }
 
 impl MethodResult {
+    /// Index of the view with the largest relative RMS error (0 without views).
+    pub fn worst_view_index(&self) -> usize {
+        (0..self.views.len())
+            .max_by(|&a, &b| {
+                let rms = |k: usize| self.views[k].vs_path_tracer.relative_rms;
+                rms(a).total_cmp(&rms(b))
+            })
+            .unwrap_or(0)
+    }
+
     /// The view with the largest relative RMS error.
     pub fn worst_view(&self) -> &ViewResult {
-        self.views
-            .iter()
-            .max_by(|a, b| {
-                a.vs_path_tracer
-                    .relative_rms
-                    .total_cmp(&b.vs_path_tracer.relative_rms)
-            })
-            .expect("a method result has at least one view")
+        &self.views[self.worst_view_index()]
     }
 
     /// The view whose image mean is furthest off.
@@ -610,11 +613,7 @@ fn validate_scene(
             floor: floor(method, g),
         };
         // Pictures of the first view and of the worst one.
-        let worst = result
-            .views
-            .iter()
-            .position(|v| std::ptr::eq(v, result.worst_view()))
-            .unwrap_or(0);
+        let worst = result.worst_view_index();
         for k in if worst == 0 { vec![0] } else { vec![0, worst] } {
             let image_name = if k == 0 {
                 format!("{name}_{}.png", method.name())
