@@ -123,10 +123,7 @@ pub fn scene_cases(
     let table: toml::Table = text
         .parse()
         .with_context(|| format!("{}: not valid TOML", path.display()))?;
-    let base_dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let base_dir = Scene::base_dir(path);
     let mut cases = Vec::new();
     for combination in combinations(variations) {
         let mut edited = table.clone();

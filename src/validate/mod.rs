@@ -480,7 +480,7 @@ fn mitsuba_reference(
     scene_path: &Path,
     camera: &str,
 ) -> Result<Option<(Image, Image, String, String)>> {
-    let dir = scene_path.parent().unwrap_or(Path::new("."));
+    let dir = Scene::base_dir(scene_path);
     let (mean_name, err_name) = (format!("{camera}.pfm"), format!("{camera}_stderr.pfm"));
     let (mean_path, err_path) = (dir.join(&mean_name), dir.join(&err_name));
     if !(mean_path.is_file() && err_path.is_file()) {

@@ -126,11 +126,16 @@ impl Scene {
             file: path.to_path_buf(),
             error,
         })?;
-        let base = match path.parent() {
+        Scene::from_toml_str(&text, Scene::base_dir(path), path)
+    }
+
+    /// The directory relative volume paths of the scene file `path` are resolved against:
+    /// the file's own (`.` for a bare file name).
+    pub fn base_dir(path: &Path) -> &Path {
+        match path.parent() {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
-        };
-        Scene::from_toml_str(&text, base, path)
+        }
     }
 
     /// Validates scene text. `base_dir` resolves relative volume paths; `file_label` names
