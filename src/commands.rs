@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
+use montecarlo::path_trace::Surroundings;
 use scene::{CameraSpec, Scene};
 
 use crate::cli::{ExportArgs, InfoArgs, RenderArgs, SolveArgs};
@@ -232,13 +233,16 @@ fn check_image_output(out: &Path) -> Result<()> {
 
 /// `render --path-trace`: unbiased Monte Carlo of the scene, no solve.
 fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
-    let (medium, lights, background, cameras, exposure) = match (&args.scene, &args.solution) {
+    let (medium, lights, surroundings, cameras, exposure) = match (&args.scene, &args.solution) {
         (Some(path), _) => {
             let scene = load_scene(path)?;
             (
                 scene.medium,
                 scene.lights,
-                scene.background,
+                Surroundings {
+                    background: scene.background,
+                    environment: scene.environment,
+                },
                 scene.cameras,
                 scene.render.exposure,
             )
@@ -248,7 +252,10 @@ fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
             (
                 s.medium,
                 s.lights,
-                s.background,
+                Surroundings {
+                    background: s.background,
+                    environment: s.environment,
+                },
                 s.cameras,
                 s.render.exposure,
             )
@@ -277,7 +284,7 @@ fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
     let traced = montecarlo::path_trace::path_trace_image_with_progress(
         &medium,
         &lights,
-        background,
+        surroundings,
         &camera,
         &options,
         &|done| progress.update(done),

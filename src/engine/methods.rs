@@ -61,6 +61,26 @@ pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
     Ok(())
 }
 
+/// Refuses, before any work, a solve method that cannot carry the scene's environment light:
+/// its first bounce lives in the solved field, which `single-scatter`, `none` and (for now)
+/// `two-pass` do not build.
+pub fn check_environment(scene: &Scene, settings: &SolveSettings) -> Result<()> {
+    if scene.environment.is_none_or(|e| e.is_dark()) {
+        return Ok(());
+    }
+    match settings.method {
+        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates => {
+            Ok(())
+        }
+        other => bail!(
+            "[solve] method `{}` cannot carry an environment light (its light enters the \
+             solved field); use zonal, zonal-hierarchical or discrete-ordinates, or render \
+             with --path-trace",
+            other.name()
+        ),
+    }
+}
+
 fn solve_options(settings: &SolveSettings) -> SolveOptions {
     SolveOptions {
         method: settings.iteration,
@@ -99,22 +119,24 @@ pub fn solve_zonal(
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     let channel = &scene.medium.channels()[c];
-    let source = light_pass.zonal_source(channel);
+    // The lights' first bounce is the render's exact single scattering; the environment's is
+    // smooth in direction and stays in the solved source (`higher_order` keeps it).
+    let light_source = light_pass.zonal_source(channel);
     if channel.albedo.max() == 0.0 {
         // Nothing scatters: the source is the answer (g = E), whatever the iteration — the
         // symmetrised methods' weights (σt/σs) do not even exist here.
         tracing::info!("no scattering in channel {c}: the first pass is the solution");
         return Ok((
             ScatteredField::Isotropic {
-                source: source.iter().map(|&v| v as f32).collect(),
-                higher_order: vec![0.0; source.len()],
+                source: light_source.iter().map(|&v| v as f32).collect(),
+                higher_order: vec![0.0; light_source.len()],
             },
             Some(SolveReport::without_iterations(
                 settings.iteration.to_string(),
             )),
         ));
     }
-    let (g, report) = match settings.method {
+    let op: Box<dyn TransportOperator> = match settings.method {
         SolveMethod::Zonal => {
             let op = FormFactorMatrix::build(&scene.medium, c, &ExactOptions::default(), None)
                 .context("building the exact form factors")?;
@@ -123,7 +145,7 @@ pub fn solve_zonal(
                 seconds = op.report().seconds,
                 "form factors built"
             );
-            run_solver(&op, &source, settings, hooks)?
+            Box::new(op)
         }
         _ => {
             let op = HierarchicalOperator::build(
@@ -140,12 +162,27 @@ pub fn solve_zonal(
                 seconds = op.report().seconds,
                 "hierarchy built"
             );
-            run_solver(&op, &source, settings, hooks)?
+            Box::new(op)
         }
     };
+    let mut source = light_source.clone();
+    if let Some(env) = scene.environment.as_ref().filter(|e| !e.is_dark()) {
+        // A uniform environment's first-collision source by reciprocity: the light it sends
+        // into cell i is what cell i would send out uncollided, `E_i = L (a_i σt_i − (K σt)_i)`
+        // (a non-absorbing medium then holds L everywhere: the white furnace), computed with
+        // this operator's own form factors so the two stay consistent.
+        let sigma_t: Vec<f64> = channel.sigma_t.iter().map(|&s| s as f64).collect();
+        let mut collided = vec![0.0; sigma_t.len()];
+        op.apply(&sigma_t, &mut collided);
+        let l = env.radiance();
+        for (i, (s, k)) in source.iter_mut().zip(&collided).enumerate() {
+            *s += l * (channel.albedo.get(i) as f64 * sigma_t[i] - k).max(0.0);
+        }
+    }
+    let (g, report) = run_solver(op.as_ref(), &source, settings, hooks)?;
     let higher_order = g
         .iter()
-        .zip(&source)
+        .zip(&light_source)
         .map(|(g, e)| (g - e).max(0.0) as f32)
         .collect();
     Ok((
@@ -187,10 +224,33 @@ pub fn solve_ordinates(
     let external = op.external_density_from_pass(light_pass)?;
     let mut source = vec![0.0; op.len()];
     op.transport(&external, &mut source);
-    let (radiance, report) = run_solver(&op, &source, settings, hooks)?;
-    // What the render adds to the exact first bounce: scattering of the solved (already
-    // once-scattered) radiance, i.e. second and higher orders, by the true phase function
-    // towards each bin centre (the final directional bounce; the render interpolates).
+    // The environment's uncollided radiance ψ on the bins, in the sweep's own discretisation
+    // (so a non-absorbing medium holds L everywhere: the white furnace). Its scattering K ψ
+    // joins the source, and ψ what the render's final bounce scatters: its first bounce is
+    // smooth in direction, so the bins carry it rather than the render's single scattering.
+    let uncollided = match scene.environment.as_ref().filter(|e| !e.is_dark()) {
+        Some(env) => {
+            let psi = op.inflow_radiance(|d| env.radiance_along(d));
+            let mut scattered = vec![0.0; op.len()];
+            op.apply(&psi, &mut scattered);
+            for (s, k) in source.iter_mut().zip(&scattered) {
+                *s += k;
+            }
+            Some(psi)
+        }
+        None => None,
+    };
+    let (mut radiance, report) = run_solver(&op, &source, settings, hooks)?;
+    // The bins hold everything but the lights' unscattered beams.
+    if let Some(psi) = &uncollided {
+        for (r, p) in radiance.iter_mut().zip(psi) {
+            *r += p;
+        }
+    }
+    // What the render adds to the exact first bounce: scattering of the bins' radiance (the
+    // lights' once-scattered light and beyond), i.e. second and higher orders, by the true
+    // phase function towards each bin centre (the final directional bounce; the render
+    // interpolates).
     let mut higher = vec![0.0; op.len()];
     op.gather_density(&radiance, &mut higher);
     Ok((

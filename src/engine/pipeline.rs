@@ -23,6 +23,9 @@ pub fn scene_hash(scene: &Scene) -> String {
     };
     feed(bincode::serde::encode_to_vec(&scene.medium, cfg).unwrap_or_default());
     feed(bincode::serde::encode_to_vec(&scene.lights, cfg).unwrap_or_default());
+    if let Some(env) = &scene.environment {
+        feed(format!("environment radiance={:e}", env.radiance()).into_bytes());
+    }
     // The solve settings by their scene-file spelling, so the hash depends on what they
     // mean rather than on a derive's byte layout.
     let solve = &scene.solve;
@@ -60,6 +63,7 @@ pub fn solve_scene(
 ) -> Result<Solution> {
     // Before any light pass or operator: an iteration the method cannot run is refused now.
     crate::engine::methods::check_iteration(settings)?;
+    crate::engine::methods::check_environment(scene, settings)?;
     let medium = &scene.medium;
     let mut channels = Vec::with_capacity(medium.channels().len());
     for (c, channel) in medium.channels().iter().enumerate() {
@@ -92,6 +96,7 @@ pub fn solve_scene(
         method: settings.method,
         medium: scene.medium.clone(),
         lights: scene.lights.clone(),
+        environment: scene.environment,
         background: scene.background,
         render: scene.render.clone(),
         cameras: scene.cameras.clone(),

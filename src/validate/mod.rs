@@ -20,7 +20,7 @@ use anyhow::{bail, Context, Result};
 use gather::Image;
 use indicatif::{ProgressBar, ProgressStyle};
 use montecarlo::compare::compare_images;
-use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions};
+use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions, Surroundings};
 use scene::Scene;
 use scene::SolveMethod;
 use serde::Serialize;
@@ -651,7 +651,10 @@ fn path_traced(
         &scene.medium,
         0,
         &scene.lights,
-        scene.background,
+        Surroundings {
+            background: scene.background,
+            environment: scene.environment,
+        },
         camera,
         &PathTraceOptions {
             spp,

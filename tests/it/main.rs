@@ -6,6 +6,7 @@ mod fixtures;
 mod architecture;
 mod bench_albedo;
 mod cli;
+mod environment;
 mod readme;
 mod reference_cloud24;
 mod service;

@@ -8,7 +8,8 @@
 //!   emission; one channel for grey scenes, three for RGB) and a [`PhaseFunction`].
 //! - [`Light`]: directional, point and spot lights; [`light_pass`] propagates them through
 //!   the grid (the first pass of Kajiya & Von Herzen), which is the source term `E` of
-//!   every multiple-scattering solve.
+//!   every multiple-scattering solve. [`Environment`]: light from every direction at
+//!   infinity (a uniform sky), with its uncollided radiance inside the grid.
 //! - [`traversal`]: exact 3D-DDA traversal of a ray through the grid (Amanatides & Woo),
 //!   the basis of every per-cell analytic integral in volrad.
 //! - [`atomic_file`]: the one atomic file writer (temp file beside the target, sync, rename)
@@ -24,6 +25,7 @@
 //! ```
 
 pub mod atomic_file;
+pub mod environment;
 pub mod error;
 pub mod fma;
 pub mod generators;
@@ -36,6 +38,7 @@ pub mod transfer;
 pub mod traversal;
 pub mod volume_io;
 
+pub use environment::Environment;
 pub use error::MediumError;
 pub use grid::Grid;
 pub use light::Light;

@@ -672,6 +672,49 @@ fn directional_deposit(
     dep
 }
 
+/// Cell averages `⟨T⟩_i` of the transmittance from the grid's edge along unit `direction`
+/// (the direction light travels): the light pass of a directional light of unit irradiance,
+/// with `rays_per_cell²` rays per cell face (one for an axis-aligned direction, which is
+/// exact). An environment's uncollided radiance in a cell is its radiance times this.
+pub fn directional_cell_transmittance(
+    grid: &Grid,
+    sigma_t: &[f32],
+    direction: DVec3,
+    rays_per_cell: usize,
+) -> Result<Vec<f64>, MediumError> {
+    if sigma_t.len() != grid.cell_count() {
+        return Err(MediumError::invalid(
+            "transmittance pass",
+            format!(
+                "{} σt values for {} cells",
+                sigma_t.len(),
+                grid.cell_count()
+            ),
+        ));
+    }
+    let length = direction.length();
+    if !(length.is_finite() && length > 1e-12) {
+        return Err(MediumError::invalid(
+            "transmittance pass",
+            format!("direction {direction:?} has no direction"),
+        ));
+    }
+    let direction = direction / length;
+    let axis_aligned = (0..3).filter(|&a| direction[a] != 0.0).count() == 1;
+    let m = if axis_aligned {
+        1
+    } else {
+        rays_per_cell.max(1)
+    };
+    let medium = FrameMedium::new(grid, sigma_t, direction);
+    let volume = grid.cell_volume();
+    let mut deposit = directional_deposit(grid, &medium, direction, 1.0, m);
+    for v in &mut deposit.cell_integral {
+        *v /= volume;
+    }
+    Ok(deposit.cell_integral)
+}
+
 /// `∫∫ dx dy / (1 + x² + y²)^{3/2}` primitive: the solid angle of `[0,x]×[0,y]` on the
 /// plane at unit distance.
 #[inline]

@@ -16,8 +16,10 @@
 //! - Unlimited depth with Russian roulette from `rr_start_depth` (survival probability equal
 //!   to the throughput, at most 1; pbrt's rule), or a hard `max_depth` (number of scattering
 //!   events counted: `Some(1)` is single scattering).
-//! - Paths that leave the grid add the background `I0` (uniform radiance from all
-//!   directions) times their throughput, for camera rays and after scattering alike.
+//! - Paths that leave the grid add what they meet there ([`Surroundings`]) times their
+//!   throughput: camera rays that never scattered see the background `I0`; scattered paths
+//!   pick up the environment light (none by default), as in every other method. The
+//!   environment is not importance-sampled: it is smooth, and escaping paths find it.
 //!
 //! Each pixel is the mean of `spp` paths through uniformly jittered positions in its area, on
 //! its own PCG stream seeded from `(seed, pixel index)`: deterministic for a seed, whatever the
@@ -26,7 +28,7 @@
 use gather::{Camera, Image, ImageChannel};
 use glam::DVec3;
 use medium::traversal::Ray;
-use medium::{CellValues, Grid, Light, Medium, PhaseFunction};
+use medium::{CellValues, Environment, Grid, Light, Medium, PhaseFunction};
 use rand::Rng;
 use rayon::prelude::*;
 
@@ -79,9 +81,34 @@ pub struct PathTracer<'a> {
     emission: Option<&'a CellValues>,
     phase: PhaseFunction,
     lights: &'a [Light],
-    background: f64,
+    surroundings: Surroundings,
     max_depth: u32,
     rr_start_depth: u32,
+}
+
+/// What a path meets where it leaves the grid.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Surroundings {
+    /// Radiance `I0` a camera ray sees where it leaves the grid without scattering.
+    pub background: f64,
+    /// Light from every direction at infinity, picked up by scattered paths that leave.
+    pub environment: Option<Environment>,
+}
+
+impl Surroundings {
+    /// A background seen by camera rays and nothing lighting the medium from outside.
+    pub fn background(background: f64) -> Self {
+        Surroundings {
+            background,
+            environment: None,
+        }
+    }
+}
+
+impl From<f64> for Surroundings {
+    fn from(background: f64) -> Self {
+        Surroundings::background(background)
+    }
 }
 
 fn check_lights(lights: &[Light]) -> Result<(), MonteCarloError> {
@@ -99,9 +126,11 @@ impl<'a> PathTracer<'a> {
         medium: &'a Medium,
         channel: usize,
         lights: &'a [Light],
-        background: f64,
+        surroundings: impl Into<Surroundings>,
         options: &PathTraceOptions,
     ) -> Result<Self, MonteCarloError> {
+        let surroundings = surroundings.into();
+        let background = surroundings.background;
         let ch = medium
             .channels()
             .get(channel)
@@ -125,7 +154,7 @@ impl<'a> PathTracer<'a> {
             emission: (!ch.emission.is_zero()).then_some(&ch.emission),
             phase: medium.phase(),
             lights,
-            background,
+            surroundings,
             max_depth: options.max_depth.unwrap_or(u32::MAX),
             rr_start_depth: options.rr_start_depth,
         })
@@ -181,7 +210,12 @@ impl<'a> PathTracer<'a> {
             radiance += throughput * emitted;
             let (t, cell) = match flight {
                 Flight::Escaped => {
-                    radiance += throughput * self.background;
+                    radiance += throughput
+                        * match (depth, &self.surroundings.environment) {
+                            (0, _) => self.surroundings.background,
+                            (_, Some(env)) => env.radiance_along(ray.direction),
+                            (_, None) => 0.0,
+                        };
                     break;
                 }
                 Flight::Collision { t, cell } => (t, cell),
@@ -220,11 +254,11 @@ pub fn path_trace(
     medium: &Medium,
     channel: usize,
     lights: &[Light],
-    background: f64,
+    surroundings: impl Into<Surroundings>,
     camera: &Camera,
     options: &PathTraceOptions,
 ) -> Result<ImageChannel, MonteCarloError> {
-    Ok(path_trace_with_error(medium, channel, lights, background, camera, options)?.mean)
+    Ok(path_trace_with_error(medium, channel, lights, surroundings, camera, options)?.mean)
 }
 
 /// Renders one channel with the standard error of every pixel. Pixel `(x, y)` uses the
@@ -233,7 +267,7 @@ pub fn path_trace_with_error(
     medium: &Medium,
     channel: usize,
     lights: &[Light],
-    background: f64,
+    surroundings: impl Into<Surroundings>,
     camera: &Camera,
     options: &PathTraceOptions,
 ) -> Result<PathTraced, MonteCarloError> {
@@ -241,7 +275,7 @@ pub fn path_trace_with_error(
         medium,
         channel,
         lights,
-        background,
+        surroundings.into(),
         camera,
         options,
         &|_| true,
@@ -256,13 +290,13 @@ fn path_trace_rows(
     medium: &Medium,
     channel: usize,
     lights: &[Light],
-    background: f64,
+    surroundings: impl Into<Surroundings>,
     camera: &Camera,
     options: &PathTraceOptions,
     progress: &RowProgress<'_>,
 ) -> Result<PathTraced, MonteCarloError> {
     use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-    let tracer = PathTracer::new(medium, channel, lights, background, options)?;
+    let tracer = PathTracer::new(medium, channel, lights, surroundings, options)?;
     let rows_done = AtomicU64::new(0);
     let stopped = AtomicBool::new(false);
     let (width, height) = (camera.width as usize, camera.height as usize);
@@ -320,11 +354,11 @@ fn path_trace_rows(
 pub fn path_trace_image(
     medium: &Medium,
     lights: &[Light],
-    background: f64,
+    surroundings: impl Into<Surroundings>,
     camera: &Camera,
     options: &PathTraceOptions,
 ) -> Result<Image, MonteCarloError> {
-    path_trace_image_with_progress(medium, lights, background, camera, options, &|_| true)
+    path_trace_image_with_progress(medium, lights, surroundings, camera, options, &|_| true)
 }
 
 /// [`path_trace_image`] reporting the rows finished over all channels (of
@@ -332,16 +366,17 @@ pub fn path_trace_image(
 pub fn path_trace_image_with_progress(
     medium: &Medium,
     lights: &[Light],
-    background: f64,
+    surroundings: impl Into<Surroundings>,
     camera: &Camera,
     options: &PathTraceOptions,
     progress: &RowProgress<'_>,
 ) -> Result<Image, MonteCarloError> {
+    let surroundings = surroundings.into();
     let n = medium.channels().len();
     let mut pixels = vec![0.0f32; camera.width as usize * camera.height as usize * n];
     for c in 0..n {
         let before = c as u64 * camera.height as u64;
-        let ch = path_trace_rows(medium, c, lights, background, camera, options, &|rows| {
+        let ch = path_trace_rows(medium, c, lights, surroundings, camera, options, &|rows| {
             progress(before + rows)
         })?
         .mean;

@@ -7,12 +7,18 @@ use std::path::Path;
 use gather::{CameraSpec, Projection};
 use glam::DVec3;
 use medium::transfer::{PiecewiseLinear, Transfer};
-use medium::{Light, PhaseFunction};
+use medium::{Environment, Light, PhaseFunction};
 
 use crate::raw::RawCamera;
 use crate::SceneError;
 
 /// The scene file being validated, for error messages.
+/// One `[[light]]` entry: a light, or the environment.
+pub(crate) enum SceneLight {
+    Light(Light),
+    Environment(Environment),
+}
+
 pub(crate) struct Ctx<'a> {
     pub(crate) file: &'a Path,
     pub(crate) base_dir: &'a Path,
@@ -414,11 +420,12 @@ impl Ctx<'_> {
         })
     }
 
-    pub(crate) fn light(&self, v: &toml::Value, key: &str) -> Result<Light, SceneError> {
+    pub(crate) fn light(&self, v: &toml::Value, key: &str) -> Result<SceneLight, SceneError> {
         let (kind, t) = self.kind_table(
             v,
             key,
             &[
+                ("environment", &["radiance"], &[]),
                 ("directional", &["direction", "irradiance"], &[]),
                 ("point", &["position", "intensity"], &[]),
                 (
@@ -437,6 +444,12 @@ impl Ctx<'_> {
             Ok(d.normalize())
         };
         let light = match kind {
+            "environment" => {
+                let radiance = self.non_negative(&t["radiance"], &join(key, "radiance"))?;
+                return Environment::uniform(radiance)
+                    .map(SceneLight::Environment)
+                    .map_err(|e| self.err(join(key, "radiance"), e.to_string()));
+            }
             "directional" => Light::Directional {
                 direction: nonzero("direction")?,
                 irradiance: self.non_negative(&t["irradiance"], &join(key, "irradiance"))?,
@@ -461,7 +474,10 @@ impl Ctx<'_> {
                 }
             }
         };
-        light.validated().map_err(|e| self.err(key, e.to_string()))
+        light
+            .validated()
+            .map(SceneLight::Light)
+            .map_err(|e| self.err(key, e.to_string()))
     }
 
     pub(crate) fn camera(&self, v: toml::Value, key: &str) -> Result<CameraSpec, SceneError> {

@@ -49,7 +49,7 @@ use std::path::{Path, PathBuf};
 pub use gather::{CameraSpec, OpticalModel, Projection, RenderSettings};
 use medium::generators::Generator;
 use medium::volume_io::VolumeData;
-use medium::{Light, Medium};
+use medium::{Environment, Light, Medium};
 
 use crate::check::Ctx;
 use crate::raw::RawScene;
@@ -60,6 +60,9 @@ pub use crate::settings::{phase_spelling, SolveMethod, SolveSettings, UnknownSol
 pub struct Scene {
     pub medium: Medium,
     pub lights: Vec<Light>,
+    /// Light from every direction at infinity (`[[light]] kind = "environment"`), which
+    /// lights the medium in every method; the background is then its radiance.
+    pub environment: Option<Environment>,
     /// Background radiance `I0` seen through the volume.
     pub background: f64,
     pub solve: SolveSettings,

@@ -7,12 +7,14 @@ use medium::generators::Generator;
 use medium::light_pass::MAX_LIGHTS;
 use medium::transfer::{PiecewiseLinear, SigmaTransfer, Transfer};
 use medium::volume_io::{load_volume, VolumeData, VolumeFormat};
-use medium::{ChannelMedium, Grid, Interpolation, Light, Medium, MediumError, PhaseFunction};
+use medium::{
+    ChannelMedium, Environment, Grid, Interpolation, Light, Medium, MediumError, PhaseFunction,
+};
 
 use montecarlo::two_pass::PHOTON_RANGE;
 use solver::ParseMethodError;
 
-use crate::check::{broadcast, join, Channels, Ctx};
+use crate::check::{broadcast, join, Channels, Ctx, SceneLight};
 use crate::raw::{RawBackground, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
 use crate::settings::UnknownSolveMethod;
 use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
@@ -36,14 +38,15 @@ impl Ctx<'_> {
         let volume = self.volume(raw.volume.ok_or_else(|| self.missing("volume"))?)?;
         let source = volume.source.clone();
         let medium = self.medium(raw.medium.ok_or_else(|| self.missing("medium"))?, volume)?;
-        let lights = self.lights(raw.light, &medium)?;
-        let background = self.background(raw.background)?;
+        let (lights, environment) = self.lights(raw.light, &medium)?;
+        let background = self.background(raw.background, environment.as_ref())?;
         let solve = self.solve(raw.solve, &medium.phase())?;
         let render = self.render(raw.render, solve.method)?;
         let cameras = self.cameras(raw.camera)?;
         Ok(Scene {
             medium,
             lights,
+            environment,
             background,
             solve,
             render,
@@ -271,11 +274,13 @@ impl Ctx<'_> {
         Ok(medium)
     }
 
+    /// The `[[light]]` list: the lights, and the environment when one entry is
+    /// `kind = "environment"` (at most one).
     fn lights(
         &self,
         light: Option<toml::Value>,
         medium: &Medium,
-    ) -> Result<Vec<Light>, SceneError> {
+    ) -> Result<(Vec<Light>, Option<Environment>), SceneError> {
         let has_emission = medium.channels().iter().any(|c| !c.emission.is_zero());
         let lights = match light {
             None => Vec::new(),
@@ -298,19 +303,47 @@ impl Ctx<'_> {
                     .collect::<Result<Vec<_>, _>>()?
             }
         };
-        if lights.is_empty() && !has_emission {
+        let mut environment = None;
+        let mut kept = Vec::with_capacity(lights.len());
+        for (i, light) in lights.into_iter().enumerate() {
+            match light {
+                SceneLight::Light(l) => kept.push(l),
+                SceneLight::Environment(_) if environment.is_some() => {
+                    return Err(self.err(
+                        format!("light[{i}].kind"),
+                        "a second environment light: a scene has at most one",
+                    ))
+                }
+                SceneLight::Environment(e) => environment = Some(e),
+            }
+        }
+        if kept.is_empty() && environment.is_none() && !has_emission {
             return Err(self.err(
                 "light",
                 "no light and no emission: add a [[light]] or a non-zero medium.emission",
             ));
         }
-        Ok(lights)
+        Ok((kept, environment))
     }
 
-    fn background(&self, background: Option<toml::Value>) -> Result<f64, SceneError> {
-        Ok(match background {
-            None => 0.0,
-            Some(v) => {
+    /// `[background] radiance`; with an environment light the background is the environment
+    /// (what camera rays see where they leave the grid), so giving both is refused.
+    fn background(
+        &self,
+        background: Option<toml::Value>,
+        environment: Option<&Environment>,
+    ) -> Result<f64, SceneError> {
+        Ok(match (background, environment) {
+            (None, None) => 0.0,
+            (None, Some(e)) => e.radiance(),
+            (Some(_), Some(_)) => {
+                return Err(self.err(
+                    "background",
+                    "the environment light is the background: remove [background] (camera \
+                     rays that leave the grid see the environment)",
+                ))
+            }
+            (Some(v), None) => {
                 let b: RawBackground = self.raw(v, "background")?;
                 self.non_negative(&b.radiance, "background.radiance")?
             }

@@ -30,7 +30,7 @@ pub const MAGIC: &[u8; 8] = b"VOLRADSL";
 /// is the solution module's own record types, `super::records`, instead of serde derives of
 /// library types; 4: the render exposure may be automatic). Bumping it means refreshing the golden files in
 /// `tests/data/solution-golden/` (`VOLRAD_BLESS=1 cargo test --test it solution_file`).
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 const FIXED_HEADER: usize = 24;
 const ALIGN: usize = 64;
 

@@ -13,7 +13,7 @@ use std::path::Path;
 use gather::light_depth::{LightDepth, LightDepthModel};
 use gather::RenderIndex;
 use medium::light_pass::{LightField, LightPass};
-use medium::{CellValues, ChannelMedium, Light, Medium};
+use medium::{CellValues, ChannelMedium, Environment, Light, Medium};
 use rayon::prelude::*;
 use records::{ChannelRecord, FieldKind, MetaRecord};
 use scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
@@ -32,8 +32,9 @@ pub enum ScatteredField {
         source: Vec<f32>,
         higher_order: Vec<f32>,
     },
-    /// Discrete ordinates: `radiance[cell * bins + l]`, the scattered radiance (excluding the
-    /// unscattered beam) averaged over cell and bin, and `higher_order[cell * bins + l]`, the
+    /// Discrete ordinates: `radiance[cell * bins + l]`, the radiance averaged over cell and
+    /// bin except the lights' unscattered beams (the scattered light, and the environment's
+    /// light, collided or not), and `higher_order[cell * bins + l]`, the
     /// source of second and higher orders scattered into bin `l` (radiance per length).
     Binned {
         radiance: Vec<f32>,
@@ -166,6 +167,8 @@ pub struct Solution {
     pub method: SolveMethod,
     pub medium: Medium,
     pub lights: Vec<Light>,
+    /// The scene's environment light, which the solved field already contains.
+    pub environment: Option<Environment>,
     pub background: f64,
     pub render: RenderSettings,
     pub cameras: Vec<CameraSpec>,
@@ -271,6 +274,7 @@ impl Solution {
                 interpolation: (&self.medium.interpolation()).into(),
                 has_data: self.medium.data().is_some(),
                 lights: self.lights.iter().map(Into::into).collect(),
+                environment: self.environment.as_ref().map(|e| e.radiance()),
                 background: self.background,
                 render: (&self.render).into(),
                 cameras: self.cameras.iter().map(Into::into).collect(),
@@ -417,6 +421,11 @@ impl Solution {
             method: meta.method.into_library(),
             medium,
             lights,
+            environment: meta
+                .environment
+                .map(Environment::uniform)
+                .transpose()
+                .map_err(|e| bad(e.to_string()))?,
             background: meta.background,
             render,
             cameras,

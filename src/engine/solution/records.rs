@@ -52,6 +52,8 @@ pub struct MetaRecord {
     /// Whether the array `data` (the raw data values) is present.
     pub has_data: bool,
     pub lights: Vec<LightRecord>,
+    /// The uniform environment's radiance, when the scene has one.
+    pub environment: Option<f64>,
     pub background: f64,
     pub render: RenderRecord,
     pub cameras: Vec<CameraRecord>,

@@ -610,6 +610,8 @@ pub struct OrdinatesOperator {
     grid: Grid,
     sigma_t: Vec<f64>,
     sigma_s: Vec<f64>,
+    /// The δ-M fraction `f` the sweep treats as unscattered (`σt* = σt − f σs`).
+    truncation: f64,
     /// The channel's emission per cell (the isotropic part of the external density).
     emission: Vec<f64>,
     /// Class of each piece ([`piece_classes`]).
@@ -749,6 +751,7 @@ impl OrdinatesOperator {
             grid,
             sigma_t,
             sigma_s,
+            truncation: f,
             emission,
             bins,
             phase,
@@ -1452,6 +1455,31 @@ impl OrdinatesOperator {
             .collect();
         // The same block product as the solve's scattering, with these weights.
         self.scatter_into(&weights, x, out, Layout::CellMajor, 0, m);
+    }
+
+    /// The uncollided radiance, cell- and bin-averaged (`ψ[c·M + l]`), of light entering the
+    /// grid from outside with radiance `inflow(ω_l)` along each bin centre `ω_l` (an
+    /// environment), in the sweep's own discretisation: the source `σt* L_l` with that inflow
+    /// keeps `L_l` everywhere, so `ψ = L_l − T(σt* L_l)`. A non-absorbing medium in a uniform
+    /// inflow then holds it everywhere (the white furnace) to the solver's tolerance.
+    pub fn inflow_radiance(&self, inflow: impl Fn(DVec3) -> f64) -> Vec<f64> {
+        let m = self.bins.len();
+        let along: Vec<f64> = self.bins.centres().iter().map(|&d| inflow(d)).collect();
+        let mut density = vec![0.0; self.len()];
+        for ((d, &st), &ss) in density.chunks_mut(m).zip(&self.sigma_t).zip(&self.sigma_s) {
+            let sweep_sigma = (st - self.truncation * ss).max(0.0);
+            for (dl, l) in d.iter_mut().zip(&along) {
+                *dl = sweep_sigma * l;
+            }
+        }
+        let mut psi = vec![0.0; self.len()];
+        self.transport(&density, &mut psi);
+        for p in psi.chunks_mut(m) {
+            for (pl, l) in p.iter_mut().zip(&along) {
+                *pl = (l - *pl).max(0.0);
+            }
+        }
+        psi
     }
 
     /// Angular integral `Σ_l I_l Ω_l` per cell (the zonal `4π ×` mean radiance).
