@@ -200,7 +200,11 @@ impl fmt::Display for SceneInfo {
         writeln!(f, "albedo           ≤ {}", self.albedo_max)?;
         writeln!(f, "phase            {}", self.phase)?;
         writeln!(f, "lights           {}", self.lights)?;
-        writeln!(f, "cameras          {}", self.cameras.join(", "))?;
+        if self.cameras.is_empty() {
+            writeln!(f, "cameras          none (a render frames the whole grid)")?;
+        } else {
+            writeln!(f, "cameras          {}", self.cameras.join(", "))?;
+        }
         writeln!(f, "solve method     {}", self.method)?;
         writeln!(f, "iteration        {}", self.iteration)?;
         if let Some(o) = &self.ordinates {

@@ -494,9 +494,13 @@ impl Ctx<'_> {
         })
     }
 
+    /// The `[[camera]]` list; none at all is fine (cameras are render-time: a render without
+    /// one frames the whole grid), but an empty `camera = []` says nothing and is refused.
     fn cameras(&self, camera: Option<toml::Value>) -> Result<Vec<CameraSpec>, SceneError> {
+        let Some(camera) = camera else {
+            return Ok(Vec::new());
+        };
         let list = camera
-            .ok_or_else(|| self.missing("camera"))?
             .as_array()
             .ok_or_else(|| self.err("camera", "expected an array of tables ([[camera]])"))?
             .clone();

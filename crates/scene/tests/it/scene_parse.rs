@@ -280,11 +280,16 @@ fn missing_required_keys_are_refused() {
         "volume.file",
         &["missing"],
     );
+    // Cameras are render-time: a scene without any is complete (solve, info, the service).
+    let dir = scratch("miss-cam");
+    write_volume(&dir);
+    let no_camera = parse_in(&dir, &scene_text(&[VOLUME, MEDIUM, LIGHT])).unwrap();
+    assert!(no_camera.cameras.is_empty());
     assert_refused(
-        "miss-cam",
-        &scene_text(&[VOLUME, MEDIUM, LIGHT]),
+        "empty-cam",
+        &scene_text(&["camera = []\n", VOLUME, MEDIUM, LIGHT]),
         "camera",
-        &["missing"],
+        &["at least one"],
     );
     assert_refused(
         "miss-irr",
@@ -930,10 +935,10 @@ fn from_toml_str_resolves_paths_against_base_dir() {
 
 #[test]
 fn problems_are_reported_in_file_order_and_cameras_found_by_name() {
-    // Unknown key in [volume] comes before the missing [[camera]].
+    // Unknown key in [volume] comes before the missing [[light]].
     assert_refused(
         "order",
-        &format!("{VOLUME}sigma_t_scal = 1\n{MEDIUM}{LIGHT}"),
+        &format!("{VOLUME}sigma_t_scal = 1\n{MEDIUM}"),
         "volume.sigma_t_scal",
         &["unknown key"],
     );
