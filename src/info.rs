@@ -25,6 +25,8 @@ pub struct SceneInfo {
     pub albedo_max: f32,
     pub phase: String,
     pub lights: usize,
+    /// The environment light, described (none: `None`).
+    pub environment: Option<String>,
     pub cameras: Vec<String>,
     pub method: String,
     /// The linear iteration, as `[solve] iteration` spells it.
@@ -161,6 +163,22 @@ impl SceneInfo {
                 .fold(0.0, f32::max),
             phase: scene::phase_spelling(&m.phase()),
             lights: scene.lights.len(),
+            environment: scene.environment.map(|e| match e.spec() {
+                medium::environment::EnvironmentSpec::Uniform {
+                    radiance: [r, g, b],
+                } => {
+                    if r == g && g == b {
+                        format!("uniform, radiance {r}")
+                    } else {
+                        format!("uniform, radiance [{r}, {g}, {b}]")
+                    }
+                }
+                medium::environment::EnvironmentSpec::Sky(s) => format!(
+                    "Preetham sky, turbidity {}, sun at {}° elevation, {}° azimuth (the sun is \
+                     one of the lights), ground albedo {}",
+                    s.turbidity, s.sun_elevation_degrees, s.sun_azimuth_degrees, s.ground_albedo
+                ),
+            }),
             cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
             method: scene.solve.method.name().to_string(),
             iteration: scene.solve.iteration.to_string(),
@@ -200,6 +218,9 @@ impl fmt::Display for SceneInfo {
         writeln!(f, "albedo           ≤ {}", self.albedo_max)?;
         writeln!(f, "phase            {}", self.phase)?;
         writeln!(f, "lights           {}", self.lights)?;
+        if let Some(e) = &self.environment {
+            writeln!(f, "environment      {e}")?;
+        }
         if self.cameras.is_empty() {
             writeln!(f, "cameras          none (a render frames the whole grid)")?;
         } else {

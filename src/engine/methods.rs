@@ -9,6 +9,7 @@ use formfactor::ordinates::{
     default_forward_truncation_degrees, DirectionBins, OrdinatesOperator, OrdinatesOptions,
 };
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
+use glam::DVec3;
 use medium::light_pass::LightPass;
 use medium::PhaseFunction;
 use scene::{Scene, SolveMethod, SolveSettings};
@@ -17,6 +18,10 @@ use solver::{Method, SolveOptions, SolveReport, TransportOperator};
 
 use crate::engine::solution::{ScatteredField, Solution, StoredBins};
 use crate::engine::SolveHooks;
+
+/// Direction bins of a sky's uncollided fluence in the zonal methods (one transmittance pass
+/// each, 6 · 8² = 384; a uniform environment needs none, see `solve_zonal`).
+pub const ENVIRONMENT_BINS: usize = 384;
 
 /// Link tolerance of the hierarchical zonal operator. 1e-4 keeps the solved source terms of
 /// the cloud24 reference within 1 % (relative L2) of the exact operator's (0.77 % measured;
@@ -166,18 +171,43 @@ pub fn solve_zonal(
         }
     };
     let mut source = light_source.clone();
-    if let Some(env) = scene.environment.as_ref().filter(|e| !e.is_dark()) {
-        // A uniform environment's first-collision source by reciprocity: the light it sends
-        // into cell i is what cell i would send out uncollided, `E_i = L (a_i σt_i − (K σt)_i)`
-        // (a non-absorbing medium then holds L everywhere: the white furnace), computed with
-        // this operator's own form factors so the two stay consistent.
-        let sigma_t: Vec<f64> = channel.sigma_t.iter().map(|&s| s as f64).collect();
-        let mut collided = vec![0.0; sigma_t.len()];
-        op.apply(&sigma_t, &mut collided);
-        let l = env.radiance();
-        for (i, (s, k)) in source.iter_mut().zip(&collided).enumerate() {
-            *s += l * (channel.albedo.get(i) as f64 * sigma_t[i] - k).max(0.0);
-        }
+    let channels = scene.medium.channels().len();
+    match scene.environment.as_ref().filter(|e| !e.is_dark()) {
+        None => {}
+        Some(env) => match env.uniform_radiance() {
+            Some(_) => {
+                // A uniform environment's first-collision source by reciprocity: the light it
+                // sends into cell i is what cell i would send out uncollided,
+                // `E_i = L (a_i σt_i − (K σt)_i)` (a non-absorbing medium then holds L
+                // everywhere: the white furnace), with this operator's own form factors so
+                // the two stay consistent.
+                let l = env.radiance_along(DVec3::Z, c, channels);
+                let sigma_t: Vec<f64> = channel.sigma_t.iter().map(|&s| s as f64).collect();
+                let mut collided = vec![0.0; sigma_t.len()];
+                op.apply(&sigma_t, &mut collided);
+                for (i, (s, k)) in source.iter_mut().zip(&collided).enumerate() {
+                    *s += l * (channel.albedo.get(i) as f64 * sigma_t[i] - k).max(0.0);
+                }
+            }
+            None => {
+                // A sky: its uncollided fluence over ENVIRONMENT_BINS directions, scattered
+                // isotropically.
+                let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
+                let fluence = env
+                    .uncollided_fluence(
+                        scene.medium.grid(),
+                        &channel.sigma_t,
+                        (c, channels),
+                        bins.centres(),
+                        bins.solid_angles(),
+                    )
+                    .context("the environment's uncollided light")?;
+                for (i, (s, phi)) in source.iter_mut().zip(fluence).enumerate() {
+                    *s +=
+                        channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * phi / (4.0 * PI);
+                }
+            }
+        },
     }
     let (g, report) = run_solver(op.as_ref(), &source, settings, hooks)?;
     let higher_order = g
@@ -230,7 +260,8 @@ pub fn solve_ordinates(
     // smooth in direction, so the bins carry it rather than the render's single scattering.
     let uncollided = match scene.environment.as_ref().filter(|e| !e.is_dark()) {
         Some(env) => {
-            let psi = op.inflow_radiance(|d| env.radiance_along(d));
+            let channels = scene.medium.channels().len();
+            let psi = op.inflow_radiance(|d| env.radiance_along(d, c, channels));
             let mut scattered = vec![0.0; op.len()];
             op.apply(&psi, &mut scattered);
             for (s, k) in source.iter_mut().zip(&scattered) {

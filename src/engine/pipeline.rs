@@ -24,7 +24,7 @@ pub fn scene_hash(scene: &Scene) -> String {
     feed(bincode::serde::encode_to_vec(&scene.medium, cfg).unwrap_or_default());
     feed(bincode::serde::encode_to_vec(&scene.lights, cfg).unwrap_or_default());
     if let Some(env) = &scene.environment {
-        feed(format!("environment radiance={:e}", env.radiance()).into_bytes());
+        feed(format!("environment {env:?}").into_bytes());
     }
     // The solve settings by their scene-file spelling, so the hash depends on what they
     // mean rather than on a derive's byte layout.
@@ -159,6 +159,7 @@ pub fn render_view_through(
     }
     let camera = Camera::from_spec(camera)?;
     let mut options = RenderOptions::from_settings(&solution.render, solution.background);
+    options.environment = solution.environment;
     if let Some(spp) = spp {
         options.spp = spp;
     }

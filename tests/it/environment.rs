@@ -180,9 +180,12 @@ fn an_absorbing_cloud_in_a_uniform_environment_matches_the_path_tracer() {
 #[test]
 fn environment_scenes_are_checked_before_work() {
     let scene = parse(&scene_text(0.9, ISOTROPIC, "zonal", ""));
-    assert_eq!(scene.background, 0.5);
+    assert_eq!(scene.background, 0.0, "the environment is the backdrop");
     assert!(scene.lights.is_empty());
-    assert_eq!(scene.environment.unwrap().radiance(), 0.5);
+    assert_eq!(
+        scene.environment.unwrap().uniform_radiance(),
+        Some([0.5; 3])
+    );
 
     let err = |text: String| {
         Scene::from_toml_str(&text, Path::new("."), Path::new("t.toml"))
@@ -232,4 +235,110 @@ fn a_solution_file_keeps_the_environment() {
     let a = render_view(&solution, &scene.cameras[0], Some(1)).unwrap();
     let b = render_view(&read, &scene.cameras[0], Some(1)).unwrap();
     assert_eq!(a.pixels, b.pixels);
+}
+
+/// A 24×24×20 cloud under Preetham's sky and its sun (z up), seen level with the horizon.
+fn sky_scene(method: &str, phase: &str) -> Scene {
+    parse(
+        &scene_text_at([24, 24, 20], 0.5, 0.9, phase, method, "")
+            .replace(
+                "kind = \"environment\"\nradiance = 0.5",
+                "kind = \"sky\"\nsun_elevation_degrees = 40.0\nsun_azimuth_degrees = 60.0",
+            )
+            .replace("eye = [6.0, -20.0, 14.0]", "eye = [6.0, -20.0, 5.0]"),
+    )
+}
+
+/// The sky is above the horizon (blue at the top of the frame), the ground below, the
+/// sun is a light, the medium is solved in colour, and the solution renders what the path
+/// tracer sees, channel by channel (3 % over the cloud): discrete ordinates (g = 0.6) take the
+/// sky on their bins, zonal-hierarchical (isotropic) its fluence over 384 directions.
+#[test]
+fn a_sky_lights_the_cloud_from_above_as_the_path_tracer_sees_it() {
+    for (method, phase) in [
+        ("discrete-ordinates", FORWARD),
+        ("zonal-hierarchical", ISOTROPIC),
+    ] {
+        sky_matches_the_path_tracer(method, phase);
+    }
+}
+
+fn sky_matches_the_path_tracer(method: &str, phase: &str) {
+    let scene = sky_scene(method, phase);
+    assert_eq!(
+        scene.medium.channels().len(),
+        3,
+        "a sky makes the medium coloured"
+    );
+    assert_eq!(scene.lights.len(), 1, "the sky places its sun");
+    let image = render_view(&solve(&scene), &scene.cameras[0], Some(16)).unwrap();
+    let (w, h) = (image.width as usize, image.height as usize);
+    let px = |x: usize, y: usize| -> [f32; 3] {
+        let i = 3 * (y * w + x);
+        [image.pixels[i], image.pixels[i + 1], image.pixels[i + 2]]
+    };
+    let top = px(1, 0);
+    let bottom = px(1, h - 1);
+    assert!(top[2] > 1.2 * top[0], "the sky overhead is blue: {top:?}");
+    // The ground is lit by the white sun and the blue sky: greyer than the sky.
+    assert!(
+        bottom[1] > 0.0 && bottom[2] / bottom[0] < top[2] / top[0],
+        "the ground {bottom:?} is not greyer than the sky {top:?}"
+    );
+    let camera = Camera::from_spec(&scene.cameras[0]).unwrap();
+    for c in 0..3 {
+        let traced = path_trace_with_error(
+            &scene.medium,
+            c,
+            &scene.lights,
+            Surroundings {
+                background: scene.background,
+                environment: scene.environment,
+            },
+            &camera,
+            &PathTraceOptions {
+                spp: 256,
+                ..PathTraceOptions::default()
+            },
+        )
+        .unwrap();
+        // Over the cloud: where the path tracer's pixel differs from the bare sky or ground
+        // by 5 %.
+        let (mut err2, mut ref2, mut diff, mut sum, mut count) = (0.0, 0.0, 0.0, 0.0, 0);
+        let bare = |i: usize| {
+            let y = i / w;
+            let x = i % w;
+            // The backdrop at this pixel, from the render's rows far from the cloud.
+            image.pixels[3 * (y * w + if x < w / 2 { 0 } else { w - 1 }) + c] as f64
+        };
+        for (i, (&r, &e)) in traced
+            .mean
+            .pixels
+            .iter()
+            .zip(&traced.std_error.pixels)
+            .enumerate()
+        {
+            let (x, r, e) = (image.pixels[3 * i + c] as f64, r as f64, e as f64);
+            if (r - bare(i)).abs() > 0.05 * bare(i) {
+                err2 += (x - r).powi(2) - e * e;
+                ref2 += r * r;
+                diff += x - r;
+                sum += r;
+                count += 1;
+            }
+        }
+        let rms = (err2.max(0.0) / ref2).sqrt();
+        let mean = diff / sum;
+        println!(
+            "sky, {method}, channel {c}: {count} cloud pixels, relative RMS {rms:.4}, mean {mean:+.4}"
+        );
+        assert!(
+            count > 300,
+            "{method}, channel {c}: only {count} cloud pixels"
+        );
+        assert!(
+            rms < 0.03 && mean.abs() < 0.01,
+            "{method}, channel {c}: relative RMS {rms:.4}, mean {mean:+.4}"
+        );
+    }
 }

@@ -18,7 +18,7 @@
 use glam::DVec3;
 use medium::grid::Grid;
 use medium::traversal::Ray;
-use medium::{CellValues, Interpolation, Medium};
+use medium::{CellValues, Environment, Interpolation, Medium};
 use std::borrow::Cow;
 
 use rayon::prelude::*;
@@ -110,6 +110,8 @@ pub struct RenderOptions {
     pub spp: u32,
     /// Background radiance `I0` seen through the volume.
     pub background: f64,
+    /// An environment seen through the volume instead of `background`, by direction (a sky).
+    pub environment: Option<Environment>,
     /// Step of the `trilinear` march as a fraction of the cell size.
     pub trilinear_step: f64,
     /// Relative early-termination tolerance (see the module docs); 0 disables it.
@@ -122,6 +124,7 @@ impl Default for RenderOptions {
             model: OpticalModel::EmissionAbsorption,
             spp: 1,
             background: 0.0,
+            environment: None,
             trilinear_step: 0.25,
             termination: 1e-4,
         }
@@ -206,7 +209,10 @@ pub struct RayIntegrator<'a> {
     use_sigma: bool,
     use_emission: bool,
     use_scattering: bool,
+    /// `I0`, or with an environment the most it sends in this channel (the termination bound).
     background: f64,
+    /// The environment seen where rays leave, with this channel and the medium's count.
+    environment: Option<(Environment, usize, usize)>,
     /// Upper bound on the scattered source (0 when unused; infinite if unknown).
     scattering_max: f64,
     /// Copied from the index for the per-segment termination test.
@@ -271,7 +277,13 @@ impl<'a> RayIntegrator<'a> {
             use_sigma: index.use_sigma,
             use_emission: index.use_emission,
             use_scattering,
-            background: options.background,
+            background: match &options.environment {
+                Some(e) => e.max_radiance(index.channel, medium.channels().len()),
+                None => options.background,
+            },
+            environment: options
+                .environment
+                .map(|e| (e, index.channel, medium.channels().len())),
             scattering_max,
             emission_max: index.emission_max,
             emission_ratio_max: index.emission_ratio_max,
@@ -287,10 +299,10 @@ impl<'a> RayIntegrator<'a> {
     #[inline]
     pub fn radiance(&self, ray: &Ray) -> f64 {
         let Some((lo, hi)) = self.index.occupied else {
-            return self.background;
+            return self.backdrop(ray);
         };
         let Some((t_in, t_out)) = clip_box(lo, hi, ray) else {
-            return self.background;
+            return self.backdrop(ray);
         };
         match self.interpolation {
             Interpolation::Nearest => {
@@ -302,6 +314,16 @@ impl<'a> RayIntegrator<'a> {
                 self.radiance_nearest::<false>(ray, t_in, t_out)
             }
             Interpolation::Trilinear => self.radiance_trilinear(ray, t_in, t_out),
+        }
+    }
+
+    /// What a ray sees where it leaves: the environment in its direction (light travelling
+    /// back along it), or the background.
+    #[inline]
+    fn backdrop(&self, ray: &Ray) -> f64 {
+        match &self.environment {
+            Some((e, channel, channels)) => e.radiance_along(-ray.direction, *channel, *channels),
+            None => self.background,
         }
     }
 
@@ -377,7 +399,7 @@ impl<'a> RayIntegrator<'a> {
             }
             break;
         }
-        radiance + transmittance * self.background
+        radiance + transmittance * self.backdrop(ray)
     }
 
     fn radiance_trilinear(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
@@ -424,7 +446,7 @@ impl<'a> RayIntegrator<'a> {
                 return radiance;
             }
         }
-        radiance + transmittance * self.background
+        radiance + transmittance * self.backdrop(ray)
     }
 }
 
@@ -737,10 +759,12 @@ fn render_rays(
     let (sx, sy) = options.strata();
     let inv_spp = 1.0 / (sx * sy) as f64;
     let mut pixels = vec![0.0f32; width * height];
-    // Pixels whose rays cannot meet the occupied box see only the background: no rays there.
-    let [bx0, by0, bx1, by1] = match integrator.index.occupied {
-        Some((lo, hi)) => camera.pixel_bounds(lo, hi).map(|v| v as usize),
-        None => [0; 4],
+    // Pixels whose rays cannot meet the occupied box see only the background: no rays there
+    // (with an environment every pixel sees its own part of it).
+    let [bx0, by0, bx1, by1] = match (integrator.index.occupied, &integrator.environment) {
+        (_, Some(_)) => [0, 0, width, height],
+        (Some((lo, hi)), None) => camera.pixel_bounds(lo, hi).map(|v| v as usize),
+        (None, None) => [0; 4],
     };
     let background = {
         let sum: f64 = (0..sx * sy).map(|_| integrator.background).sum();

@@ -164,6 +164,18 @@ impl Medium {
         self
     }
 
+    /// The same medium in three colour channels: a grey medium's one channel repeated (for
+    /// coloured light, such as a sky); a coloured medium unchanged.
+    pub fn in_colour(self) -> Medium {
+        if self.channels.len() == 3 {
+            return self;
+        }
+        let mut medium = self;
+        let grey = medium.channels[0].clone();
+        medium.channels = vec![grey.clone(), grey.clone(), grey];
+        medium
+    }
+
     /// The same medium with channel `c` replaced, checked as [`Medium::new`] checks.
     pub fn with_channel(self, c: usize, channel: ChannelMedium) -> Result<Medium, MediumError> {
         let (grid, mut channels, phase, interpolation, data) = self.into_parts();

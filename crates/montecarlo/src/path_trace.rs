@@ -17,8 +17,8 @@
 //!   to the throughput, at most 1; pbrt's rule), or a hard `max_depth` (number of scattering
 //!   events counted: `Some(1)` is single scattering).
 //! - Paths that leave the grid add what they meet there ([`Surroundings`]) times their
-//!   throughput: camera rays that never scattered see the background `I0`; scattered paths
-//!   pick up the environment light (none by default), as in every other method. The
+//!   throughput: the environment light along the path's direction (none by default), or,
+//!   without one, the background `I0` for camera rays that never scattered. The
 //!   environment is not importance-sampled: it is smooth, and escaping paths find it.
 //!
 //! Each pixel is the mean of `spp` paths through uniformly jittered positions in its area, on
@@ -82,6 +82,8 @@ pub struct PathTracer<'a> {
     phase: PhaseFunction,
     lights: &'a [Light],
     surroundings: Surroundings,
+    /// This channel and the medium's channel count (the environment's colour).
+    channel: (usize, usize),
     max_depth: u32,
     rr_start_depth: u32,
 }
@@ -89,9 +91,11 @@ pub struct PathTracer<'a> {
 /// What a path meets where it leaves the grid.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Surroundings {
-    /// Radiance `I0` a camera ray sees where it leaves the grid without scattering.
+    /// Radiance `I0` a camera ray sees where it leaves the grid without scattering, when
+    /// there is no environment.
     pub background: f64,
-    /// Light from every direction at infinity, picked up by scattered paths that leave.
+    /// Light from every direction at infinity, picked up by every path that leaves (camera
+    /// rays see it as the background).
     pub environment: Option<Environment>,
 }
 
@@ -155,6 +159,7 @@ impl<'a> PathTracer<'a> {
             phase: medium.phase(),
             lights,
             surroundings,
+            channel: (channel, medium.channels().len()),
             max_depth: options.max_depth.unwrap_or(u32::MAX),
             rr_start_depth: options.rr_start_depth,
         })
@@ -212,8 +217,11 @@ impl<'a> PathTracer<'a> {
                 Flight::Escaped => {
                     radiance += throughput
                         * match (depth, &self.surroundings.environment) {
-                            (0, _) => self.surroundings.background,
-                            (_, Some(env)) => env.radiance_along(ray.direction),
+                            (0, None) => self.surroundings.background,
+                            (_, Some(env)) => {
+                                // The light it meets travels back along the path.
+                                env.radiance_along(-ray.direction, self.channel.0, self.channel.1)
+                            }
                             (_, None) => 0.0,
                         };
                     break;

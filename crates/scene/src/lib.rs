@@ -60,10 +60,11 @@ pub use crate::settings::{phase_spelling, SolveMethod, SolveSettings, UnknownSol
 pub struct Scene {
     pub medium: Medium,
     pub lights: Vec<Light>,
-    /// Light from every direction at infinity (`[[light]] kind = "environment"`), which
-    /// lights the medium in every method; the background is then its radiance.
+    /// Light from every direction at infinity (`[[light]] kind = "environment"` or `"sky"`),
+    /// which lights the medium in every solving method and is what camera rays see where they
+    /// leave the grid. A sky's sun is in `lights`.
     pub environment: Option<Environment>,
-    /// Background radiance `I0` seen through the volume.
+    /// Background radiance `I0` seen through the volume (0 with an environment).
     pub background: f64,
     pub solve: SolveSettings,
     pub render: RenderSettings,

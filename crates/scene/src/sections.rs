@@ -39,6 +39,11 @@ impl Ctx<'_> {
         let source = volume.source.clone();
         let medium = self.medium(raw.medium.ok_or_else(|| self.missing("medium"))?, volume)?;
         let (lights, environment) = self.lights(raw.light, &medium)?;
+        // Coloured light needs coloured transport: a grey medium is solved in three channels.
+        let medium = match &environment {
+            Some(e) if e.is_coloured() => medium.in_colour(),
+            _ => medium,
+        };
         let background = self.background(raw.background, environment.as_ref())?;
         let solve = self.solve(raw.solve, &medium.phase())?;
         let render = self.render(raw.render, solve.method)?;
@@ -314,7 +319,16 @@ impl Ctx<'_> {
                         "a second environment light: a scene has at most one",
                     ))
                 }
-                SceneLight::Environment(e) => environment = Some(e),
+                SceneLight::Environment(e) => {
+                    // A sky brings its sun: the directional light the model is lit by.
+                    if let Some((to_sun, irradiance)) = e.sun() {
+                        kept.push(Light::Directional {
+                            direction: -to_sun,
+                            irradiance,
+                        });
+                    }
+                    environment = Some(e)
+                }
             }
         }
         if kept.is_empty() && environment.is_none() && !has_emission {
@@ -327,7 +341,8 @@ impl Ctx<'_> {
     }
 
     /// `[background] radiance`; with an environment light the background is the environment
-    /// (what camera rays see where they leave the grid), so giving both is refused.
+    /// (what camera rays see where they leave the grid), so giving both is refused (and
+    /// `background` is then 0: renders look the environment up by direction).
     fn background(
         &self,
         background: Option<toml::Value>,
@@ -335,7 +350,7 @@ impl Ctx<'_> {
     ) -> Result<f64, SceneError> {
         Ok(match (background, environment) {
             (None, None) => 0.0,
-            (None, Some(e)) => e.radiance(),
+            (None, Some(_)) => 0.0,
             (Some(_), Some(_)) => {
                 return Err(self.err(
                     "background",

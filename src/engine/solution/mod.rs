@@ -274,7 +274,7 @@ impl Solution {
                 interpolation: (&self.medium.interpolation()).into(),
                 has_data: self.medium.data().is_some(),
                 lights: self.lights.iter().map(Into::into).collect(),
-                environment: self.environment.as_ref().map(|e| e.radiance()),
+                environment: self.environment.as_ref().map(Into::into),
                 background: self.background,
                 render: (&self.render).into(),
                 cameras: self.cameras.iter().map(Into::into).collect(),
@@ -423,9 +423,9 @@ impl Solution {
             lights,
             environment: meta
                 .environment
-                .map(Environment::uniform)
+                .map(|e| e.into_library())
                 .transpose()
-                .map_err(|e| bad(e.to_string()))?,
+                .map_err(bad)?,
             background: meta.background,
             render,
             cameras,

@@ -20,8 +20,9 @@
 //! [`super::SolutionError::Inconsistent`].
 
 use glam::DVec3;
+use medium::environment::{EnvironmentSpec, SkySpec};
 use medium::light_pass::LightEnergy;
-use medium::{Grid, Interpolation, Light, PhaseFunction};
+use medium::{Environment, Grid, Interpolation, Light, PhaseFunction};
 use montecarlo::two_pass::{PhotonEnergy, TwoPassSolution};
 use scene::{CameraSpec, OpticalModel, Projection, RenderSettings, SolveMethod};
 use serde::{Deserialize, Serialize};
@@ -52,13 +53,75 @@ pub struct MetaRecord {
     /// Whether the array `data` (the raw data values) is present.
     pub has_data: bool,
     pub lights: Vec<LightRecord>,
-    /// The uniform environment's radiance, when the scene has one.
-    pub environment: Option<f64>,
+    /// The scene's environment light, when it has one.
+    pub environment: Option<EnvironmentRecord>,
     pub background: f64,
     pub render: RenderRecord,
     pub cameras: Vec<CameraRecord>,
     pub bins: Option<BinsRecord>,
     pub channels: Vec<ChannelRecord>,
+}
+
+/// [`Environment`]: a uniform radiance per channel, or the parameters of a sky (which the
+/// library rebuilds, so the file stores what the scene said).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum EnvironmentRecord {
+    Uniform {
+        radiance: [f64; 3],
+    },
+    Sky {
+        turbidity: f64,
+        sun_elevation_degrees: f64,
+        sun_azimuth_degrees: f64,
+        up: [f64; 3],
+        sun_irradiance: f64,
+        sky_fraction: f64,
+        ground_albedo: f64,
+    },
+}
+
+impl From<&Environment> for EnvironmentRecord {
+    fn from(e: &Environment) -> Self {
+        match e.spec() {
+            EnvironmentSpec::Uniform { radiance } => EnvironmentRecord::Uniform { radiance },
+            EnvironmentSpec::Sky(s) => EnvironmentRecord::Sky {
+                turbidity: s.turbidity,
+                sun_elevation_degrees: s.sun_elevation_degrees,
+                sun_azimuth_degrees: s.sun_azimuth_degrees,
+                up: vec3(s.up),
+                sun_irradiance: s.sun_irradiance,
+                sky_fraction: s.sky_fraction,
+                ground_albedo: s.ground_albedo,
+            },
+        }
+    }
+}
+
+impl EnvironmentRecord {
+    /// Through [`Environment::new`].
+    pub fn into_library(self) -> Result<Environment, String> {
+        Environment::new(match self {
+            EnvironmentRecord::Uniform { radiance } => EnvironmentSpec::Uniform { radiance },
+            EnvironmentRecord::Sky {
+                turbidity,
+                sun_elevation_degrees,
+                sun_azimuth_degrees,
+                up,
+                sun_irradiance,
+                sky_fraction,
+                ground_albedo,
+            } => EnvironmentSpec::Sky(SkySpec {
+                turbidity,
+                sun_elevation_degrees,
+                sun_azimuth_degrees,
+                up: DVec3::from_array(up),
+                sun_irradiance,
+                sky_fraction,
+                ground_albedo,
+            }),
+        })
+        .map_err(|e| e.to_string())
+    }
 }
 
 /// What one colour channel stores beside its named arrays.
