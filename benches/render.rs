@@ -89,7 +89,10 @@ fn bench_scattering_render(c: &mut Criterion) {
         .collect();
     let solution = (
         SingleScatter::new(medium, 0, &pass, SingleScatterOptions::default()).unwrap(),
-        volrad::engine::sources::CellSource::new(&higher),
+        volrad::engine::sources::CellSource::new(
+            &higher,
+            volrad::engine::sources::CellLattice::of(medium, 0),
+        ),
     );
     let mut group = c.benchmark_group("render");
     group.sample_size(20);
@@ -143,7 +146,13 @@ fn bench_service_render(c: &mut Criterion) {
     let first =
         SingleScatter::with_depth_model(&medium, 0, &pass, SingleScatterOptions::default(), &depth)
             .unwrap();
-    let solution = (first, volrad::engine::sources::CellSource::new(&higher));
+    let solution = (
+        first,
+        volrad::engine::sources::CellSource::new(
+            &higher,
+            volrad::engine::sources::CellLattice::of(&medium, 0),
+        ),
+    );
     let centre = medium.grid().extent() * 0.5;
     let radius = 2.5 * 24.0;
     let angle = 0.5f64;

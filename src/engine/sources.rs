@@ -8,21 +8,61 @@ use anyhow::Result;
 use formfactor::ordinates::bins::face_bilinear;
 use formfactor::ordinates::bins::interpolate_bins;
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
-use gather::{InScattering, OpticalModel, RayCarry, ViewSegment};
+use gather::{InScattering, OpticalModel, RayCarry, Trilinear, ViewSegment};
 use glam::DVec3;
+use medium::{Grid, Interpolation, Medium};
 
 use crate::engine::solution::{ChannelSolution, ScatteredField, Solution};
 
-/// Higher-order isotropic source per cell (zonal `g − E`): constant in each cell and direction.
+/// Where a per-cell source is drawn between cell centres: `trilinear` renders (which call
+/// `at`) reconstruct the source function `Q/σt` trilinearly over the cells with σt > 0 and
+/// multiply by the reconstructed σt ([`Trilinear::source`]), so a solved field looks as
+/// smooth as the medium; `nearest` renders keep it constant per cell (`segment`).
+#[derive(Clone, Copy)]
+pub struct CellLattice<'a> {
+    grid: Grid,
+    sigma_t: &'a [f32],
+    /// The medium is `trilinear` (else `at` is the cell's own value, as `segment`'s).
+    trilinear: bool,
+}
+
+impl<'a> CellLattice<'a> {
+    /// Channel `c` of `medium` (the solved one).
+    pub fn of(medium: &'a Medium, c: usize) -> Self {
+        CellLattice {
+            grid: *medium.grid(),
+            sigma_t: &medium.channels()[c].sigma_t,
+            trilinear: medium.interpolation() == Interpolation::Trilinear,
+        }
+    }
+
+    /// `Q` at `x` in `cell` from the per-cell `value` (see the type's doc).
+    #[inline]
+    fn at(&self, x: DVec3, cell: usize, value: impl Fn(usize) -> f64) -> f64 {
+        if self.trilinear {
+            Trilinear::new(&self.grid, x).source(self.sigma_t, value)
+        } else {
+            value(cell)
+        }
+    }
+}
+
+/// Higher-order isotropic source per cell (zonal `g − E`): one value per cell, the same in
+/// every direction.
 pub struct CellSource<'a> {
-    pub values: &'a [f32],
-    pub max: f64,
+    values: &'a [f32],
+    lattice: CellLattice<'a>,
+    max: f64,
 }
 
 impl<'a> CellSource<'a> {
-    pub fn new(values: &'a [f32]) -> Self {
+    pub fn new(values: &'a [f32], lattice: CellLattice<'a>) -> Self {
         let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
-        CellSource { values, max }
+        CellSource {
+            values,
+            lattice,
+            max,
+        }
     }
 }
 
@@ -32,8 +72,8 @@ impl InScattering for CellSource<'_> {
         self.values[seg.cell] as f64 * seg.weight
     }
     #[inline]
-    fn at(&self, _x: DVec3, cell: usize, _w: DVec3) -> f64 {
-        self.values[cell] as f64
+    fn at(&self, x: DVec3, cell: usize, _w: DVec3) -> f64 {
+        self.lattice.at(x, cell, |c| self.values[c] as f64)
     }
     fn max_source(&self) -> f64 {
         self.max
@@ -51,6 +91,7 @@ pub struct BinnedSource<'a> {
     /// `ln` of `values` (−∞ for 0).
     logs: &'a [f32],
     n: usize,
+    lattice: CellLattice<'a>,
     max: f64,
 }
 
@@ -58,13 +99,14 @@ impl<'a> BinnedSource<'a> {
     /// `logs` is `ln` of `values`, element by element ([`RenderCache::log_source`]).
     ///
     /// [`RenderCache::log_source`]: crate::engine::solution::RenderCache::log_source
-    pub fn new(values: &'a [f32], logs: &'a [f32], n: usize) -> Self {
+    pub fn new(values: &'a [f32], logs: &'a [f32], n: usize, lattice: CellLattice<'a>) -> Self {
         debug_assert_eq!(values.len(), logs.len());
         let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
         BinnedSource {
             values,
             logs,
             n,
+            lattice,
             max,
         }
     }
@@ -87,8 +129,8 @@ impl InScattering for BinnedSource<'_> {
         self.lookup(seg.cell, -seg.ray.direction) * seg.weight
     }
     #[inline]
-    fn at(&self, _x: DVec3, cell: usize, w: DVec3) -> f64 {
-        self.lookup(cell, w)
+    fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
+        self.lattice.at(x, cell, |c| self.lookup(c, w))
     }
     fn max_source(&self) -> f64 {
         self.max
@@ -122,14 +164,20 @@ pub fn channel_scattering<'a>(
         return Ok(Box::new(first));
     }
     Ok(match (&ch.scattered, &solution.bins) {
-        (ScatteredField::Isotropic { higher_order, .. }, _) => {
-            Box::new((first, CellSource::new(higher_order)))
-        }
+        (ScatteredField::Isotropic { higher_order, .. }, _) => Box::new((
+            first,
+            CellSource::new(higher_order, CellLattice::of(&solution.medium, c)),
+        )),
         (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
             let logs = ch.render_cache.log_source(higher_order);
             Box::new((
                 first,
-                BinnedSource::new(higher_order, logs, bins.face_resolution),
+                BinnedSource::new(
+                    higher_order,
+                    logs,
+                    bins.face_resolution,
+                    CellLattice::of(&solution.medium, c),
+                ),
             ))
         }
         (ScatteredField::TwoPass(t), _) => Box::new((first, t.as_ref())),
@@ -141,6 +189,46 @@ pub fn channel_scattering<'a>(
 mod tests {
     use super::*;
 
+    /// One cell of σt 1 (a lattice under which `at` is the cell's own value).
+    fn one_cell() -> CellLattice<'static> {
+        CellLattice {
+            grid: Grid::new([1, 1, 1], 1.0).unwrap(),
+            sigma_t: &[1.0],
+            trilinear: true,
+        }
+    }
+
+    /// A `trilinear` medium draws a per-cell source without steps: the cell's value at its
+    /// centre, continuous across the face between two cells, and next to an empty cell the
+    /// source function of the full one times the fading σt (not pulled toward zero twice).
+    #[test]
+    fn cell_sources_are_continuous_between_cells_of_a_trilinear_medium() {
+        let grid = Grid::new([3, 1, 1], 1.0).unwrap();
+        let sigma_t = [1.0f32, 2.0, 0.0];
+        let values = [1.0f32, 6.0, 0.0];
+        let lattice = CellLattice {
+            grid,
+            sigma_t: &sigma_t,
+            trilinear: true,
+        };
+        let source = CellSource::new(&values, lattice);
+        let at = |x: f64| source.at(DVec3::new(x, 0.5, 0.5), (x as usize).min(2), DVec3::X);
+        assert!((at(0.5) - 1.0).abs() < 1e-12 && (at(1.5) - 6.0).abs() < 1e-12);
+        let (left, right) = (at(1.0 - 1e-9), at(1.0 + 1e-9));
+        assert!((left - right).abs() < 1e-6, "{left} vs {right}");
+        // Half way to the empty cell: σt = 1, source function still the full cell's 3.
+        assert!((at(2.0) - 3.0).abs() < 1e-12, "{}", at(2.0));
+        assert_eq!(at(2.5), 0.0);
+        let nearest = CellSource::new(
+            &values,
+            CellLattice {
+                trilinear: false,
+                ..lattice
+            },
+        );
+        assert_eq!(nearest.at(DVec3::new(1.9, 0.5, 0.5), 1, DVec3::X), 6.0);
+    }
+
     /// A field peaked in one bin, looked up towards the far corner of its face, where the
     /// extrapolation weight of that bin is negative: the source is 0 there, not negative, and
     /// still the bin's value at its centre.
@@ -151,14 +239,14 @@ mod tests {
         // Face +x, bin (i = 0 along y, j = 1 along z).
         values[1] = 1.0;
         let logs: Vec<f32> = values.iter().map(|v| v.ln()).collect();
-        let source = BinnedSource::new(&values, &logs, n);
+        let source = BinnedSource::new(&values, &logs, n, one_cell());
         let corner = DVec3::new(1.0, 0.95, 0.95).normalize();
         let weights = face_bilinear(n, corner);
         let raw: f64 = weights.iter().map(|&(l, w)| w * values[l] as f64).sum();
         assert!(raw < 0.0, "the case must extrapolate below zero ({raw})");
-        assert_eq!(source.at(DVec3::ZERO, 0, corner), 0.0);
+        assert_eq!(source.at(DVec3::splat(0.5), 0, corner), 0.0);
         let centre = DVec3::new(1.0, -0.5, 0.5).normalize();
-        assert!((source.at(DVec3::ZERO, 0, centre) - 1.0).abs() < 1e-12);
+        assert!((source.at(DVec3::splat(0.5), 0, centre) - 1.0).abs() < 1e-12);
     }
 
     /// Half way between two positive centres the source is their geometric mean (exact for
@@ -174,14 +262,14 @@ mod tests {
         values[2] = 1.0;
         values[3] = 1.0;
         let logs: Vec<f32> = values.iter().map(|v| v.ln()).collect();
-        let source = BinnedSource::new(&values, &logs, n);
+        let source = BinnedSource::new(&values, &logs, n, one_cell());
         let between = DVec3::new(1.0, 0.0, 0.0);
-        assert!((source.at(DVec3::ZERO, 0, between) - 2.0).abs() < 1e-6);
+        assert!((source.at(DVec3::splat(0.5), 0, between) - 2.0).abs() < 1e-6);
         let at_centre = DVec3::new(1.0, -0.5, -0.5).normalize();
-        assert!((source.at(DVec3::ZERO, 0, at_centre) - 4.0).abs() < 1e-5);
+        assert!((source.at(DVec3::splat(0.5), 0, at_centre) - 4.0).abs() < 1e-5);
         values[3] = 0.0;
         let logs: Vec<f32> = values.iter().map(|v| v.ln()).collect();
-        let source = BinnedSource::new(&values, &logs, n);
-        assert!((source.at(DVec3::ZERO, 0, between) - 2.25).abs() < 1e-6);
+        let source = BinnedSource::new(&values, &logs, n, one_cell());
+        assert!((source.at(DVec3::splat(0.5), 0, between) - 2.25).abs() < 1e-6);
     }
 }

@@ -28,7 +28,8 @@ pub use exposure::auto_exposure;
 pub use image_io::{read_pfm, Image, ImageFormat, PngCompression, ToneMap};
 pub use render::{
     render, render_image, render_image_indexed, render_indexed, ImageChannel, OpticalModel,
-    RayIntegrator, RenderIndex, RenderOptions, RenderSettings, MAX_SPP, OPTICAL_MODEL_NAMES,
+    RayIntegrator, RenderIndex, RenderOptions, RenderSettings, Trilinear, MAX_SPP,
+    OPTICAL_MODEL_NAMES,
 };
 pub use scattering::{
     segment_weight, InScattering, RayCarry, ScatteringSum, UniformSource, ViewSegment,

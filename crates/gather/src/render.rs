@@ -467,8 +467,8 @@ fn emission_ratio_max(sigma_t: &[f32], emission: &CellValues) -> f64 {
 }
 
 /// The 8 cell-centred neighbours of a point and their trilinear weights (values clamped to
-/// the edge cells outside the outermost centres).
-struct Trilinear {
+/// the edge cells outside the outermost centres): the `trilinear` reconstruction.
+pub struct Trilinear {
     /// The cell containing the point, and its coordinates.
     cell: usize,
     coords: [usize; 3],
@@ -479,7 +479,7 @@ struct Trilinear {
 
 impl Trilinear {
     #[inline]
-    fn new(grid: &Grid, x: DVec3) -> Self {
+    pub fn new(grid: &Grid, x: DVec3) -> Self {
         let mut index = [[0usize; 2]; 3];
         let mut frac = [0.0; 3];
         let mut own = [0usize; 3];
@@ -518,8 +518,70 @@ impl Trilinear {
         }
     }
 
+    /// The cell that contains the point.
     #[inline]
-    fn sample(&self, value: impl Fn(usize) -> f64) -> f64 {
+    pub fn cell(&self) -> usize {
+        self.cell
+    }
+
+    /// The value a source function `j = Q/σt` reconstructs to at the point, times σt there:
+    /// `σt(x) · Σ w_c j_c / Σ w_c` over the neighbours with `σt > 0` (`j` is undefined in
+    /// empty cells, so they do not pull it to zero; `σt(x)` fades the edges). `value(c)` is the
+    /// cell's `Q`. This is how a solved per-cell source is drawn smoothly: a `trilinear`
+    /// medium's σt times a trilinear source function.
+    #[inline]
+    pub fn source(&self, sigma_t: &[f32], value: impl Fn(usize) -> f64) -> f64 {
+        let (mut sigma, mut weighted, mut weight) = (0.0, 0.0, 0.0);
+        self.for_each(|c, w| {
+            let s = sigma_t[c] as f64;
+            sigma += w * s;
+            if s > 0.0 {
+                weighted += w * value(c) / s;
+                weight += w;
+            }
+        });
+        if weight > 0.0 {
+            sigma * weighted / weight
+        } else {
+            0.0
+        }
+    }
+
+    /// Calls `f(cell, weight)` for each neighbour of non-zero weight.
+    #[inline]
+    pub fn for_each(&self, mut f: impl FnMut(usize, f64)) {
+        for dz in 0..2 {
+            let wz = if dz == 0 {
+                1.0 - self.frac[2]
+            } else {
+                self.frac[2]
+            };
+            let oz = self.index[2][dz] * self.strides[2];
+            for dy in 0..2 {
+                let wy = if dy == 0 {
+                    1.0 - self.frac[1]
+                } else {
+                    self.frac[1]
+                };
+                let oy = oz + self.index[1][dy] * self.strides[1];
+                let wyz = wy * wz;
+                if wyz == 0.0 {
+                    continue;
+                }
+                let w0 = (1.0 - self.frac[0]) * wyz;
+                let w1 = self.frac[0] * wyz;
+                if w0 != 0.0 {
+                    f(oy + self.index[0][0], w0);
+                }
+                if w1 != 0.0 {
+                    f(oy + self.index[0][1], w1);
+                }
+            }
+        }
+    }
+
+    #[inline]
+    pub fn sample(&self, value: impl Fn(usize) -> f64) -> f64 {
         let mut sum = 0.0;
         for dz in 0..2 {
             let wz = if dz == 0 {

@@ -25,6 +25,7 @@ use std::borrow::Cow;
 
 use crate::light_depth::{DepthLattice, LightAt};
 pub use crate::light_depth::{LightDepth, LightDepthModel, TRILINEAR_CELL_MEAN_TOLERANCE};
+use crate::render::Trilinear;
 use crate::scattering::{InScattering, RayCarry, ViewSegment};
 use crate::GatherError;
 
@@ -104,6 +105,8 @@ pub struct SingleScatter<'a> {
     max_source: f64,
     /// Every light takes the lattice path ([`SingleScatter::lattice_segment`]).
     lattices_only: bool,
+    /// The medium is reconstructed trilinearly: `at` takes σs from the interpolated σt.
+    trilinear: bool,
     /// The CPU has FMA: the lattice path runs [`SingleScatter::lattice_segment_fma`].
     fma: bool,
 }
@@ -233,6 +236,7 @@ impl<'a> SingleScatter<'a> {
             && pass.fields.len() <= CARRIED_LIGHTS
             && (0..pass.fields.len()).all(|l| depth.lattice(l).is_some());
         Ok(SingleScatter {
+            trilinear: medium.interpolation() == medium::Interpolation::Trilinear,
             lattices_only,
             fma: medium::fma::available(),
             pass,
@@ -585,7 +589,13 @@ impl InScattering for SingleScatter<'_> {
     }
 
     fn at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3) -> f64 {
-        let sigma_s = self.sigma_t[cell] as f64 * self.albedo.get(cell) as f64;
+        // σs follows σt as the medium is reconstructed at x.
+        let sigma_t = if self.trilinear {
+            Trilinear::new(&self.pass.grid, x).sample(|c| self.sigma_t[c] as f64)
+        } else {
+            self.sigma_t[cell] as f64
+        };
+        let sigma_s = sigma_t * self.albedo.get(cell) as f64;
         (0..self.pass.fields.len())
             .map(|l| self.source_from(l, x, cell, view_flow_dir, sigma_s))
             .sum()
