@@ -36,6 +36,7 @@ pub mod optical;
 pub mod phase;
 pub mod transfer;
 pub mod traversal;
+pub mod vdb;
 pub mod volume_io;
 
 pub use environment::Environment;

@@ -1,5 +1,6 @@
-//! Volume files: raw little-endian f32, Mitsuba's binary grid (`.vol`) and NRRD, read into
-//! x-fastest `f32` arrays; raw and NRRD writers that replace their target atomically.
+//! Volume files: raw little-endian f32, Mitsuba's binary grid (`.vol`), NRRD and OpenVDB
+//! (`.vdb`, through [`crate::vdb`]), read into x-fastest `f32` arrays; raw and NRRD writers
+//! that replace their target atomically.
 //!
 //! Every error names the file and says what was expected and what was found.
 
@@ -41,10 +42,13 @@ pub enum VolumeFormat {
     MitsubaVol,
     /// NRRD (`.nrrd` attached or `.nhdr` detached header).
     Nrrd,
+    /// OpenVDB (`.vdb`): one float, double or half grid, expanded over its active voxels.
+    OpenVdb,
 }
 
 impl VolumeFormat {
-    /// `.vol` → Mitsuba, `.nrrd`/`.nhdr` → NRRD, anything else (`.f32`, `.raw`, `.bin`) → raw.
+    /// `.vol` → Mitsuba, `.nrrd`/`.nhdr` → NRRD, `.vdb` → OpenVDB, anything else (`.f32`,
+    /// `.raw`, `.bin`) → raw.
     pub fn from_path(path: &Path) -> VolumeFormat {
         let ext = path
             .extension()
@@ -53,6 +57,7 @@ impl VolumeFormat {
         match ext.as_deref() {
             Some("vol") => VolumeFormat::MitsubaVol,
             Some("nrrd") | Some("nhdr") => VolumeFormat::Nrrd,
+            Some("vdb") => VolumeFormat::OpenVdb,
             _ => VolumeFormat::RawF32,
         }
     }
@@ -78,7 +83,7 @@ fn io_err(file: &Path, error: std::io::Error) -> MediumError {
 
 /// Reads a whole volume file, refusing anything but a regular file first: a FIFO would block
 /// the read forever, a device or directory is no volume.
-fn read_regular(path: &Path) -> Result<Vec<u8>, MediumError> {
+pub(crate) fn read_regular(path: &Path) -> Result<Vec<u8>, MediumError> {
     let meta = fs::metadata(path).map_err(|e| io_err(path, e))?;
     if !meta.is_file() {
         let what = if meta.is_dir() {
@@ -95,33 +100,73 @@ fn read_regular(path: &Path) -> Result<Vec<u8>, MediumError> {
 }
 
 /// Reads a volume in the format its extension names. `dims` is required for raw files; for
-/// `.vol` and NRRD the header gives them and `dims`, when given, must agree.
+/// `.vol`, NRRD and `.vdb` the file gives them and `dims`, when given, must agree. A `.vdb`
+/// gives its first float, double or half grid; [`load_volume_with`] chooses a grid and
+/// returns its placement.
 pub fn load_volume(path: &Path, dims: Option<[usize; 3]>) -> Result<VolumeData, MediumError> {
-    let data = match VolumeFormat::from_path(path) {
+    load_volume_with(path, &VolumeRequest { dims, grid: None }).map(|v| v.data)
+}
+
+/// What a caller asks of a volume file beyond its path.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct VolumeRequest<'a> {
+    /// Required for raw files; checked against the file's own otherwise.
+    pub dims: Option<[usize; 3]>,
+    /// The grid of a `.vdb` file (default: its first float, double or half grid); refused
+    /// for other formats, which hold one volume.
+    pub grid: Option<&'a str>,
+}
+
+/// A volume and, for a `.vdb`, where its grid lies in the file's world.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoadedVolume {
+    pub data: VolumeData,
+    pub placement: Option<crate::vdb::VdbPlacement>,
+}
+
+/// [`load_volume`] with a grid choice, also returning a `.vdb` grid's placement.
+pub fn load_volume_with(path: &Path, request: &VolumeRequest) -> Result<LoadedVolume, MediumError> {
+    let format = VolumeFormat::from_path(path);
+    if request.grid.is_some() && format != VolumeFormat::OpenVdb {
+        return Err(vol_err(
+            path,
+            "a grid name applies to OpenVDB (.vdb) files only",
+        ));
+    }
+    let (data, placement) = match format {
         VolumeFormat::RawF32 => {
-            let dims = dims.ok_or_else(|| {
+            let dims = request.dims.ok_or_else(|| {
                 vol_err(
                     path,
                     "a raw f32 volume needs dims [nx, ny, nz] (it has no header)",
                 )
             })?;
-            return read_raw_f32(path, dims);
+            return Ok(LoadedVolume {
+                data: read_raw_f32(path, dims)?,
+                placement: None,
+            });
         }
-        VolumeFormat::MitsubaVol => read_mitsuba_vol(path)?,
-        VolumeFormat::Nrrd => read_nrrd(path)?,
+        VolumeFormat::MitsubaVol => (read_mitsuba_vol(path)?, None),
+        VolumeFormat::Nrrd => (read_nrrd(path)?, None),
+        VolumeFormat::OpenVdb => {
+            let v = crate::vdb::read_vdb(path, request.grid)?;
+            (v.data, Some(v.placement))
+        }
     };
-    if let Some(d) = dims {
+    if let Some(d) = request.dims {
         if d != data.dims {
+            let what = if placement.is_some() {
+                "the grid's active voxels span"
+            } else {
+                "the file's header says"
+            };
             return Err(vol_err(
                 path,
-                format!(
-                    "the file's header says dims {:?} but {d:?} were given",
-                    data.dims
-                ),
+                format!("{what} dims {:?} but {d:?} were given", data.dims),
             ));
         }
     }
-    Ok(data)
+    Ok(LoadedVolume { data, placement })
 }
 
 /// Reads headerless little-endian f32 values; the file size must be exactly `nx·ny·nz·4`.

@@ -1,5 +1,6 @@
 //! The `medium` crate's integration tests: one test binary, a module per area.
 
 mod light_pass;
+mod vdb;
 mod volume_generators;
 mod volume_io;
