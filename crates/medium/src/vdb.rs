@@ -318,10 +318,10 @@ impl Codec {
         let bg = self.background;
         let mut inactive1 = bg;
         // Modes 2, 4 and 5 store their inactive values; mode 6 stores every value.
-        let mut inactive0 = if meta == NO_MASK_AND_MINUS_BG || meta == MASK_AND_NO_INACTIVE_VALS {
-            -bg
-        } else {
-            bg
+        let mut inactive0 = match meta {
+            NO_MASK_OR_INACTIVE_VALS => bg,
+            NO_MASK_AND_MINUS_BG | MASK_AND_NO_INACTIVE_VALS => -bg,
+            _ => bg,
         };
         if matches!(
             meta,

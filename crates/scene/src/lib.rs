@@ -18,8 +18,10 @@
 //! `medium.phase.g` or `light[1].direction`).
 //!
 //! Extensions to the contract, in its style:
-//! - `[volume] file` may be raw f32 (needs `dims`), Mitsuba `.vol` or NRRD `.nrrd`/`.nhdr`
-//!   (header gives the dims; `dims`, if given, must agree).
+//! - `[volume] file` may be raw f32 (needs `dims`), Mitsuba `.vol`, NRRD `.nrrd`/`.nhdr`
+//!   (header gives the dims; `dims`, if given, must agree) or OpenVDB `.vdb` (`grid = "name"`,
+//!   the active voxels' box; `cell_size` defaults to a uniform voxel size;
+//!   `coordinates = "file"` reads camera and light positions in the file's world).
 //! - `[volume] generator = { kind = "cloud", seed = 7 }` or `{ kind = "dipole" }` (needs `dims`).
 //! - `[volume] sigma_t = { kind = "piecewise-linear", points = [[x, y], ...] }` or
 //!   `{ kind = "preset", name = "threshold" }`: σt = `sigma_t_scale` × table(value).
@@ -48,6 +50,7 @@ use std::path::{Path, PathBuf};
 
 pub use gather::{CameraSpec, OpticalModel, Projection, RenderSettings};
 use medium::generators::Generator;
+pub use medium::vdb::VdbPlacement;
 use medium::volume_io::VolumeData;
 use medium::{Environment, Light, Medium};
 
@@ -73,6 +76,8 @@ pub struct Scene {
     pub origin: SceneOrigin,
     /// Where the medium's data came from (a volume file or a generator).
     pub source: VolumeSource,
+    /// For an OpenVDB volume: the grid's name, active box and transform in the file.
+    pub placement: Option<VdbPlacement>,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -113,6 +118,12 @@ impl Scene {
     /// The camera called `name`.
     pub fn camera(&self, name: &str) -> Option<&CameraSpec> {
         self.cameras.iter().find(|c| c.name == name)
+    }
+
+    /// Where an OpenVDB grid sits in its file's world (`None` for other volumes): volrad's
+    /// cell (0, 0, 0) is voxel `bbox_min`, and its corner is at `world_corner()` there.
+    pub fn volume_placement(&self) -> Option<&VdbPlacement> {
+        self.placement.as_ref()
     }
 
     /// The raw data values with their dims (what `volrad export` writes), when the medium

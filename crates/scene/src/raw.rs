@@ -27,6 +27,8 @@ pub(crate) struct RawVolume {
     pub(crate) sigma_t: Option<toml::Value>,
     pub(crate) cell_size: Option<toml::Value>,
     pub(crate) interpolation: Option<toml::Value>,
+    pub(crate) grid: Option<toml::Value>,
+    pub(crate) coordinates: Option<toml::Value>,
 }
 
 #[derive(Deserialize)]

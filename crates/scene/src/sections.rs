@@ -6,7 +6,8 @@ use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
 use medium::generators::Generator;
 use medium::light_pass::MAX_LIGHTS;
 use medium::transfer::{PiecewiseLinear, SigmaTransfer, Transfer};
-use medium::volume_io::{load_volume, VolumeData, VolumeFormat};
+use medium::vdb::VdbPlacement;
+use medium::volume_io::{load_volume_with, VolumeData, VolumeFormat, VolumeRequest};
 use medium::{
     ChannelMedium, Environment, Grid, Interpolation, Light, Medium, MediumError, PhaseFunction,
 };
@@ -18,6 +19,7 @@ use crate::check::{broadcast, join, Channels, Ctx, SceneLight};
 use crate::raw::{RawBackground, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
 use crate::settings::UnknownSolveMethod;
 use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
+use glam::DVec3;
 
 /// What `[volume]` gives: the data values on their grid and the σt transfer per channel.
 struct Volume {
@@ -27,6 +29,11 @@ struct Volume {
     interpolation: Interpolation,
     sigma_scales: Channels<f64>,
     sigma_tables: Channels<Option<PiecewiseLinear>>,
+    /// A `.vdb` grid's place in the file's world.
+    placement: Option<VdbPlacement>,
+    /// `coordinates = "file"`: the world position of the grid's corner, subtracted from
+    /// camera and light positions.
+    file_origin: Option<DVec3>,
 }
 
 impl Ctx<'_> {
@@ -37,8 +44,9 @@ impl Ctx<'_> {
     pub(crate) fn scene(&self, raw: RawScene) -> Result<Scene, SceneError> {
         let volume = self.volume(raw.volume.ok_or_else(|| self.missing("volume"))?)?;
         let source = volume.source.clone();
+        let (placement, file_origin) = (volume.placement.clone(), volume.file_origin);
         let medium = self.medium(raw.medium.ok_or_else(|| self.missing("medium"))?, volume)?;
-        let (lights, environment) = self.lights(raw.light, &medium)?;
+        let (mut lights, environment) = self.lights(raw.light, &medium)?;
         // Coloured light needs coloured transport: a grey medium is solved in three channels.
         let medium = match &environment {
             Some(e) if e.is_coloured() => medium.in_colour(),
@@ -47,7 +55,20 @@ impl Ctx<'_> {
         let background = self.background(raw.background, environment.as_ref())?;
         let solve = self.solve(raw.solve, &medium.phase())?;
         let render = self.render(raw.render, solve.method)?;
-        let cameras = self.cameras(raw.camera)?;
+        let mut cameras = self.cameras(raw.camera)?;
+        if let Some(o) = file_origin {
+            // Positions were given in the file's world; volrad's grid has its corner at 0.
+            for light in &mut lights {
+                match light {
+                    Light::Point { position, .. } | Light::Spot { position, .. } => *position -= o,
+                    Light::Directional { .. } => {}
+                }
+            }
+            for c in &mut cameras {
+                c.eye -= o;
+                c.target -= o;
+            }
+        }
         Ok(Scene {
             medium,
             lights,
@@ -58,6 +79,7 @@ impl Ctx<'_> {
             cameras,
             origin: SceneOrigin::File(self.file.to_path_buf()),
             source,
+            placement,
         })
     }
 
@@ -68,6 +90,12 @@ impl Ctx<'_> {
             .as_ref()
             .map(|d| self.dims(d, "volume.dims"))
             .transpose()?;
+        let grid_name = vol
+            .grid
+            .as_ref()
+            .map(|g| self.string(g, "volume.grid"))
+            .transpose()?;
+        let mut placement = None;
         let (source, data) = match (&vol.file, &vol.generator) {
             (Some(_), Some(_)) => {
                 return Err(self.err(
@@ -89,16 +117,33 @@ impl Ctx<'_> {
                         "required key is missing (a raw f32 file has no header)",
                     ));
                 }
-                let data = load_volume(&path, dims).map_err(|e| {
+                if grid_name.is_some() && format != VolumeFormat::OpenVdb {
+                    return Err(self.err(
+                        "volume.grid",
+                        format!("`grid` chooses a grid of an OpenVDB (.vdb) file; `{name}` holds one volume"),
+                    ));
+                }
+                let request = VolumeRequest {
+                    dims,
+                    grid: grid_name,
+                };
+                let loaded = load_volume_with(&path, &request).map_err(|e| {
                     let key = match (&e, format) {
                         (MediumError::Volume { .. }, VolumeFormat::RawF32) => "volume.dims",
                         _ => "volume.file",
                     };
                     self.err(key, e.to_string())
                 })?;
-                (VolumeSource::File(path), data)
+                placement = loaded.placement;
+                (VolumeSource::File(path), loaded.data)
             }
             (None, Some(g)) => {
+                if grid_name.is_some() {
+                    return Err(self.err(
+                        "volume.grid",
+                        "`grid` chooses a grid of an OpenVDB (.vdb) file, not of a generator",
+                    ));
+                }
                 let (kind, t) = self.kind_table(
                     g,
                     "volume.generator",
@@ -145,9 +190,49 @@ impl Ctx<'_> {
                 ),
             ));
         }
-        let cell_size = match &vol.cell_size {
-            Some(v) => self.positive(v, "volume.cell_size")?,
-            None => 1.0,
+        let cell_size = match (&vol.cell_size, &placement) {
+            (Some(v), _) => self.positive(v, "volume.cell_size")?,
+            (None, None) => 1.0,
+            // A .vdb gives its voxel size; volrad's cells are cubes, so it must be uniform.
+            (None, Some(p)) => p.uniform_voxel_size().ok_or_else(|| {
+                self.err(
+                    "volume.cell_size",
+                    format!(
+                        "required key is missing: the grid's voxel size {:?} is not uniform and volrad's cells are cubes; give cell_size",
+                        p.voxel_size
+                    ),
+                )
+            })?,
+        };
+        let file_origin = match &vol.coordinates {
+            None => None,
+            Some(v) => match self.string(v, "volume.coordinates")? {
+                "grid" => None,
+                "file" => {
+                    let p = placement.as_ref().ok_or_else(|| {
+                        self.err(
+                            "volume.coordinates",
+                            "`file` needs an OpenVDB (.vdb) volume, whose transform places it in a world",
+                        )
+                    })?;
+                    if p.uniform_voxel_size() != Some(cell_size) {
+                        return Err(self.err(
+                            "volume.coordinates",
+                            format!(
+                                "`file` needs the grid's voxel size to be uniform and equal to cell_size {cell_size}; it is {:?}",
+                                p.voxel_size
+                            ),
+                        ));
+                    }
+                    Some(DVec3::from_array(p.world_corner()))
+                }
+                other => {
+                    return Err(self.err(
+                        "volume.coordinates",
+                        format!("unknown coordinates `{other}` (expected grid or file)"),
+                    ))
+                }
+            },
         };
         let grid =
             Grid::new(data.dims, cell_size).map_err(|e| self.err("volume.dims", e.to_string()))?;
@@ -217,6 +302,8 @@ impl Ctx<'_> {
             interpolation,
             sigma_scales: scales,
             sigma_tables,
+            placement,
+            file_origin,
         })
     }
 

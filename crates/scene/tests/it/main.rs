@@ -3,3 +3,4 @@
 mod ordinates_scene;
 mod scene_parse;
 mod scene_samples;
+mod vdb_scene;
