@@ -38,6 +38,16 @@ pub struct SceneInfo {
     pub max_cell_optical_depth: f64,
     /// What the discrete-ordinates solve will use (discrete ordinates only).
     pub ordinates: Option<OrdinatesInfo>,
+    /// For an OpenVDB volume: the grid read, its active box and transform.
+    pub openvdb: Option<OpenVdbInfo>,
+}
+
+/// Where an OpenVDB grid came from, and where volrad's grid corner is in the file's world.
+#[derive(Debug, Serialize)]
+pub struct OpenVdbInfo {
+    #[serde(flatten)]
+    pub placement: medium::vdb::VdbPlacement,
+    pub world_corner: [f64; 3],
 }
 
 /// The discrete-ordinates settings a solve uses, with what volrad chose and the error class
@@ -186,6 +196,10 @@ impl SceneInfo {
             solve_memory_estimate_bytes: vectors + operator,
             max_cell_optical_depth,
             ordinates,
+            openvdb: scene.volume_placement().map(|p| OpenVdbInfo {
+                placement: p.clone(),
+                world_corner: p.world_corner(),
+            }),
         }
     }
 }
@@ -202,6 +216,14 @@ impl fmt::Display for SceneInfo {
             "grid             {} × {} × {} = {} cells, cell size {}",
             self.dims[0], self.dims[1], self.dims[2], self.cells, self.cell_size
         )?;
+        if let Some(v) = &self.openvdb {
+            let p = &v.placement;
+            writeln!(
+                f,
+                "openvdb grid     `{}`, active voxels {:?} ..= {:?}, grid corner at {:?} in the file's world",
+                p.grid, p.bbox_min, p.bbox_max, v.world_corner
+            )?;
+        }
         writeln!(f, "channels         {}", self.channels)?;
         writeln!(
             f,

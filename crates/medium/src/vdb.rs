@@ -60,7 +60,7 @@ const HALF_SUFFIX: &str = "_HalfFloat";
 /// OpenVDB voxel `(i, j, k)` has its centre at index point `(i, j, k)` and world position
 /// `translation + voxel_size ⊙ (i, j, k)`; volrad cell `(i, j, k)` is voxel
 /// `bbox_min + (i, j, k)` and covers `translation + voxel_size ⊙ (bbox_min + (i, j, k) ± ½)`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct VdbPlacement {
     /// The grid's name in the file.
     pub grid: String,

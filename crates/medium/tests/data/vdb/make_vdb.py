@@ -4,6 +4,7 @@ must read from it, so that volrad's own reader (crates/medium/src/vdb.rs) is che
 the library's writer and the library's reader.
 
     make_vdb.py OUTDIR [--seed N] [--quick]
+    make_vdb.py --from-raw RAW NX NY NZ OUT.vdb [--voxel-size H] [--name density]
 
 For every case `NAME` it writes `NAME.vdb` and `NAME.json`:
     {"file": "NAME.vdb", "grids": [{"name", "dims", "bbox_min", "bbox_max", "voxel_size",
@@ -191,13 +192,33 @@ def rewrites(outdir):
         shutil.rmtree(tmp)
 
 
+def from_raw(raw, dims, out, voxel_size, name):
+    """A raw little-endian f32 volume (x fastest) as one float grid: zero voxels inactive,
+    index (0, 0, 0) at the raw volume's first value, Blosc (the library's default)."""
+    nx, ny, nz = dims
+    v = np.fromfile(raw, dtype="<f4").reshape(nz, ny, nx).transpose(2, 1, 0).copy()
+    g = float_grid(name, v.astype(np.float32), (0, 0, 0),
+                   vdb.createLinearTransform(voxelSize=voxel_size))
+    vdb.write(out, grids=[g])
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("outdir")
+    p.add_argument("--from-raw", nargs=5, metavar=("RAW", "NX", "NY", "NZ", "OUT"),
+                   help="write one raw f32 volume as a .vdb instead of the test files")
+    p.add_argument("--voxel-size", type=float, default=1.0)
+    p.add_argument("--name", default="density")
+    p.add_argument("outdir", nargs="?")
     p.add_argument("--seed", type=int, default=20)
     p.add_argument("--quick", action="store_true",
                    help="only what the Python binding writes (no C++ build)")
     args = p.parse_args()
+    if args.from_raw:
+        raw, nx, ny, nz, out = args.from_raw
+        from_raw(raw, (int(nx), int(ny), int(nz)), out, args.voxel_size, args.name)
+        return
+    if not args.outdir:
+        p.error("OUTDIR is required")
     os.makedirs(args.outdir, exist_ok=True)
     vdb.initialize() if hasattr(vdb, "initialize") else None
     rng = np.random.default_rng(args.seed)
