@@ -966,13 +966,9 @@ fn read(bytes: &[u8], wanted: Option<&str>, max_cells: u64) -> Res<VdbVolume> {
     if !survey.any {
         return Err(in_grid("the grid has no active voxels".into()));
     }
-    let mut dims = [0usize; 3];
-    let mut cells: u64 = 1;
-    for a in 0..3 {
-        let extent = (survey.hi[a] - survey.lo[a] + 1) as u64;
-        dims[a] = extent as usize;
-        cells = cells.saturating_mul(extent);
-    }
+    let extents: [u64; 3] = std::array::from_fn(|a| (survey.hi[a] - survey.lo[a] + 1) as u64);
+    let dims = extents.map(|e| e as usize);
+    let cells = extents.iter().fold(1u64, |n, &e| n.saturating_mul(e));
     if cells > max_cells {
         return Err(in_grid(format!(
             "the active voxels span {:?}..={:?}, a {}×{}×{} box of {cells} values; volrad expands at most {max_cells}",
@@ -996,7 +992,7 @@ fn read(bytes: &[u8], wanted: Option<&str>, max_cells: u64) -> Res<VdbVolume> {
     values.try_reserve_exact(cells as usize).map_err(|_| {
         in_grid(format!(
             "cannot allocate {cells} values ({} MiB) for the {}×{}×{} active box",
-            cells * 4 >> 20,
+            (cells * 4) >> 20,
             dims[0],
             dims[1],
             dims[2]

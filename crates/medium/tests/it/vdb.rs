@@ -215,10 +215,9 @@ fn placement_of_a_translated_grid() {
     let p = &v.placement;
     assert_eq!(p.uniform_voxel_size(), Some(0.5));
     // Voxel bbox_min's centre is translation + 0.5 · bbox_min; its corner half a voxel lower.
-    let corner = p.world_corner();
-    for a in 0..3 {
+    for (a, corner) in p.world_corner().into_iter().enumerate() {
         let centre = p.translation[a] + 0.5 * p.bbox_min[a] as f64;
-        assert_eq!(corner[a], centre - 0.25);
+        assert_eq!(corner, centre - 0.25);
     }
     let n = read_vdb(&data_dir().join("nonuniform.vdb"), None).unwrap();
     assert_eq!(n.placement.uniform_voxel_size(), None);

@@ -55,3 +55,29 @@ fn smoke_sample_is_rgb_particle_emission_without_lights() {
     let size = std::fs::metadata(data("smoke32.nrrd")).unwrap().len();
     assert!(size < 200_000, "{size}");
 }
+
+/// cloud24.vdb holds cloud24.f32's values: the grid is their non-zero box, value for value.
+#[test]
+fn vdb_sample_is_cloud24_over_its_active_box() {
+    let s = Scene::from_file(&data("cloud-vdb.toml")).unwrap();
+    let p = s.volume_placement().unwrap().clone();
+    assert_eq!((p.grid.as_str(), p.bbox_min), ("density", [0, 4, 2]));
+    let [nx, ny, nz] = s.medium.grid().dims;
+    assert_eq!([nx, ny, nz], [22, 16, 14]);
+    let raw = medium::volume_io::read_raw_f32(&data("cloud24.f32"), [24, 24, 18]).unwrap();
+    let got = s.medium.data().unwrap();
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let [x, y, z] = [i, j + 4, k + 2];
+                let want = raw.values[x + 24 * (y + 24 * z)];
+                assert_eq!(got[i + nx * (j + ny * k)], want, "({x}, {y}, {z})");
+            }
+        }
+    }
+    // Nothing non-zero is left outside the box.
+    let inside = raw.values.iter().filter(|&&v| v != 0.0).count();
+    assert_eq!(got.iter().filter(|&&v| v != 0.0).count(), inside);
+    let size = std::fs::metadata(data("cloud24.vdb")).unwrap().len();
+    assert!(size < 200_000, "{size}");
+}
