@@ -3,7 +3,7 @@
 must read from it, so that volrad's own reader (crates/medium/src/vdb.rs) is checked against
 the library's writer and the library's reader.
 
-    make_vdb.py OUTDIR [--seed N] [--quick]
+    make_vdb.py OUTDIR [--seed N] [--quick] [--large]
     make_vdb.py --from-raw RAW NX NY NZ OUT.vdb [--voxel-size H] [--name density]
 
 For every case `NAME` it writes `NAME.vdb` and `NAME.json`:
@@ -173,6 +173,16 @@ def quick_cases(outdir, rng):
     vdb.write(os.path.join(outdir, "rotated.vdb"), grids=[g])
 
 
+def large_cases(outdir, rng):
+    """A 128³ active tile of an internal node 5 and a voxel beside it (16 MiB of expected
+    values: written only on request, by the round-trip test, never committed)."""
+    g = vdb.FloatGrid(0.0)
+    g.name = "density"
+    g.fill((128, 0, 0), (255, 127, 127), 0.5, True)
+    g.copyFromArray(cloudlet(rng, (3, 4, 5)) + 1.0, ijk=(-2, 60, 70))
+    save(outdir, "node5_tile", [g])
+
+
 def rewrites(outdir):
     """Files the binding cannot write: zip, no compression and double grids (vdb_rewrite.cc)."""
     tmp = tempfile.mkdtemp()
@@ -212,6 +222,8 @@ def main():
     p.add_argument("--seed", type=int, default=20)
     p.add_argument("--quick", action="store_true",
                    help="only what the Python binding writes (no C++ build)")
+    p.add_argument("--large", action="store_true",
+                   help="also a grid with a 128^3 tile (16 MiB of expected values)")
     args = p.parse_args()
     if args.from_raw:
         raw, nx, ny, nz, out = args.from_raw
@@ -223,6 +235,8 @@ def main():
     vdb.initialize() if hasattr(vdb, "initialize") else None
     rng = np.random.default_rng(args.seed)
     quick_cases(args.outdir, rng)
+    if args.large:
+        large_cases(args.outdir, rng)
     if not args.quick:
         rewrites(args.outdir)
     print("wrote %s (OpenVDB %s, file format %d)"
