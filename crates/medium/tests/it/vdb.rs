@@ -109,6 +109,7 @@ fn files_written_by_openvdb_read_exactly() {
         "double",
         "double_zip",
         "blosc",
+        "instance",
     ] {
         assert!(names.iter().any(|n| n == want), "missing case {want}");
     }
@@ -155,7 +156,7 @@ fn fresh_files_from_the_openvdb_library_round_trip() {
         String::from_utf8_lossy(&run.stderr)
     );
     let all = manifests(out.path());
-    assert!(all.len() >= 8, "{} manifests", all.len());
+    assert!(all.len() >= 9, "{} manifests", all.len());
     assert!(all.iter().any(|m| m.ends_with("node5_tile.json")));
     for m in &all {
         assert!(

@@ -164,6 +164,14 @@ def quick_cases(outdir, rng):
     acc.setValueOff((26, 2, 3), 6.0)
     save(outdir, "mask_modes", [g])
 
+    # An instance: a second grid sharing the first one's tree, with its own transform (the
+    # file stores the tree once; the instance's descriptor names its parent).
+    g = float_grid("density", cloudlet(rng, (5, 4, 6)), (1, -2, 3))
+    h = g.copy()
+    h.name = "instance"
+    h.transform = vdb.createLinearTransform(voxelSize=0.5)
+    save(outdir, "instance", [g, h])
+
     # A rotated transform (an AffineMap with off-diagonal terms): volrad refuses it, naming
     # the map. No manifest: there is nothing to compare.
     g = float_grid("density", np.ones((2, 2, 2), dtype=np.float32), (0, 0, 0))
