@@ -67,20 +67,20 @@ pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
 }
 
 /// Refuses, before any work, a solve method that cannot carry the scene's environment light:
-/// its first bounce lives in the solved field, which `single-scatter`, `none` and (for now)
-/// `two-pass` do not build.
+/// its first bounce lives in the solved field, which `single-scatter` and `none` do not build.
 pub fn check_environment(scene: &Scene, settings: &SolveSettings) -> Result<()> {
     if scene.environment.is_none_or(|e| e.is_dark()) {
         return Ok(());
     }
     match settings.method {
-        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates => {
-            Ok(())
-        }
+        SolveMethod::Zonal
+        | SolveMethod::ZonalHierarchical
+        | SolveMethod::DiscreteOrdinates
+        | SolveMethod::TwoPass => Ok(()),
         other => bail!(
             "[solve] method `{}` cannot carry an environment light (its light enters the \
-             solved field); use zonal, zonal-hierarchical or discrete-ordinates, or render \
-             with --path-trace",
+             solved field); use zonal, zonal-hierarchical, discrete-ordinates or two-pass, or \
+             render with --path-trace",
             other.name()
         ),
     }
@@ -314,6 +314,7 @@ pub fn solve_two_pass(
         photons_per_light: settings.photons,
         bins,
         include_first_bounce: false,
+        environment: scene.environment,
         ..EnergetizeOptions::default()
     };
     if hooks.control.is_cancelled() {

@@ -113,7 +113,8 @@ fn a_non_absorbing_medium_in_a_uniform_environment_vanishes_in_every_method() {
 }
 
 /// With absorption the cloud darkens against the environment, by as much as the path tracer
-/// says: zonal-hierarchical within its 2 % floor, discrete ordinates (g = 0.6) within 3 %.
+/// says: zonal-hierarchical within its 2 % floor, discrete ordinates (g = 0.6) within 3 %,
+/// two-pass (its photons also leave from the environment) within 4 % with its noise.
 /// The environment's first bounce is constant in each cell, so the error grows with the
 /// cells' optical depth: on the 12×12×10 grid (σt·h up to 2) it is 2.6 % (zonal); on this
 /// 24×24×20 one (σt·h ≤ 1) 1.0 % (docs/validation.md).
@@ -122,6 +123,8 @@ fn an_absorbing_cloud_in_a_uniform_environment_matches_the_path_tracer() {
     for (method, phase, floor) in [
         ("zonal-hierarchical", ISOTROPIC, 0.02),
         ("discrete-ordinates", FORWARD, 0.03),
+        // Photon noise (2²¹ photons from the environment) counts as error.
+        ("two-pass", FORWARD, 0.04),
     ] {
         let scene = parse(&scene_text_at([24, 24, 20], 0.5, 0.7, phase, method, ""));
         let image = render_view(&solve(&scene), &scene.cameras[0], Some(16)).unwrap();
@@ -204,7 +207,7 @@ fn environment_scenes_are_checked_before_work() {
     let negative = scene_text(0.9, ISOTROPIC, "zonal", "").replace("0.5\n", "-0.5\n");
     assert!(err(negative).contains("light[0].radiance"));
 
-    for method in ["single-scatter", "two-pass", "none"] {
+    for method in ["single-scatter", "none"] {
         let scene = parse(&scene_text(0.9, ISOTROPIC, method, ""));
         let e = solve_scene(&scene, &scene.solve, &SolveHooks::default())
             .err()

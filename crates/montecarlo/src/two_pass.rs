@@ -43,7 +43,7 @@ use gather::{InScattering, RayCarry, ViewSegment};
 use glam::DVec3;
 use medium::phase::rotate_about;
 use medium::traversal::Ray;
-use medium::{ChannelMedium, Grid, Light, Medium, PhaseFunction};
+use medium::{ChannelMedium, Environment, Grid, Light, Medium, PhaseFunction};
 use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -81,6 +81,10 @@ pub struct EnergetizeOptions {
     pub rr_start_depth: u32,
     /// Sub-samples per axis of each bin for the bin-averaged phase matrix.
     pub phase_quadrature: usize,
+    /// Light from every direction at infinity, sent as `photons_per_light` more photons.
+    /// Its first bounce is always stored (it is smooth in direction, so renders take it
+    /// from the stored field rather than from their exact single scattering).
+    pub environment: Option<Environment>,
 }
 
 impl Default for EnergetizeOptions {
@@ -93,6 +97,7 @@ impl Default for EnergetizeOptions {
             include_first_bounce: true,
             rr_start_depth: 3,
             phase_quadrature: 4,
+            environment: None,
         }
     }
 }
@@ -171,7 +176,7 @@ struct Tally {
 
 /// A light's photon emitter: start ray and power per photon.
 #[derive(Clone, Copy)]
-enum Emitter {
+enum Emitter<'a> {
     Square {
         corner: DVec3,
         e1: DVec3,
@@ -184,11 +189,19 @@ enum Emitter {
         axis: DVec3,
         cos_max: f64,
     },
+    /// Uniform directions, each from a uniform point of the bounding sphere's disc across it.
+    Environment {
+        environment: &'a Environment,
+        centre: DVec3,
+        radius: f64,
+        /// This channel and the medium's channel count (the environment's colour).
+        channel: (usize, usize),
+    },
 }
 
-impl Emitter {
+impl Emitter<'_> {
     /// The emitter and its total power toward the sampled region.
-    fn new(light: &Light, grid: &Grid) -> (Emitter, f64) {
+    fn new(light: &Light, grid: &Grid) -> (Emitter<'static>, f64) {
         match *light {
             Light::Directional {
                 direction,
@@ -241,21 +254,45 @@ impl Emitter {
         }
     }
 
+    /// A photon's start ray and its share of the power (1 for lights; the environment's
+    /// radiance along the ray for the environment, whose power is per unit radiance).
     #[inline]
-    fn ray<R: Rng + ?Sized>(&self, rng: &mut R) -> Ray {
+    fn ray<R: Rng + ?Sized>(&self, rng: &mut R) -> (Ray, f64) {
         match *self {
+            Emitter::Environment {
+                environment,
+                centre,
+                radius,
+                channel: (c, channels),
+            } => {
+                let cos_theta = 1.0 - 2.0 * rng.random::<f64>();
+                let phi = 2.0 * PI * rng.random::<f64>();
+                let direction = rotate_about(DVec3::Z, cos_theta, phi);
+                let (e1, e2) = direction.any_orthonormal_pair();
+                let r = radius * rng.random::<f64>().sqrt();
+                let a = 2.0 * PI * rng.random::<f64>();
+                let origin =
+                    centre - direction * (radius * 1.001) + e1 * (r * a.cos()) + e2 * (r * a.sin());
+                (
+                    Ray { origin, direction },
+                    environment.radiance_along(direction, c, channels),
+                )
+            }
             Emitter::Square {
                 corner,
                 e1,
                 e2,
                 side,
                 direction,
-            } => Ray {
-                origin: corner
-                    + e1 * (side * rng.random::<f64>())
-                    + e2 * (side * rng.random::<f64>()),
-                direction,
-            },
+            } => (
+                Ray {
+                    origin: corner
+                        + e1 * (side * rng.random::<f64>())
+                        + e2 * (side * rng.random::<f64>()),
+                    direction,
+                },
+                1.0,
+            ),
             Emitter::Cone {
                 position,
                 axis,
@@ -263,10 +300,13 @@ impl Emitter {
             } => {
                 let cos_theta = 1.0 - (1.0 - cos_max) * rng.random::<f64>();
                 let phi = 2.0 * PI * rng.random::<f64>();
-                Ray {
-                    origin: position,
-                    direction: rotate_about(axis, cos_theta, phi),
-                }
+                (
+                    Ray {
+                        origin: position,
+                        direction: rotate_about(axis, cos_theta, phi),
+                    },
+                    1.0,
+                )
             }
         }
     }
@@ -346,7 +386,7 @@ pub fn energetize(
     check_options(options, lights)?;
     let grid = medium.grid();
     let layout = VoxelLayout::new(grid, options.storage_factor);
-    let (power, energy) = trace_photons(medium, ch, lights, options, &layout, progress);
+    let (power, energy) = trace_photons(medium, channel, ch, lights, options, &layout, progress);
     let cell_share = cell_shares(grid, ch, &layout);
     let voxel_source = voxel_sources(&medium.phase(), options, &power);
     let m = options.bins.count();
@@ -427,6 +467,7 @@ impl VoxelLayout {
 /// the energy bookkeeping.
 fn trace_photons(
     medium: &Medium,
+    channel: usize,
     ch: &ChannelMedium,
     lights: &[Light],
     options: &EnergetizeOptions,
@@ -438,9 +479,23 @@ fn trace_photons(
     let optical_count = layout.optical_count;
     let voxel_of = &layout.voxel_of;
     let batches_per_light = options.photons_per_light.div_ceil(BATCH);
-    let total_batches = batches_per_light * lights.len() as u64;
-    let total_photons = options.photons_per_light * lights.len() as u64;
-    let emitters: Vec<(Emitter, f64)> = lights.iter().map(|l| Emitter::new(l, grid)).collect();
+    let mut emitters: Vec<(Emitter, f64)> = lights.iter().map(|l| Emitter::new(l, grid)).collect();
+    if let Some(env) = options.environment.as_ref().filter(|e| !e.is_dark()) {
+        // Directions drawn uniformly, each photon starting on the disc of the grid's bounding
+        // sphere across its direction: radiance L(ω) through area π R² over 4π sr.
+        let radius = 0.5 * grid.extent().length() * (1.0 + 1e-9);
+        emitters.push((
+            Emitter::Environment {
+                environment: env,
+                centre: grid.center(),
+                radius,
+                channel: (channel, medium.channels().len()),
+            },
+            4.0 * PI * PI * radius * radius,
+        ));
+    }
+    let total_batches = batches_per_light * emitters.len() as u64;
+    let total_photons = options.photons_per_light * emitters.len() as u64;
     let done = AtomicU64::new(0);
     let groups = GROUPS.min(total_batches.max(1) as usize);
 
@@ -450,10 +505,13 @@ fn trace_photons(
         let first = local * BATCH;
         let count = BATCH.min(options.photons_per_light - first);
         let (emitter, power) = emitters[light_index];
-        let w0 = power / options.photons_per_light as f64;
+        let store_first =
+            options.include_first_bounce || matches!(emitter, Emitter::Environment { .. });
         let mut rng = rng::stream(options.seed, 1 + light_index as u64, local);
         for _ in 0..count {
-            let mut ray = emitter.ray(&mut rng);
+            let (mut ray, radiance) = emitter.ray(&mut rng);
+            // Lights send equal shares of their power; the environment's shares follow L(ω).
+            let w0 = power * radiance / options.photons_per_light as f64;
             tally.energy.emitted += w0;
             tally.energy.photons += 1;
             if grid.clip(&ray, 0.0, f64::INFINITY).is_none() {
@@ -475,7 +533,7 @@ fn trace_photons(
                 tally.energy.absorbed += w * (1.0 - a);
                 let scattered = w * a;
                 tally.energy.scattered += scattered;
-                if depth > 1 || options.include_first_bounce {
+                if depth > 1 || store_first {
                     let o = voxel_of[cell] as usize;
                     tally.power[o * m + options.bins.bin(ray.direction)] += scattered;
                     tally.energy.stored += scattered;
