@@ -180,19 +180,19 @@ impl Scene {
         Ok(scene)
     }
 
-    /// The scene of `volrad` with no arguments: `data/cloud-backlit.toml`, compiled in —
-    /// Max's cloud, forward scattering (g = 0.85) by discrete ordinates, lit from behind so
-    /// that its edges glow.
+    /// The scene of `volrad` with no arguments: `data/cloud-sky.toml`, compiled in — Max's
+    /// cloud (g = 0.6) under Preetham's sky and its sun, in colour, by discrete ordinates,
+    /// drawn smoothly.
     pub fn builtin_default() -> Result<Scene, SceneError> {
         let mut scene = Scene::from_toml_str(
             BUILTIN_SCENE,
             Path::new("."),
-            Path::new("<built-in backlit cloud>"),
+            Path::new("<built-in sky-lit cloud>"),
         )?;
-        scene.origin = SceneOrigin::BuiltIn("backlit cloud");
+        scene.origin = SceneOrigin::BuiltIn("sky-lit cloud");
         Ok(scene)
     }
 }
 
 /// The built-in scene's text ([`Scene::builtin_default`]).
-pub const BUILTIN_SCENE: &str = include_str!("../../../data/cloud-backlit.toml");
+pub const BUILTIN_SCENE: &str = include_str!("../../../data/cloud-sky.toml");

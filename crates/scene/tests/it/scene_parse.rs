@@ -886,18 +886,23 @@ fn generators_headered_files_lights_and_orthographic_cameras() {
 }
 
 #[test]
-fn builtin_default_is_the_backlit_cloud_sample_and_its_camera_sees_all_of_it() {
+fn builtin_default_is_the_sky_lit_cloud_sample_and_its_camera_sees_all_of_it() {
     let s = Scene::builtin_default().unwrap();
-    assert_eq!(s.origin, SceneOrigin::BuiltIn("backlit cloud"));
-    // The same scene as data/cloud-backlit.toml: one built-in scene, not a second copy.
+    assert_eq!(s.origin, SceneOrigin::BuiltIn("sky-lit cloud"));
+    // The same scene as data/cloud-sky.toml: one built-in scene, not a second copy.
     let sample = Scene::from_file(
-        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/cloud-backlit.toml"),
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/cloud-sky.toml"),
     )
     .unwrap();
     assert_eq!(s.medium, sample.medium);
     assert_eq!(s.solve, sample.solve);
     assert_eq!(s.cameras, sample.cameras);
-    assert_eq!(s.medium.grid().dims, [48, 48, 36]);
+    assert_eq!(s.medium.grid().dims, [32, 32, 24]);
+    assert_eq!(s.medium.channels().len(), 3, "the sky is coloured");
+    assert!(
+        s.environment.is_some() && s.lights.len() == 1,
+        "a sky and its sun"
+    );
     assert_eq!(s.medium.channels()[0].albedo, CellValues::Uniform(0.99));
     assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
     assert_eq!(s.render.model, OpticalModel::Scattering);
@@ -906,7 +911,10 @@ fn builtin_default_is_the_backlit_cloud_sample_and_its_camera_sees_all_of_it() {
     let forward = (cam.target - cam.eye).normalize();
     let right = forward.cross(cam.up).normalize();
     let up = right.cross(forward);
-    let half = (20f64).to_radians().tan();
+    let Projection::Perspective { fov_y_degrees } = cam.projection else {
+        panic!("the built-in camera is a perspective camera")
+    };
+    let half = (0.5 * fov_y_degrees).to_radians().tan();
     let aspect = f64::from(cam.width) / f64::from(cam.height);
     let sigma = &s.medium.channels()[0].sigma_t;
     let mut seen = 0;
