@@ -65,6 +65,56 @@ fn solve(scene: &Scene) -> Solution {
     solve_scene(scene, &scene.solve, &SolveHooks::default()).unwrap()
 }
 
+/// The path tracer's view of channel `c` of `scene` through its first camera (256 paths per
+/// pixel), with its per-pixel standard error.
+fn path_traced(scene: &Scene, c: usize) -> montecarlo::path_trace::PathTraced {
+    let camera = Camera::from_spec(&scene.cameras[0]).unwrap();
+    path_trace_with_error(
+        &scene.medium,
+        c,
+        &scene.lights,
+        Surroundings {
+            background: scene.background,
+            environment: scene.environment,
+        },
+        &camera,
+        &PathTraceOptions {
+            spp: 256,
+            ..PathTraceOptions::default()
+        },
+    )
+    .unwrap()
+}
+
+/// Relative RMS (the reference's noise taken out), relative mean difference and pixel count
+/// of channel `c` of `image` against `traced` over the pixels `counts(i, reference)` selects.
+fn masked_error(
+    image: &gather::Image,
+    c: usize,
+    traced: &montecarlo::path_trace::PathTraced,
+    counts: impl Fn(usize, f64) -> bool,
+) -> (f64, f64, usize) {
+    let n = image.channels as usize;
+    let (mut err2, mut ref2, mut diff, mut sum, mut count) = (0.0, 0.0, 0.0, 0.0, 0);
+    for (i, (&r, &e)) in traced
+        .mean
+        .pixels
+        .iter()
+        .zip(&traced.std_error.pixels)
+        .enumerate()
+    {
+        let (x, r, e) = (image.pixels[n * i + c] as f64, r as f64, e as f64);
+        if counts(i, r) {
+            err2 += (x - r).powi(2) - e * e;
+            ref2 += r * r;
+            diff += x - r;
+            sum += r;
+            count += 1;
+        }
+    }
+    ((err2.max(0.0) / ref2).sqrt(), diff / sum, count)
+}
+
 const ISOTROPIC: &str = r#"{ kind = "isotropic" }"#;
 const FORWARD: &str = r#"{ kind = "henyey-greenstein", g = 0.6 }"#;
 
@@ -128,22 +178,7 @@ fn an_absorbing_cloud_in_a_uniform_environment_matches_the_path_tracer() {
     ] {
         let scene = parse(&scene_text_at([24, 24, 20], 0.5, 0.7, phase, method, ""));
         let image = render_view(&solve(&scene), &scene.cameras[0], Some(16)).unwrap();
-        let camera = Camera::from_spec(&scene.cameras[0]).unwrap();
-        let traced = path_trace_with_error(
-            &scene.medium,
-            0,
-            &scene.lights,
-            Surroundings {
-                background: scene.background,
-                environment: scene.environment,
-            },
-            &camera,
-            &PathTraceOptions {
-                spp: 256,
-                ..PathTraceOptions::default()
-            },
-        )
-        .unwrap();
+        let traced = path_traced(&scene, 0);
         let darkest = image.pixels.iter().copied().fold(f32::INFINITY, f32::min);
         assert!(
             darkest < 0.4,
@@ -151,24 +186,7 @@ fn an_absorbing_cloud_in_a_uniform_environment_matches_the_path_tracer() {
         );
         // Over the cloud only (pixels the path tracer shows darker than the environment by
         // 5 %): the background matches by construction and would dilute the error.
-        let (mut err2, mut ref2, mut diff, mut sum, mut count) = (0.0, 0.0, 0.0, 0.0, 0);
-        for ((&x, &r), &e) in image
-            .pixels
-            .iter()
-            .zip(&traced.mean.pixels)
-            .zip(&traced.std_error.pixels)
-        {
-            let (x, r, e) = (x as f64, r as f64, e as f64);
-            if r < 0.95 * 0.5 {
-                err2 += (x - r).powi(2) - e * e;
-                ref2 += r * r;
-                diff += x - r;
-                sum += r;
-                count += 1;
-            }
-        }
-        let rms = (err2.max(0.0) / ref2).sqrt();
-        let mean = diff / sum;
+        let (rms, mean, count) = masked_error(&image, 0, &traced, |_, r| r < 0.95 * 0.5);
         println!("{method} in a uniform environment vs the path tracer: {count} cloud pixels, relative RMS {rms:.4}, mean {mean:+.4}");
         assert!(count > 200, "{method}: only {count} cloud pixels");
         assert!(
@@ -288,50 +306,17 @@ fn sky_matches_the_path_tracer(method: &str, phase: &str) {
         bottom[1] > 0.0 && bottom[2] / bottom[0] < top[2] / top[0],
         "the ground {bottom:?} is not greyer than the sky {top:?}"
     );
-    let camera = Camera::from_spec(&scene.cameras[0]).unwrap();
     for c in 0..3 {
-        let traced = path_trace_with_error(
-            &scene.medium,
-            c,
-            &scene.lights,
-            Surroundings {
-                background: scene.background,
-                environment: scene.environment,
-            },
-            &camera,
-            &PathTraceOptions {
-                spp: 256,
-                ..PathTraceOptions::default()
-            },
-        )
-        .unwrap();
-        // Over the cloud: where the path tracer's pixel differs from the bare sky or ground
-        // by 5 %.
-        let (mut err2, mut ref2, mut diff, mut sum, mut count) = (0.0, 0.0, 0.0, 0.0, 0);
+        let traced = path_traced(&scene, c);
+        // Over the cloud: where the path tracer's pixel differs by 5 % from the bare sky or
+        // ground of the render's edge column on the same row.
         let bare = |i: usize| {
-            let y = i / w;
-            let x = i % w;
-            // The backdrop at this pixel, from the render's rows far from the cloud.
+            let (x, y) = (i % w, i / w);
             image.pixels[3 * (y * w + if x < w / 2 { 0 } else { w - 1 }) + c] as f64
         };
-        for (i, (&r, &e)) in traced
-            .mean
-            .pixels
-            .iter()
-            .zip(&traced.std_error.pixels)
-            .enumerate()
-        {
-            let (x, r, e) = (image.pixels[3 * i + c] as f64, r as f64, e as f64);
-            if (r - bare(i)).abs() > 0.05 * bare(i) {
-                err2 += (x - r).powi(2) - e * e;
-                ref2 += r * r;
-                diff += x - r;
-                sum += r;
-                count += 1;
-            }
-        }
-        let rms = (err2.max(0.0) / ref2).sqrt();
-        let mean = diff / sum;
+        let (rms, mean, count) = masked_error(&image, c, &traced, |i, r| {
+            (r - bare(i)).abs() > 0.05 * bare(i)
+        });
         println!(
             "sky, {method}, channel {c}: {count} cloud pixels, relative RMS {rms:.4}, mean {mean:+.4}"
         );

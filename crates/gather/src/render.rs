@@ -580,35 +580,11 @@ impl Trilinear {
         }
     }
 
+    /// The trilinear interpolation of the per-cell `value`.
     #[inline]
     pub fn sample(&self, value: impl Fn(usize) -> f64) -> f64 {
         let mut sum = 0.0;
-        for dz in 0..2 {
-            let wz = if dz == 0 {
-                1.0 - self.frac[2]
-            } else {
-                self.frac[2]
-            };
-            let oz = self.index[2][dz] * self.strides[2];
-            for dy in 0..2 {
-                let wy = if dy == 0 {
-                    1.0 - self.frac[1]
-                } else {
-                    self.frac[1]
-                };
-                let oy = oz + self.index[1][dy] * self.strides[1];
-                let wyz = wy * wz;
-                if wyz == 0.0 {
-                    continue;
-                }
-                let w0 = (1.0 - self.frac[0]) * wyz;
-                let w1 = self.frac[0] * wyz;
-                sum += w0 * value(oy + self.index[0][0]);
-                if w1 != 0.0 {
-                    sum += w1 * value(oy + self.index[0][1]);
-                }
-            }
-        }
+        self.for_each(|c, w| sum += w * value(c));
         sum
     }
 }
