@@ -11,7 +11,7 @@ use formfactor::ordinates::{
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
 use glam::DVec3;
 use medium::light_pass::LightPass;
-use medium::PhaseFunction;
+use medium::{Environment, PhaseFunction};
 use scene::{Scene, SolveMethod, SolveSettings};
 use serde::Serialize;
 use solver::{Method, SolveOptions, SolveReport, TransportOperator};
@@ -171,43 +171,8 @@ pub fn solve_zonal(
         }
     };
     let mut source = light_source.clone();
-    let channels = scene.medium.channels().len();
-    match scene.environment.as_ref().filter(|e| !e.is_dark()) {
-        None => {}
-        Some(env) => match env.uniform_radiance() {
-            Some(_) => {
-                // A uniform environment's first-collision source by reciprocity: the light it
-                // sends into cell i is what cell i would send out uncollided,
-                // `E_i = L (a_i σt_i − (K σt)_i)` (a non-absorbing medium then holds L
-                // everywhere: the white furnace), with this operator's own form factors so
-                // the two stay consistent.
-                let l = env.radiance_along(DVec3::Z, c, channels);
-                let sigma_t: Vec<f64> = channel.sigma_t.iter().map(|&s| s as f64).collect();
-                let mut collided = vec![0.0; sigma_t.len()];
-                op.apply(&sigma_t, &mut collided);
-                for (i, (s, k)) in source.iter_mut().zip(&collided).enumerate() {
-                    *s += l * (channel.albedo.get(i) as f64 * sigma_t[i] - k).max(0.0);
-                }
-            }
-            None => {
-                // A sky: its uncollided fluence over ENVIRONMENT_BINS directions, scattered
-                // isotropically.
-                let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
-                let fluence = env
-                    .uncollided_fluence(
-                        scene.medium.grid(),
-                        &channel.sigma_t,
-                        (c, channels),
-                        bins.centres(),
-                        bins.solid_angles(),
-                    )
-                    .context("the environment's uncollided light")?;
-                for (i, (s, phi)) in source.iter_mut().zip(fluence).enumerate() {
-                    *s +=
-                        channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * phi / (4.0 * PI);
-                }
-            }
-        },
+    if let Some(env) = scene.environment.as_ref().filter(|e| !e.is_dark()) {
+        add_zonal_environment(&mut source, env, scene, c, op.as_ref())?;
     }
     let (g, report) = run_solver(op.as_ref(), &source, settings, hooks)?;
     let higher_order = g
@@ -222,6 +187,47 @@ pub fn solve_zonal(
         },
         Some(report),
     ))
+}
+
+/// Adds the environment's first-collision source to the zonal `source` of channel `c`.
+fn add_zonal_environment(
+    source: &mut [f64],
+    env: &Environment,
+    scene: &Scene,
+    c: usize,
+    op: &dyn TransportOperator,
+) -> Result<()> {
+    let channel = &scene.medium.channels()[c];
+    let channels = scene.medium.channels().len();
+    if env.uniform_radiance().is_some() {
+        // A uniform environment by reciprocity: the light it sends into cell i is what cell i
+        // would send out uncollided, `E_i = L (a_i σt_i − (K σt)_i)` (a non-absorbing medium
+        // then holds L everywhere: the white furnace), with this operator's own form factors
+        // so the two stay consistent. (Uniform: any direction gives L.)
+        let l = env.radiance_along(DVec3::Z, c, channels);
+        let sigma_t: Vec<f64> = channel.sigma_t.iter().map(|&s| s as f64).collect();
+        let mut collided = vec![0.0; sigma_t.len()];
+        op.apply(&sigma_t, &mut collided);
+        for (i, (s, k)) in source.iter_mut().zip(&collided).enumerate() {
+            *s += l * (channel.albedo.get(i) as f64 * sigma_t[i] - k).max(0.0);
+        }
+        return Ok(());
+    }
+    // A sky: its uncollided fluence over ENVIRONMENT_BINS directions, scattered isotropically.
+    let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
+    let fluence = env
+        .uncollided_fluence(
+            scene.medium.grid(),
+            &channel.sigma_t,
+            (c, channels),
+            bins.centres(),
+            bins.solid_angles(),
+        )
+        .context("the environment's uncollided light")?;
+    for (i, (s, phi)) in source.iter_mut().zip(fluence).enumerate() {
+        *s += channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * phi / (4.0 * PI);
+    }
+    Ok(())
 }
 
 /// The sweep options a scene's `[solve]` settings ask for, for `phase` in `bins`.
