@@ -32,6 +32,7 @@ pub mod generators;
 pub mod grid;
 pub mod light;
 pub mod light_pass;
+pub mod nifti;
 pub mod optical;
 pub mod phase;
 pub mod transfer;

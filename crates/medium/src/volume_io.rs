@@ -1,5 +1,6 @@
-//! Volume files: raw little-endian f32, Mitsuba's binary grid (`.vol`), NRRD and OpenVDB
-//! (`.vdb`, through [`crate::vdb`]), read into x-fastest `f32` arrays; raw and NRRD writers
+//! Volume files: raw little-endian f32, Mitsuba's binary grid (`.vol`), NRRD, OpenVDB
+//! (`.vdb`, through [`crate::vdb`]) and NIfTI (`.nii`, `.nii.gz`, through [`crate::nifti`]),
+//! read into x-fastest `f32` arrays; raw and NRRD writers
 //! that replace their target atomically.
 //!
 //! Every error names the file and says what was expected and what was found.
@@ -44,12 +45,21 @@ pub enum VolumeFormat {
     Nrrd,
     /// OpenVDB (`.vdb`): one float, double or half grid, expanded over its active voxels.
     OpenVdb,
+    /// NIfTI-1 or NIfTI-2 single file (`.nii`, or `.nii.gz` compressed): one 3-D volume.
+    Nifti,
 }
 
 impl VolumeFormat {
-    /// `.vol` → Mitsuba, `.nrrd`/`.nhdr` → NRRD, `.vdb` → OpenVDB, anything else (`.f32`,
-    /// `.raw`, `.bin`) → raw.
+    /// `.vol` → Mitsuba, `.nrrd`/`.nhdr` → NRRD, `.vdb` → OpenVDB, `.nii`/`.nii.gz` →
+    /// NIfTI, anything else (`.f32`, `.raw`, `.bin`) → raw.
     pub fn from_path(path: &Path) -> VolumeFormat {
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .map(|n| n.to_ascii_lowercase());
+        if name.as_deref().is_some_and(|n| n.ends_with(".nii.gz")) {
+            return VolumeFormat::Nifti;
+        }
         let ext = path
             .extension()
             .and_then(|e| e.to_str())
@@ -58,6 +68,7 @@ impl VolumeFormat {
             Some("vol") => VolumeFormat::MitsubaVol,
             Some("nrrd") | Some("nhdr") => VolumeFormat::Nrrd,
             Some("vdb") => VolumeFormat::OpenVdb,
+            Some("nii") => VolumeFormat::Nifti,
             _ => VolumeFormat::RawF32,
         }
     }
@@ -100,7 +111,7 @@ pub(crate) fn read_regular(path: &Path) -> Result<Vec<u8>, MediumError> {
 }
 
 /// Reads a volume in the format its extension names. `dims` is required for raw files; for
-/// `.vol`, NRRD and `.vdb` the file gives them and `dims`, when given, must agree. A `.vdb`
+/// `.vol`, NRRD, `.vdb` and NIfTI the file gives them and `dims`, when given, must agree. A `.vdb`
 /// gives its first float, double or half grid; [`load_volume_with`] chooses a grid and
 /// returns its placement.
 pub fn load_volume(path: &Path, dims: Option<[usize; 3]>) -> Result<VolumeData, MediumError> {
@@ -122,9 +133,13 @@ pub struct VolumeRequest<'a> {
 pub struct LoadedVolume {
     pub data: VolumeData,
     pub placement: Option<crate::vdb::VdbPlacement>,
+    /// A NIfTI file's voxel spacing per axis (`pixdim[1..=3]`, as stored): the scene's
+    /// default cell size when the three are equal. (A `.vdb`'s is in `placement`.)
+    pub voxel_size: Option<[f64; 3]>,
 }
 
-/// [`load_volume`] with a grid choice, also returning a `.vdb` grid's placement.
+/// [`load_volume`] with a grid choice, also returning a `.vdb` grid's placement or a NIfTI
+/// file's voxel spacing.
 pub fn load_volume_with(path: &Path, request: &VolumeRequest) -> Result<LoadedVolume, MediumError> {
     let format = VolumeFormat::from_path(path);
     if request.grid.is_some() && format != VolumeFormat::OpenVdb {
@@ -133,6 +148,7 @@ pub fn load_volume_with(path: &Path, request: &VolumeRequest) -> Result<LoadedVo
             "a grid name applies to OpenVDB (.vdb) files only",
         ));
     }
+    let mut voxel_size = None;
     let (data, placement) = match format {
         VolumeFormat::RawF32 => {
             let dims = request.dims.ok_or_else(|| {
@@ -144,6 +160,7 @@ pub fn load_volume_with(path: &Path, request: &VolumeRequest) -> Result<LoadedVo
             return Ok(LoadedVolume {
                 data: read_raw_f32(path, dims)?,
                 placement: None,
+                voxel_size: None,
             });
         }
         VolumeFormat::MitsubaVol => (read_mitsuba_vol(path)?, None),
@@ -151,6 +168,11 @@ pub fn load_volume_with(path: &Path, request: &VolumeRequest) -> Result<LoadedVo
         VolumeFormat::OpenVdb => {
             let v = crate::vdb::read_vdb(path, request.grid)?;
             (v.data, Some(v.placement))
+        }
+        VolumeFormat::Nifti => {
+            let v = crate::nifti::read_nifti(path)?;
+            voxel_size = Some(v.header.pixdim);
+            (v.data, None)
         }
     };
     if let Some(d) = request.dims {
@@ -166,7 +188,11 @@ pub fn load_volume_with(path: &Path, request: &VolumeRequest) -> Result<LoadedVo
             ));
         }
     }
-    Ok(LoadedVolume { data, placement })
+    Ok(LoadedVolume {
+        data,
+        placement,
+        voxel_size,
+    })
 }
 
 /// Reads headerless little-endian f32 values; the file size must be exactly `nx·ny·nz·4`.
