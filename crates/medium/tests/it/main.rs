@@ -1,6 +1,7 @@
 //! The `medium` crate's integration tests: one test binary, a module per area.
 
 mod light_pass;
+mod nifti;
 mod vdb;
 mod volume_generators;
 mod volume_io;
