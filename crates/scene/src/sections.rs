@@ -96,6 +96,7 @@ impl Ctx<'_> {
             .map(|g| self.string(g, "volume.grid"))
             .transpose()?;
         let mut placement = None;
+        let mut voxel_size = None;
         let (source, data) = match (&vol.file, &vol.generator) {
             (Some(_), Some(_)) => {
                 return Err(self.err(
@@ -135,6 +136,7 @@ impl Ctx<'_> {
                     self.err(key, e.to_string())
                 })?;
                 placement = loaded.placement;
+                voxel_size = loaded.voxel_size;
                 (VolumeSource::File(path), loaded.data)
             }
             (None, Some(g)) => {
@@ -192,7 +194,19 @@ impl Ctx<'_> {
         }
         let cell_size = match (&vol.cell_size, &placement) {
             (Some(v), _) => self.positive(v, "volume.cell_size")?,
-            (None, None) => 1.0,
+            // A NIfTI file gives its voxel spacing (pixdim); the same rule as a .vdb's.
+            (None, None) => match voxel_size {
+                None => 1.0,
+                Some([x, y, z]) if x == y && y == z && x.is_finite() && x > 0.0 => x,
+                Some(p) => {
+                    return Err(self.err(
+                        "volume.cell_size",
+                        format!(
+                            "required key is missing: the file's voxel spacing (pixdim) {p:?} is not uniform and positive, and volrad's cells are cubes; give cell_size (positions are then voxel index × cell_size)"
+                        ),
+                    ))
+                }
+            },
             // A .vdb gives its voxel size; volrad's cells are cubes, so it must be uniform.
             (None, Some(p)) => p.uniform_voxel_size().ok_or_else(|| {
                 self.err(
