@@ -10,8 +10,8 @@
 //! decoded only up to the bytes the header asks for, and not at all when the compressed size
 //! cannot hold them.
 //!
-//! Supported: either byte order (told by `sizeof_hdr`, 348 or 540), 3-D volumes (`dim[0]`
-//! of 3, or up to 7 with every extra dimension 1), datatypes uint8, int8, int16, uint16,
+//! Supported: either byte order (told by `sizeof_hdr`, 348 or 540), one 3-D volume (`dim[0]`
+//! of 1 to 7: missing dimensions count as 1, those past the third must be 1), datatypes uint8, int8, int16, uint16,
 //! int32, uint32, float32 and float64, `scl_slope`/`scl_inter` scaling (applied when the
 //! slope is finite and non-zero, in f64, then rounded to f32), `vox_offset` (extensions in
 //! between are skipped), gzip-compressed files (told by the gzip magic, not the name).
@@ -476,6 +476,19 @@ mod tests {
         assert!(v.header.big_endian);
         assert_eq!(v.data.dims, [2, 2, 1]);
         assert_eq!(v.data.values, vec![1.0, -2.0, 300.0, 4.0]);
+    }
+
+    #[test]
+    fn a_2d_image_is_one_slice_and_a_time_series_is_refused() {
+        let mut image = nifti1([2, 2, 9], 2, false, &[1, 2, 3, 4]);
+        image[40..42].copy_from_slice(&2i16.to_le_bytes());
+        let v = read(&image, 1 << 20).unwrap();
+        assert_eq!(v.data.dims, [2, 2, 1]);
+        assert_eq!(v.data.values, vec![1.0, 2.0, 3.0, 4.0]);
+        let mut series = nifti1([1, 1, 1], 2, false, &[1, 2]);
+        series[40..42].copy_from_slice(&4i16.to_le_bytes());
+        series[48..50].copy_from_slice(&2i16.to_le_bytes());
+        assert!(read(&series, 1 << 20).unwrap_err().contains("dim[4] = 2"));
     }
 
     #[test]
