@@ -25,6 +25,7 @@
 //! ```
 
 pub mod atomic_file;
+pub mod blackbody;
 pub mod environment;
 pub mod error;
 pub mod fma;
