@@ -107,6 +107,43 @@ pub struct VdbVolume {
     pub placement: VdbPlacement,
     /// Every grid in the file, in file order.
     pub grids: Vec<VdbGridInfo>,
+    /// The grid's background value: what it holds outside its active box.
+    pub background: f32,
+}
+
+impl VdbVolume {
+    /// This grid's values on the cells of another grid of the same file, matched by index
+    /// (voxel `(i, j, k)` of one is voxel `(i, j, k)` of the other): volrad cell `c` of the
+    /// grid placed by `on` is voxel `on.bbox_min + coords(c)`, and cells outside this grid's
+    /// active box take its background. Used for a `temperature` grid beside `density`.
+    /// Matching by index is what OpenVDB's tools do for grids sharing a transform; the caller
+    /// checks the transforms agree.
+    pub fn sample_on(&self, on: &VdbPlacement, dims: [usize; 3]) -> Vec<f32> {
+        let own = &self.placement;
+        let own_dims = self.data.dims;
+        let mut out = Vec::with_capacity(dims[0] * dims[1] * dims[2]);
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let voxel = [
+                        on.bbox_min[0] as i64 + i as i64,
+                        on.bbox_min[1] as i64 + j as i64,
+                        on.bbox_min[2] as i64 + k as i64,
+                    ];
+                    let local: [i64; 3] =
+                        std::array::from_fn(|a| voxel[a] - own.bbox_min[a] as i64);
+                    let inside = (0..3).all(|a| local[a] >= 0 && local[a] < own_dims[a] as i64);
+                    out.push(if inside {
+                        let [x, y, z] = local.map(|v| v as usize);
+                        self.data.values[x + own_dims[0] * (y + own_dims[1] * z)]
+                    } else {
+                        self.background
+                    });
+                }
+            }
+        }
+        out
+    }
 }
 
 /// Reads grid `grid` (by name), or the first float, double or half grid, from a `.vdb` file.
@@ -1018,6 +1055,7 @@ fn read(bytes: &[u8], wanted: Option<&str>, max_cells: u64) -> Res<VdbVolume> {
         dense.leaf_values(*origin, &v);
     }
     Ok(VdbVolume {
+        background: codec.background,
         data: VolumeData {
             dims,
             values: dense.values,

@@ -3,13 +3,15 @@
 
 use formfactor::ordinates::{forward_truncation_fraction, MAX_TRANSPORT_REFINEMENT, VALID_BINS};
 use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
+use medium::blackbody::RgbTable;
 use medium::generators::Generator;
 use medium::light_pass::MAX_LIGHTS;
 use medium::transfer::{PiecewiseLinear, SigmaTransfer, Transfer};
 use medium::vdb::VdbPlacement;
 use medium::volume_io::{load_volume_with, VolumeData, VolumeFormat, VolumeRequest};
 use medium::{
-    ChannelMedium, Environment, Grid, Interpolation, Light, Medium, MediumError, PhaseFunction,
+    CellValues, ChannelMedium, Environment, Grid, Interpolation, Light, Medium, MediumError,
+    PhaseFunction,
 };
 
 use montecarlo::two_pass::PHOTON_RANGE;
@@ -20,6 +22,61 @@ use crate::raw::{RawBackground, RawMedium, RawRender, RawScene, RawSolve, RawVol
 use crate::settings::UnknownSolveMethod;
 use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
 use glam::DVec3;
+
+/// The hottest temperature a blackbody emission accepts (kelvin): well above any flame or
+/// star surface a volume renderer meets, and it bounds the colour table's size.
+const MAX_TEMPERATURE: f64 = 1.0e5;
+
+/// Whether an emission value is `{ kind = "blackbody", ... }`.
+fn is_blackbody(v: &toml::Value) -> bool {
+    v.get("kind").and_then(|k| k.as_str()) == Some("blackbody")
+}
+
+/// Per-cell temperature in kelvin (≤ 0: no emission).
+enum Temperature {
+    Uniform(f64),
+    PerCell(Vec<f32>),
+}
+
+/// `[medium] emission = { kind = "blackbody", ... }`, parsed.
+struct Blackbody {
+    temperature: Temperature,
+    scale: f64,
+}
+
+impl Blackbody {
+    fn max_temperature(&self) -> f64 {
+        match &self.temperature {
+            Temperature::Uniform(t) => *t,
+            Temperature::PerCell(v) => v.iter().copied().fold(0.0, f32::max) as f64,
+        }
+    }
+
+    /// Channel `c`'s emission: `scale · (1 − a) · σt · rgb_c(T)`. Kirchhoff's law: in local
+    /// thermal equilibrium a medium emits its absorption coefficient `σa = (1 − a) σt` times
+    /// the Planck radiance.
+    fn emission(
+        &self,
+        c: usize,
+        table: &RgbTable,
+        sigma_t: &[f32],
+        albedo: &CellValues,
+    ) -> CellValues {
+        let at = |t: f64, cell: usize| {
+            let sigma_a = (1.0 - albedo.get(cell) as f64) * sigma_t[cell] as f64;
+            (self.scale * sigma_a * table.get(t)[c]) as f32
+        };
+        let values: Vec<f32> = match &self.temperature {
+            Temperature::Uniform(t) => (0..sigma_t.len()).map(|i| at(*t, i)).collect(),
+            Temperature::PerCell(v) => v
+                .iter()
+                .enumerate()
+                .map(|(i, &t)| at(t as f64, i))
+                .collect(),
+        };
+        CellValues::PerCell(values)
+    }
+}
 
 /// What `[volume]` gives: the data values on their grid and the σt transfer per channel.
 struct Volume {
@@ -323,18 +380,28 @@ impl Ctx<'_> {
 
     fn medium(&self, medium: toml::Value, volume: Volume) -> Result<Medium, SceneError> {
         let Volume {
+            source,
             data,
             grid,
             interpolation,
             sigma_scales: scales,
             sigma_tables,
+            placement,
             ..
         } = volume;
         let med: RawMedium = self.raw(medium, "medium")?;
         let albedo = self.transfer(&med.albedo, "medium.albedo", (0.0, 1.0), false)?;
+        let blackbody = match &med.emission {
+            Some(v) if is_blackbody(v) => {
+                Some(self.blackbody(v, &data, &source, placement.as_ref())?)
+            }
+            _ => None,
+        };
         let emission = match &med.emission {
-            Some(v) => self.transfer(v, "medium.emission", (0.0, f64::INFINITY), true)?,
-            None => vec![Transfer::Constant { value: 0.0 }],
+            Some(v) if blackbody.is_none() => {
+                self.transfer(v, "medium.emission", (0.0, f64::INFINITY), true)?
+            }
+            _ => vec![Transfer::Constant { value: 0.0 }],
         };
         let phase = match &med.phase {
             Some(v) => self.phase(v, "medium.phase")?,
@@ -346,10 +413,15 @@ impl Ctx<'_> {
             sigma_tables.len(),
             albedo.len(),
             emission.len(),
+            // Blackbody emission is coloured: the medium becomes RGB.
+            if blackbody.is_some() { 3 } else { 1 },
         ]
         .into_iter()
         .max()
         .unwrap_or(1);
+        let rgb_table = blackbody
+            .as_ref()
+            .map(|b| RgbTable::new(b.max_temperature()));
         let scales = broadcast(scales, n_channels);
         let sigma_tables = broadcast(sigma_tables, n_channels);
         let albedo = broadcast(albedo, n_channels);
@@ -368,7 +440,10 @@ impl Ctx<'_> {
                 ));
             }
             let albedo_c = albedo[c].apply(&data.values, &sigma_t);
-            let emission_c = emission[c].apply(&data.values, &sigma_t);
+            let emission_c = match (&blackbody, &rgb_table) {
+                (Some(b), Some(table)) => b.emission(c, table, &sigma_t, &albedo_c),
+                _ => emission[c].apply(&data.values, &sigma_t),
+            };
             channels.push(ChannelMedium {
                 sigma_t,
                 albedo: albedo_c,
@@ -378,6 +453,111 @@ impl Ctx<'_> {
         let medium = Medium::new(grid, channels, phase, interpolation, Some(data.values))
             .map_err(|e| self.err("medium", e.to_string()))?;
         Ok(medium)
+    }
+
+    /// `emission = { kind = "blackbody", temperature = T | grid = "name", scale = s }`: the
+    /// temperature of every cell (kelvin), from a constant, a piecewise-linear transfer of the
+    /// data value, or a second grid of the volume's `.vdb` file.
+    fn blackbody(
+        &self,
+        v: &toml::Value,
+        data: &VolumeData,
+        source: &VolumeSource,
+        placement: Option<&VdbPlacement>,
+    ) -> Result<Blackbody, SceneError> {
+        let key = "medium.emission";
+        let (_, t) = self.kind_table(
+            v,
+            key,
+            &[("blackbody", &[], &["temperature", "grid", "scale"])],
+        )?;
+        let scale = match t.get("scale") {
+            Some(s) => self.non_negative(s, "medium.emission.scale")?,
+            None => 1.0,
+        };
+        let t_key = "medium.emission.temperature";
+        let g_key = "medium.emission.grid";
+        let check = |x: f64, what: String| -> Result<(), SceneError> {
+            if x.is_finite() && x <= MAX_TEMPERATURE {
+                Ok(())
+            } else {
+                Err(self.err(
+                    t_key,
+                    format!("{what}{x} K: expected a finite temperature ≤ {MAX_TEMPERATURE} K"),
+                ))
+            }
+        };
+        let temperature = match (t.get("temperature"), t.get("grid")) {
+            (Some(_), Some(_)) => {
+                return Err(self.err(g_key, "give either `temperature` or `grid`, not both"))
+            }
+            (None, None) => {
+                return Err(self.err(
+                    t_key,
+                    "required key for kind `blackbody` is missing (or give `grid = \"temperature\"` for a .vdb)",
+                ))
+            }
+            (Some(tv), None) if tv.is_table() => {
+                let (_, tt) = self.kind_table(tv, t_key, &[("piecewise-linear", &["points"], &[])])?;
+                let points_key = join(t_key, "points");
+                let mut channels = self.table_points(&tt["points"], &points_key)?;
+                if channels.len() != 1 {
+                    return Err(self.err(
+                        points_key,
+                        "each point must be [data value, kelvin]",
+                    ));
+                }
+                let points = channels.remove(0);
+                for p in &points {
+                    check(p[1], format!("point [{}, {}] gives ", p[0], p[1]))?;
+                }
+                let table = PiecewiseLinear::new(points)
+                    .map_err(|e| self.err(&points_key, e.to_string()))?;
+                Temperature::PerCell(data.values.iter().map(|&x| table.eval(x as f64) as f32).collect())
+            }
+            (Some(tv), None) => {
+                let x = match tv {
+                    toml::Value::Float(x) => *x,
+                    _ => self.number(tv, t_key)?,
+                };
+                check(x, String::new())?;
+                Temperature::Uniform(x)
+            }
+            (None, Some(gv)) => {
+                let name = self.string(gv, g_key)?;
+                let (VolumeSource::File(path), Some(on)) = (source, placement) else {
+                    return Err(self.err(
+                        g_key,
+                        "`grid` names a second grid of the volume's OpenVDB (.vdb) file; this volume is not one",
+                    ));
+                };
+                let other = medium::vdb::read_vdb(path, Some(name))
+                    .map_err(|e| self.err(g_key, e.to_string()))?;
+                let op = &other.placement;
+                if op.voxel_size != on.voxel_size || op.translation != on.translation || op.map != on.map {
+                    return Err(self.err(
+                        g_key,
+                        format!(
+                            "grid `{name}` has another transform ({} voxel {:?} at {:?}) than `{}` ({} voxel {:?} at {:?}); its voxels cannot be matched by index",
+                            op.map, op.voxel_size, op.translation, on.grid, on.map, on.voxel_size, on.translation
+                        ),
+                    ));
+                }
+                let values = other.sample_on(on, data.dims);
+                if let Some(i) = values.iter().position(|&x| !(x.is_finite() && x as f64 <= MAX_TEMPERATURE)) {
+                    let [x, y, z] = Grid { dims: data.dims, cell_size: 1.0 }.coords(i);
+                    return Err(self.err(
+                        g_key,
+                        format!(
+                            "grid `{name}` holds {} K at cell ({x}, {y}, {z}); expected a finite temperature ≤ {MAX_TEMPERATURE} K",
+                            values[i]
+                        ),
+                    ));
+                }
+                Temperature::PerCell(values)
+            }
+        };
+        Ok(Blackbody { temperature, scale })
     }
 
     /// The `[[light]]` list: the lights, and the environment when one entry is

@@ -1035,3 +1035,111 @@ fn unbounded_counts_are_refused_naming_their_bound() {
     ]);
     parse_in(&dir, &ok).unwrap();
 }
+
+/// `emission = { kind = "blackbody", ... }`: three channels, each cell emitting
+/// `scale · (1 − a) · σt · rgb(T)`, with T a constant or a transfer of the data value.
+#[test]
+fn blackbody_emission_is_planck_colour_times_absorption() {
+    let dir = scratch("blackbody");
+    write_volume(&dir);
+    let medium = "[medium]\nalbedo = 0.25\nemission = { kind = \"blackbody\", temperature = 1500, scale = 2.0 }\n";
+    let s = parse_in(&dir, &scene_text(&[VOLUME, medium, LIGHT, CAMERA])).unwrap();
+    let ch = s.medium.channels();
+    assert_eq!(ch.len(), 3);
+    let rgb = medium::blackbody::rgb(1500.0);
+    assert!(rgb[0] > rgb[1] && rgb[1] > rgb[2], "{rgb:?}");
+    for cell in 1..24 {
+        let sigma_a = 0.75 * ch[0].sigma_t[cell] as f64;
+        assert!(sigma_a > 0.0);
+        for c in 0..3 {
+            let want = 2.0 * sigma_a * rgb[c];
+            let got = ch[c].emission.get(cell) as f64;
+            assert!(
+                (got - want).abs() <= 1e-4 * want.max(1e-3 * 2.0 * sigma_a * rgb[1]),
+                "cell {cell} channel {c}: {got} vs {want}"
+            );
+        }
+    }
+    // σt = 0 in cell 0 (value 0): nothing to absorb, nothing emitted.
+    assert!(ch.iter().all(|c| c.emission.get(0) == 0.0));
+
+    // A transfer from data value to kelvin: values i/24 map to 800 + 1000·v kelvin.
+    let medium = "[medium]\nalbedo = 0.0\nemission = { kind = \"blackbody\", temperature = { kind = \"piecewise-linear\", points = [[0.0, 800.0], [1.0, 1800.0]] } }\n";
+    let s = parse_in(&dir, &scene_text(&[VOLUME, medium, CAMERA])).unwrap();
+    let ch = s.medium.channels();
+    assert_eq!(ch.len(), 3);
+    for cell in [6, 12, 23] {
+        let t = 800.0 + 1000.0 * (cell as f64 / 24.0);
+        let rgb = medium::blackbody::rgb(t);
+        let sigma_t = ch[1].sigma_t[cell] as f64;
+        for c in 0..2 {
+            let got = ch[c].emission.get(cell) as f64 / sigma_t;
+            assert!(
+                (got / rgb[c] - 1.0).abs() < 1e-3,
+                "cell {cell} ({t} K) channel {c}: {got} vs {}",
+                rgb[c]
+            );
+        }
+    }
+    // Hotter cells glow far brighter.
+    assert!(
+        ch[1].emission.get(23) / ch[1].sigma_t[23]
+            > 100.0 * ch[1].emission.get(6) / ch[1].sigma_t[6]
+    );
+
+    // T ≤ 0 gives no emission (and a scene without light is then refused for lack of any).
+    let medium = "[medium]\nalbedo = 0.5\nemission = { kind = \"blackbody\", temperature = 0 }\n";
+    let s = parse_in(&dir, &scene_text(&[VOLUME, medium, LIGHT, CAMERA])).unwrap();
+    assert!(s.medium.channels().iter().all(|c| c.emission.is_zero()));
+}
+
+#[test]
+fn blackbody_bad_temperatures_are_refused_naming_the_key() {
+    let cases = [
+        ("temperature = 2e5", "medium.emission.temperature", "100000"),
+        ("temperature = nan", "medium.emission.temperature", "finite"),
+        ("temperature = inf", "medium.emission.temperature", "finite"),
+        (
+            "temperature = { kind = \"piecewise-linear\", points = [[0.0, 800.0], [1.0, 3e5]] }",
+            "medium.emission.temperature",
+            "300000",
+        ),
+        (
+            "temperature = { kind = \"piecewise-linear\", points = [[0.0, 1.0, 2.0, 3.0]] }",
+            "medium.emission.temperature.points",
+            "kelvin",
+        ),
+        (
+            "temperature = \"hot\"",
+            "medium.emission.temperature",
+            "number",
+        ),
+        ("scale = 1.0", "medium.emission.temperature", "missing"),
+        (
+            "temperature = 1000, scale = -1.0",
+            "medium.emission.scale",
+            "",
+        ),
+        ("grid = \"temperature\"", "medium.emission.grid", ".vdb"),
+        (
+            "temperature = 1000, grid = \"t\"",
+            "medium.emission.grid",
+            "not both",
+        ),
+        (
+            "temperature = 1000, colour = 1",
+            "medium.emission.colour",
+            "unknown key",
+        ),
+    ];
+    for (i, (emission, key, word)) in cases.into_iter().enumerate() {
+        let medium =
+            format!("[medium]\nalbedo = 0.5\nemission = {{ kind = \"blackbody\", {emission} }}\n");
+        let (k, full) = refused(
+            &format!("blackbody-bad-{i}"),
+            &scene_text(&[VOLUME, &medium, LIGHT, CAMERA]),
+        );
+        assert_eq!(k, key, "{emission}: {full}");
+        assert!(full.contains(word), "{emission}: `{word}` not in {full}");
+    }
+}

@@ -144,3 +144,93 @@ fn vdb_keys_are_refused_naming_the_key() {
     .unwrap();
     assert_eq!(s.medium.grid().dims, [6, 5, 4]);
 }
+
+/// `emission = { kind = "blackbody", grid = "temperature" }` on multi.vdb: the temperature
+/// grid (box (0,0,0)–(7,7,15), background 300) sampled on the density grid's cells (box
+/// (−4,0,2)–(7,9,10)) by index, against the values OpenVDB wrote (multi.temperature.f32).
+#[test]
+fn a_temperature_grid_gives_per_cell_blackbody_emission() {
+    let medium = "[medium]\nalbedo = 0.5\nemission = { kind = \"blackbody\", grid = \"temperature\", scale = 1e3 }\n";
+    let dir = std::env::temp_dir().join(format!("volrad-vdb-scene-{}-fire", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(vdb_dir().join("multi.vdb"), dir.join("multi.vdb")).unwrap();
+    let path = dir.join("scene.toml");
+    let rest = REST.replace("[medium]\nalbedo = 0.9\n", medium);
+    std::fs::write(&path, format!("[volume]\nfile = \"multi.vdb\"\n{rest}")).unwrap();
+    let s = Scene::from_file(&path).unwrap();
+
+    let bytes = std::fs::read(vdb_dir().join("multi.temperature.f32")).unwrap();
+    let temps: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    assert_eq!(temps.len(), 8 * 8 * 16);
+    let ch = s.medium.channels();
+    assert_eq!(ch.len(), 3);
+    let [nx, ny, nz] = s.medium.grid().dims;
+    let (mut inside, mut outside, mut glowing) = (0, 0, 0);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let cell = i + nx * (j + ny * k);
+                let voxel = [i as i32 - 4, j as i32, k as i32 + 2];
+                let in_box = (0..3).all(|a| voxel[a] >= 0 && voxel[a] <= [7, 7, 15][a]);
+                let t = if in_box {
+                    inside += 1;
+                    let [x, y, z] = voxel.map(|v| v as usize);
+                    temps[x + 8 * (y + 8 * z)] as f64
+                } else {
+                    outside += 1;
+                    300.0
+                };
+                let rgb = medium::blackbody::rgb(t);
+                let sigma_a = 0.5 * ch[0].sigma_t[cell] as f64;
+                for c in 0..3 {
+                    let want = 1e3 * sigma_a * rgb[c];
+                    let got = ch[c].emission.get(cell) as f64;
+                    assert!(
+                        (got - want).abs() <= 1e-3 * want + 1e-30,
+                        "cell ({i}, {j}, {k}) at {t} K channel {c}: {got} vs {want}"
+                    );
+                }
+                if ch[0].emission.get(cell) > 0.0 && t > 1000.0 {
+                    glowing += 1;
+                }
+            }
+        }
+    }
+    // Both parts of the rule were exercised, and the emission is not all zero.
+    assert!(
+        inside > 0 && outside > 0 && glowing > 0,
+        "{inside} {outside} {glowing}"
+    );
+}
+
+#[test]
+fn a_temperature_grid_is_refused_naming_the_key() {
+    let emission =
+        |e: &str| format!("[medium]\nalbedo = 0.5\nemission = {{ kind = \"blackbody\", {e} }}\n");
+    for (e, words) in [
+        ("grid = \"flames\"", &["flames"][..]),
+        ("grid = 3", &["string"][..]),
+    ] {
+        let dir =
+            std::env::temp_dir().join(format!("volrad-vdb-scene-{}-fire-bad", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::copy(vdb_dir().join("multi.vdb"), dir.join("multi.vdb")).unwrap();
+        let path = dir.join("scene.toml");
+        let rest = REST.replace("[medium]\nalbedo = 0.9\n", &emission(e));
+        std::fs::write(&path, format!("[volume]\nfile = \"multi.vdb\"\n{rest}")).unwrap();
+        match Scene::from_file(&path) {
+            Err(SceneError::Invalid { key, message, .. }) => {
+                assert_eq!(key, "medium.emission.grid", "{message}");
+                for w in words {
+                    assert!(message.contains(w), "`{w}` not in {message}");
+                }
+            }
+            other => panic!("{e}: expected a refusal, got {other:?}"),
+        }
+    }
+}
