@@ -81,3 +81,27 @@ fn vdb_sample_is_cloud24_over_its_active_box() {
     let size = std::fs::metadata(data("cloud24.vdb")).unwrap().len();
     assert!(size < 200_000, "{size}");
 }
+
+/// fire.toml: three-channel blackbody emission, hot (yellow-white) in the dense core and
+/// red and far dimmer at the edges.
+#[test]
+fn fire_sample_glows_hotter_in_its_core() {
+    let s = Scene::from_file(&data("fire.toml")).unwrap();
+    assert!(s.lights.is_empty());
+    let ch = s.medium.channels();
+    assert_eq!(ch.len(), 3);
+    let data = s.volume_data().unwrap().values;
+    let core = (0..data.len())
+        .max_by(|&a, &b| data[a].total_cmp(&data[b]))
+        .unwrap();
+    let edge = (0..data.len())
+        .filter(|&i| data[i] > 0.05 && data[i] < 0.2)
+        .min_by(|&a, &b| data[a].total_cmp(&data[b]))
+        .unwrap();
+    let per_sigma = |c: usize, i: usize| ch[c].emission.get(i) / ch[c].sigma_t[i];
+    // Red over green: redder at the cool edge than in the hot core; both red-dominated.
+    let core_rg = per_sigma(0, core) / per_sigma(1, core);
+    let edge_rg = per_sigma(0, edge) / per_sigma(1, edge);
+    assert!(core_rg > 1.0 && edge_rg > core_rg, "{core_rg} {edge_rg}");
+    assert!(per_sigma(1, core) > 1e3 * per_sigma(1, edge));
+}
