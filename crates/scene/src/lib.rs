@@ -28,7 +28,9 @@
 //! - `albedo` and `emission`: a number, `[r, g, b]`, `{ kind = "constant", value = ... }`,
 //!   `{ kind = "piecewise-linear", points = [[x, y], ...] or [[x, r, g, b], ...], scale = 1 }`,
 //!   `{ kind = "preset", name = "...", scale = 1 }`; emission also
-//!   `{ kind = "particle", c = 0.5 or [r, g, b] }` (Max eq. 8: emission = C·σt). Transfers
+//!   `{ kind = "particle", c = 0.5 or [r, g, b] }` (Max eq. 8: emission = C·σt) and
+//!   `{ kind = "blackbody", temperature = K or { kind = "piecewise-linear", points } | grid =
+//!   "temperature", scale = 1 }` (Planck colour × (1 − a) σt, always RGB). Transfers
 //!   read the raw data value. `sigma_t_scale` may be `[r, g, b]`. Any RGB item makes the
 //!   medium three-channel; grey items are shared by all channels.
 //! - `phase = "isotropic"` / `"lambertian-sphere"` or a table with `kind` = `isotropic`,
