@@ -4,9 +4,7 @@
 //! ordinates) or the two-pass method's stored field.
 
 use anyhow::Result;
-#[cfg(test)]
-use formfactor::ordinates::bins::face_bilinear;
-use formfactor::ordinates::bins::interpolate_bins;
+use formfactor::ordinates::bins::{face_bilinear, interpolate_with};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
 use gather::{InScattering, OpticalModel, RayCarry, Trilinear, ViewSegment};
 use glam::DVec3;
@@ -113,10 +111,15 @@ impl<'a> BinnedSource<'a> {
 
     #[inline]
     fn lookup(&self, cell: usize, w: DVec3) -> f64 {
+        self.lookup_with(cell, &face_bilinear(self.n, w))
+    }
+
+    /// The source of `cell` in the direction whose bin weights are `weights`.
+    #[inline]
+    fn lookup_with(&self, cell: usize, weights: &[(usize, f64); 4]) -> f64 {
         let base = cell * 6 * self.n * self.n;
-        interpolate_bins(
-            self.n,
-            w,
+        interpolate_with(
+            weights,
             |l| self.values[base + l] as f64,
             |l| self.logs[base + l] as f64,
         )
@@ -130,7 +133,9 @@ impl InScattering for BinnedSource<'_> {
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
-        self.lattice.at(x, cell, |c| self.lookup(c, w))
+        // One direction for every neighbour cell: its bin weights once.
+        let weights = face_bilinear(self.n, w);
+        self.lattice.at(x, cell, |c| self.lookup_with(c, &weights))
     }
     fn max_source(&self) -> f64 {
         self.max

@@ -252,7 +252,17 @@ pub fn interpolate_bins(
     value: impl Fn(usize) -> f64,
     ln: impl Fn(usize) -> f64,
 ) -> f64 {
-    let weights = face_bilinear(n, w);
+    interpolate_with(&face_bilinear(n, w), value, ln)
+}
+
+/// [`interpolate_bins`] with the direction's [`face_bilinear`] weights computed once (a
+/// renderer looking one direction up in several cells).
+#[inline]
+pub fn interpolate_with(
+    weights: &[(usize, f64); 4],
+    value: impl Fn(usize) -> f64,
+    ln: impl Fn(usize) -> f64,
+) -> f64 {
     if weights
         .iter()
         .all(|&(l, weight)| weight >= 0.0 && ln(l) > f64::NEG_INFINITY)
