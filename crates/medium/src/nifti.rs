@@ -24,7 +24,7 @@
 use std::io::Read;
 use std::path::Path;
 
-use crate::volume_io::VolumeData;
+use crate::volume_io::{SampleType, VolumeData};
 use crate::{Grid, MediumError};
 
 const NIFTI1_HEADER: usize = 348;
@@ -34,89 +34,41 @@ const NIFTI2_HEADER: usize = 540;
 /// the size the header promises is truncated, and is refused before any of it is inflated.
 const MAX_DEFLATE_RATIO: u64 = 1032;
 
-/// A voxel type a NIfTI file may hold (`datatype` codes of nifti1.h).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-pub enum NiftiType {
-    U8,
-    I8,
-    I16,
-    U16,
-    I32,
-    U32,
-    F32,
-    F64,
-}
-
-impl NiftiType {
-    fn from_code(code: i16) -> Result<NiftiType, String> {
-        Ok(match code {
-            2 => NiftiType::U8,
-            256 => NiftiType::I8,
-            4 => NiftiType::I16,
-            512 => NiftiType::U16,
-            8 => NiftiType::I32,
-            768 => NiftiType::U32,
-            16 => NiftiType::F32,
-            64 => NiftiType::F64,
-            other => {
-                let name = match other {
-                    0 => "unknown (0)",
-                    1 => "binary (1)",
-                    32 => "complex64 (32)",
-                    128 => "RGB24 (128)",
-                    1024 => "int64 (1024)",
-                    1280 => "uint64 (1280)",
-                    1536 => "float128 (1536)",
-                    1792 => "complex128 (1792)",
-                    2048 => "complex256 (2048)",
-                    2304 => "RGBA32 (2304)",
-                    _ => "",
-                };
-                let name = if name.is_empty() {
-                    format!("code {other}")
-                } else {
-                    name.to_string()
-                };
-                return Err(format!(
+/// The sample type of NIfTI `datatype` code `code` (nifti1.h), or why it is not read.
+fn nifti_type(code: i16) -> Result<SampleType, String> {
+    Ok(match code {
+        2 => SampleType::U8,
+        256 => SampleType::I8,
+        4 => SampleType::I16,
+        512 => SampleType::U16,
+        8 => SampleType::I32,
+        768 => SampleType::U32,
+        16 => SampleType::F32,
+        64 => SampleType::F64,
+        other => {
+            let name = match other {
+                0 => "unknown (0)",
+                1 => "binary (1)",
+                32 => "complex64 (32)",
+                128 => "RGB24 (128)",
+                1024 => "int64 (1024)",
+                1280 => "uint64 (1280)",
+                1536 => "float128 (1536)",
+                1792 => "complex128 (1792)",
+                2048 => "complex256 (2048)",
+                2304 => "RGBA32 (2304)",
+                _ => "",
+            };
+            let name = if name.is_empty() {
+                format!("code {other}")
+            } else {
+                name.to_string()
+            };
+            return Err(format!(
                     "NIfTI datatype {name} is not supported (uint8, int8, int16, uint16, int32, uint32, float32, float64)"
                 ));
-            }
-        })
-    }
-
-    fn size(self) -> usize {
-        match self {
-            NiftiType::U8 | NiftiType::I8 => 1,
-            NiftiType::I16 | NiftiType::U16 => 2,
-            NiftiType::I32 | NiftiType::U32 | NiftiType::F32 => 4,
-            NiftiType::F64 => 8,
         }
-    }
-
-    /// One voxel as f64 (exact for every supported type), from `b.len() == self.size()`.
-    fn decode(self, b: &[u8], big: bool) -> f64 {
-        macro_rules! num {
-            ($t:ty, $n:literal) => {{
-                let mut a = [0u8; $n];
-                a.copy_from_slice(&b[..$n]);
-                if big {
-                    <$t>::from_be_bytes(a)
-                } else {
-                    <$t>::from_le_bytes(a)
-                }
-            }};
-        }
-        match self {
-            NiftiType::U8 => f64::from(b[0]),
-            NiftiType::I8 => f64::from(b[0] as i8),
-            NiftiType::I16 => f64::from(num!(i16, 2)),
-            NiftiType::U16 => f64::from(num!(u16, 2)),
-            NiftiType::I32 => f64::from(num!(i32, 4)),
-            NiftiType::U32 => f64::from(num!(u32, 4)),
-            NiftiType::F32 => f64::from(num!(f32, 4)),
-            NiftiType::F64 => num!(f64, 8),
-        }
-    }
+    })
 }
 
 /// What a NIfTI header says about its volume (the parts volrad uses).
@@ -125,7 +77,7 @@ pub struct NiftiHeader {
     /// 1 (348-byte header) or 2 (540-byte header).
     pub version: u8,
     pub big_endian: bool,
-    pub datatype: NiftiType,
+    pub datatype: SampleType,
     /// `dim[1..=3]`.
     pub dims: [usize; 3],
     /// `pixdim[1..=3]`: the voxel spacing per axis, as stored (NIfTI-1 stores f32).
@@ -400,7 +352,7 @@ fn parse_header(b: &[u8]) -> Result<NiftiHeader, String> {
             "vox_offset {vox_offset} lies inside the {size}-byte header"
         ));
     }
-    let datatype = NiftiType::from_code(datatype)?;
+    let datatype = nifti_type(datatype)?;
     let ndim = dim[0];
     if !(1..=7).contains(&ndim) {
         return Err(format!(

@@ -332,9 +332,10 @@ pub fn write_mitsuba_vol(
     write_atomically(path, &out)
 }
 
-/// NRRD sample types volrad reads.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum NrrdType {
+/// A sample type of a volume file (NRRD's `type`, NIfTI's `datatype`): the integer and
+/// floating-point types volrad reads, whatever the format's name for them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum SampleType {
     I8,
     U8,
     I16,
@@ -345,57 +346,60 @@ enum NrrdType {
     F64,
 }
 
-impl NrrdType {
-    fn parse(s: &str) -> Option<NrrdType> {
-        Some(match s {
-            "signed char" | "int8" | "int8_t" => NrrdType::I8,
-            "uchar" | "unsigned char" | "uint8" | "uint8_t" => NrrdType::U8,
-            "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
-                NrrdType::I16
-            }
-            "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => {
-                NrrdType::U16
-            }
-            "int" | "signed int" | "int32" | "int32_t" => NrrdType::I32,
-            "uint" | "unsigned int" | "uint32" | "uint32_t" => NrrdType::U32,
-            "float" => NrrdType::F32,
-            "double" => NrrdType::F64,
-            _ => return None,
-        })
-    }
-
-    fn size(self) -> usize {
+impl SampleType {
+    /// Bytes per sample.
+    pub fn size(self) -> usize {
         match self {
-            NrrdType::I8 | NrrdType::U8 => 1,
-            NrrdType::I16 | NrrdType::U16 => 2,
-            NrrdType::I32 | NrrdType::U32 | NrrdType::F32 => 4,
-            NrrdType::F64 => 8,
+            SampleType::I8 | SampleType::U8 => 1,
+            SampleType::I16 | SampleType::U16 => 2,
+            SampleType::I32 | SampleType::U32 | SampleType::F32 => 4,
+            SampleType::F64 => 8,
         }
     }
 
-    fn decode(self, b: &[u8], little: bool) -> f32 {
+    /// One sample as f64 (exact for every type), from `b.len() >= self.size()`.
+    pub fn decode(self, b: &[u8], big_endian: bool) -> f64 {
         macro_rules! num {
             ($t:ty, $n:literal) => {{
                 let mut a = [0u8; $n];
                 a.copy_from_slice(&b[..$n]);
-                if little {
-                    <$t>::from_le_bytes(a)
-                } else {
+                if big_endian {
                     <$t>::from_be_bytes(a)
+                } else {
+                    <$t>::from_le_bytes(a)
                 }
             }};
         }
         match self {
-            NrrdType::I8 => b[0] as i8 as f32,
-            NrrdType::U8 => b[0] as f32,
-            NrrdType::I16 => num!(i16, 2) as f32,
-            NrrdType::U16 => num!(u16, 2) as f32,
-            NrrdType::I32 => num!(i32, 4) as f32,
-            NrrdType::U32 => num!(u32, 4) as f32,
-            NrrdType::F32 => num!(f32, 4),
-            NrrdType::F64 => num!(f64, 8) as f32,
+            SampleType::I8 => f64::from(b[0] as i8),
+            SampleType::U8 => f64::from(b[0]),
+            SampleType::I16 => f64::from(num!(i16, 2)),
+            SampleType::U16 => f64::from(num!(u16, 2)),
+            SampleType::I32 => f64::from(num!(i32, 4)),
+            SampleType::U32 => f64::from(num!(u32, 4)),
+            SampleType::F32 => f64::from(num!(f32, 4)),
+            SampleType::F64 => num!(f64, 8),
         }
     }
+}
+
+/// NRRD's spelling of a sample type.
+fn nrrd_type(s: &str) -> Option<SampleType> {
+    Some(match s {
+        "signed char" | "int8" | "int8_t" => SampleType::I8,
+        "uchar" | "unsigned char" | "uint8" | "uint8_t" => SampleType::U8,
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
+            SampleType::I16
+        }
+        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => {
+            SampleType::U16
+        }
+        "int" | "signed int" | "int32" | "int32_t" => SampleType::I32,
+        "uint" | "unsigned int" | "uint32" | "uint32_t" => SampleType::U32,
+        "float" => SampleType::F32,
+        "double" => SampleType::F64,
+        _ => return None,
+    })
 }
 
 /// Reads an NRRD volume: `dimension: 3`, a numeric `type`, `encoding` raw or gzip, `endian`
@@ -452,7 +456,7 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
     };
 
     let ty_text = required("type")?;
-    let ty = NrrdType::parse(ty_text).ok_or_else(|| {
+    let ty = nrrd_type(ty_text).ok_or_else(|| {
         vol_err(
             path,
             format!("NRRD type `{ty_text}` is not supported (float, double, uchar, ushort, short, int, uint)"),
@@ -569,7 +573,7 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
     }
     let values = payload
         .chunks_exact(ty.size())
-        .map(|c| ty.decode(c, little))
+        .map(|c| ty.decode(c, !little) as f32)
         .collect();
     Ok(VolumeData { dims, values })
 }
