@@ -335,6 +335,9 @@ impl Ctx<'_> {
         ];
         if allow_particle {
             kinds.push(("particle", &["c"], &[]));
+            // Blackbody emission is parsed by the [medium] section before it gets here; it is
+            // listed so that a mistyped kind's message names it.
+            kinds.push(("blackbody", &[], &["temperature", "grid", "scale"]));
         }
         let (kind, t) = self.kind_table(v, key, &kinds)?;
         match kind {
@@ -354,6 +357,10 @@ impl Ctx<'_> {
                 .into_iter()
                 .map(|c| Transfer::Particle { c })
                 .collect()),
+            "blackbody" => Err(self.err(
+                key,
+                "blackbody emission is a whole emission, not a part of a transfer function",
+            )),
             _ => {
                 let tables = self.table_transfer(kind, t, key)?;
                 for table in &tables {

@@ -535,6 +535,22 @@ fn albedo_outside_unit_interval_is_refused() {
         "medium.albedo.kind",
         &["unknown kind"],
     );
+    // A mistyped emission kind names every kind emission takes, blackbody included; albedo
+    // does not offer it.
+    let typo = "[medium]\nalbedo = 0.5\nemission = { kind = \"blackbodi\", temperature = 1500 }\n";
+    assert_refused(
+        "e-typo",
+        &scene_text(&[VOLUME, typo, LIGHT, CAMERA]),
+        "medium.emission.kind",
+        &["unknown kind", "blackbody", "particle"],
+    );
+    let albedo_bb = "[medium]\nalbedo = { kind = \"blackbody\", temperature = 1500 }\n";
+    assert_refused(
+        "a-blackbody",
+        &scene_text(&[VOLUME, albedo_bb, LIGHT, CAMERA]),
+        "medium.albedo.kind",
+        &["unknown kind"],
+    );
 }
 
 #[test]
