@@ -36,6 +36,7 @@ pub mod light_pass;
 pub mod nifti;
 pub mod optical;
 pub mod phase;
+pub mod resources;
 pub mod transfer;
 pub mod traversal;
 pub mod vdb;

@@ -223,7 +223,13 @@ impl Ctx<'_> {
                         "required key is missing (the generator needs the grid size)",
                     )
                 })?;
-                Grid::new(dims, 1.0).map_err(|e| self.err("volume.dims", e.to_string()))?;
+                let grid =
+                    Grid::new(dims, 1.0).map_err(|e| self.err("volume.dims", e.to_string()))?;
+                // The data values, σt and a working copy, 4 bytes each per cell, before they
+                // are allocated: a grid too large is refused here rather than aborting.
+                let bytes = grid.cell_count() as u64 * 12;
+                medium::resources::check_memory(&format!("a generated {dims:?} volume"), bytes)
+                    .map_err(|e| self.err("volume.dims", e.to_string()))?;
                 let values = generator.generate(dims);
                 (
                     VolumeSource::Generator(generator),

@@ -945,6 +945,31 @@ fn builtin_default_is_the_sky_lit_cloud_sample_and_its_camera_sees_all_of_it() {
     assert!(seen > 1000, "{seen}");
 }
 
+/// A generated volume larger than the machine's memory is refused, naming the key and what
+/// it would need, before anything is allocated (it used to abort on a failed allocation).
+#[test]
+fn a_generated_volume_too_large_for_the_machine_is_refused_before_allocating() {
+    // 1600³ cells fit volrad's index (< 2³²) but need about 46 GiB.
+    let need = 1600u64.pow(3) * 12;
+    let Some(available) = medium::resources::available_memory() else {
+        panic!("this test needs /proc/meminfo (Linux)");
+    };
+    assert!(
+        need > available,
+        "the machine has {available} bytes: the case is too small"
+    );
+    let text = format!(
+        "[volume]\ngenerator = {{ kind = \"cloud\" }}\ndims = [1600, 1600, 1600]\n{MEDIUM}{LIGHT}"
+    );
+    let err = Scene::from_toml_str(&text, Path::new("."), Path::new("big.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("volume.dims") && err.contains("GiB") && err.contains("available"),
+        "{err}"
+    );
+}
+
 #[test]
 fn from_toml_str_resolves_paths_against_base_dir() {
     let dir = scratch("str");
