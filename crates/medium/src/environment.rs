@@ -98,12 +98,15 @@ struct Sky {
     to_sun: DVec3,
     /// Perez coefficients A..E for Y, x and y.
     perez: [[f64; 5]; 3],
-    /// Zenith values of Y, x and y.
-    zenith: [f64; 3],
+    /// Zenith values of Y, x and y over the Perez function at the zenith, `F(0, θs)`: the
+    /// factor of `F(θ, γ)` in each lookup.
+    zenith_over_f0: [f64; 3],
     /// Factor from the model's Y to radiance.
     scale: f64,
     /// Radiance of the ground per channel.
     ground: [f64; 3],
+    /// The largest radiance per channel (linear sRGB), for renders' termination bound.
+    max_rgb: [f64; 3],
 }
 
 impl Environment {
@@ -193,15 +196,8 @@ impl Environment {
     pub fn max_radiance(&self, channel: usize, channels: usize) -> f64 {
         match &self.kind {
             Kind::Uniform { radiance } => pick(radiance, channel, channels),
-            Kind::Sky(s) => {
-                // The Perez maximum is at the sun or the horizon below it; a fine scan of the
-                // sky plus the ground bounds it well enough for a termination rule.
-                let mut best = pick(&s.ground, channel, channels);
-                for d in fibonacci_directions(4096) {
-                    best = best.max(pick(&s.rgb_from(d), channel, channels));
-                }
-                best.max(pick(&s.rgb_from(s.to_sun), channel, channels)) * 1.05
-            }
+            // (For one channel the luminance of the per-channel maxima: a bound as well.)
+            Kind::Sky(s) => pick(&s.max_rgb, channel, channels),
         }
     }
 
@@ -374,9 +370,14 @@ impl Sky {
             up,
             to_sun,
             perez,
-            zenith: [y_zenith, x_zenith, yc_zenith],
+            zenith_over_f0: [
+                y_zenith / self::perez(&perez[0], 1.0, theta_s),
+                x_zenith / self::perez(&perez[1], 1.0, theta_s),
+                yc_zenith / self::perez(&perez[2], 1.0, theta_s),
+            ],
             scale: 1.0,
             ground: [0.0; 3],
+            max_rgb: [0.0; 3],
         };
         // Normalise: the sky's horizontal irradiance (luminance) is `sky_fraction` of the
         // sun's irradiance. Midpoint rule in (cos θ, φ) over the upper hemisphere.
@@ -404,6 +405,15 @@ impl Sky {
         sky.scale = spec.sky_fraction * spec.sun_irradiance / y;
         let sun_horizontal = spec.sun_irradiance * el.sin();
         sky.ground = horizontal.map(|h| spec.ground_albedo * (h * sky.scale + sun_horizontal) / PI);
+        // The Perez maximum is at the sun or at the horizon below it; a fine scan of the sky,
+        // the sun and the ground, with a margin, bounds it well enough for a termination rule.
+        let mut max_rgb = sky.ground;
+        for d in fibonacci_directions(4096).chain([to_sun]) {
+            for (m, v) in max_rgb.iter_mut().zip(sky.rgb_from(d)) {
+                *m = m.max(v);
+            }
+        }
+        sky.max_rgb = max_rgb.map(|m| m * 1.05);
         Ok(sky)
     }
 
@@ -414,11 +424,7 @@ impl Sky {
             return self.ground;
         }
         let gamma = from.dot(self.to_sun).clamp(-1.0, 1.0).acos();
-        let theta_s = self.to_sun.dot(self.up).clamp(-1.0, 1.0).acos();
-        let value = |k: usize| {
-            self.zenith[k] * perez(&self.perez[k], cos_theta, gamma)
-                / perez(&self.perez[k], 1.0, theta_s)
-        };
+        let value = |k: usize| self.zenith_over_f0[k] * perez(&self.perez[k], cos_theta, gamma);
         let (big_y, x, y) = (value(0) * self.scale, value(1), value(2));
         if y.is_nan() || y <= 0.0 {
             return [0.0; 3];
