@@ -43,6 +43,16 @@ impl<'a> CellLattice<'a> {
             value(cell)
         }
     }
+
+    /// [`at`](Self::at) with the neighbours the renderer found.
+    #[inline]
+    fn at_corners(&self, corners: &Trilinear, value: impl Fn(usize) -> f64) -> f64 {
+        if self.trilinear {
+            corners.source(self.sigma_t, value)
+        } else {
+            value(corners.cell())
+        }
+    }
 }
 
 /// Higher-order isotropic source per cell (zonal `g − E`): one value per cell, the same in
@@ -72,6 +82,10 @@ impl InScattering for CellSource<'_> {
     #[inline]
     fn at(&self, x: DVec3, cell: usize, _w: DVec3) -> f64 {
         self.lattice.at(x, cell, |c| self.values[c] as f64)
+    }
+    #[inline]
+    fn at_corners(&self, _x: DVec3, corners: &Trilinear, _w: DVec3) -> f64 {
+        self.lattice.at_corners(corners, |c| self.values[c] as f64)
     }
     fn max_source(&self) -> f64 {
         self.max
@@ -136,6 +150,12 @@ impl InScattering for BinnedSource<'_> {
         // One direction for every neighbour cell: its bin weights once.
         let weights = face_bilinear(self.n, w);
         self.lattice.at(x, cell, |c| self.lookup_with(c, &weights))
+    }
+    #[inline]
+    fn at_corners(&self, _x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+        let weights = face_bilinear(self.n, w);
+        self.lattice
+            .at_corners(corners, |c| self.lookup_with(c, &weights))
     }
     fn max_source(&self) -> f64 {
         self.max

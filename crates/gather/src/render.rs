@@ -437,7 +437,7 @@ impl<'a> RayIntegrator<'a> {
                 (false, false) => (0.0, 0.0),
             };
             if self.use_scattering {
-                q += self.scattering.at(x, corners.cell, flow);
+                q += self.scattering.at_corners(x, &corners, flow);
             }
             let (weight, attenuation) = weight_and_attenuation(sigma, dt);
             radiance += transmittance * q * weight;

@@ -8,6 +8,8 @@
 //! to hand to phase functions (`cosθ = ω·ω'` with both directions of light flow).
 
 use glam::DVec3;
+
+use crate::render::Trilinear;
 use medium::traversal::{Ray, Segment};
 
 /// The part of a view ray inside one cell, as the renderer hands it to the sources, with the
@@ -144,6 +146,14 @@ pub trait InScattering: Sync {
     /// (`= −ray.direction`). Used by `trilinear` renders, which march in fixed steps.
     fn at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3) -> f64;
 
+    /// [`at`](Self::at) with the cell-centred neighbours of `x` the renderer has already
+    /// found (`trilinear` renders find them once per step for σt): sources that reconstruct
+    /// between cells use them instead of finding them again.
+    #[inline]
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, view_flow_dir: DVec3) -> f64 {
+        self.at(x, corners.cell(), view_flow_dir)
+    }
+
     /// An upper bound on `Q_s` anywhere in the medium, for any direction. The renderer's
     /// early termination uses it to bound what the rest of a ray could still add; the default
     /// (infinity) makes the renderer fall back to stopping at a fixed transmittance.
@@ -185,6 +195,10 @@ impl<S: InScattering> InScattering for Option<S> {
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
         self.as_ref().map_or(0.0, |s| s.at(x, cell, w))
     }
+    #[inline]
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+        self.as_ref().map_or(0.0, |s| s.at_corners(x, corners, w))
+    }
     fn max_source(&self) -> f64 {
         self.as_ref().map_or(0.0, |s| s.max_source())
     }
@@ -205,6 +219,10 @@ impl<S: InScattering + ?Sized> InScattering for &S {
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
         (**self).at(x, cell, w)
     }
+    #[inline]
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+        (**self).at_corners(x, corners, w)
+    }
     fn max_source(&self) -> f64 {
         (**self).max_source()
     }
@@ -221,6 +239,10 @@ impl<S: InScattering + ?Sized> InScattering for Box<S> {
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
         (**self).at(x, cell, w)
+    }
+    #[inline]
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+        (**self).at_corners(x, corners, w)
     }
     fn max_source(&self) -> f64 {
         (**self).max_source()
@@ -251,6 +273,10 @@ impl InScattering for ScatteringSum<'_> {
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
         self.parts.iter().map(|s| s.at(x, cell, w)).sum()
     }
+    #[inline]
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+        self.parts.iter().map(|s| s.at_corners(x, corners, w)).sum()
+    }
     fn max_source(&self) -> f64 {
         self.parts.iter().map(|s| s.max_source()).sum()
     }
@@ -268,6 +294,10 @@ impl<A: InScattering, B: InScattering> InScattering for (A, B) {
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
         self.0.at(x, cell, w) + self.1.at(x, cell, w)
+    }
+    #[inline]
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+        self.0.at_corners(x, corners, w) + self.1.at_corners(x, corners, w)
     }
     fn max_source(&self) -> f64 {
         self.0.max_source() + self.1.max_source()

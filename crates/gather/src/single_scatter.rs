@@ -250,6 +250,15 @@ impl<'a> SingleScatter<'a> {
         })
     }
 
+    /// `Q1` at `x` in `cell` with extinction `sigma_t` there: every light's first bounce.
+    #[inline]
+    fn source_at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3, sigma_t: f64) -> f64 {
+        let sigma_s = sigma_t * self.albedo.get(cell) as f64;
+        (0..self.pass.fields.len())
+            .map(|l| self.source_from(l, x, cell, view_flow_dir, sigma_s))
+            .sum()
+    }
+
     /// Light `l`'s flow direction and irradiance (times `T_L` with shadows) at `x`.
     #[inline]
     fn light_at(&self, l: usize, x: DVec3, cell: usize) -> (DVec3, f64) {
@@ -589,16 +598,21 @@ impl InScattering for SingleScatter<'_> {
     }
 
     fn at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3) -> f64 {
-        // σs follows σt as the medium is reconstructed at x.
-        let sigma_t = if self.trilinear {
-            Trilinear::new(&self.pass.grid, x).sample(|c| self.sigma_t[c] as f64)
-        } else {
-            self.sigma_t[cell] as f64
-        };
-        let sigma_s = sigma_t * self.albedo.get(cell) as f64;
-        (0..self.pass.fields.len())
-            .map(|l| self.source_from(l, x, cell, view_flow_dir, sigma_s))
-            .sum()
+        if self.trilinear {
+            return self.at_corners(x, &Trilinear::new(&self.pass.grid, x), view_flow_dir);
+        }
+        self.source_at(x, cell, view_flow_dir, self.sigma_t[cell] as f64)
+    }
+
+    /// σs follows σt as the `trilinear` medium is reconstructed at x (the corners the
+    /// renderer found for σt).
+    #[inline]
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, view_flow_dir: DVec3) -> f64 {
+        if !self.trilinear {
+            return self.at(x, corners.cell(), view_flow_dir);
+        }
+        let sigma_t = corners.sample(|c| self.sigma_t[c] as f64);
+        self.source_at(x, corners.cell(), view_flow_dir, sigma_t)
     }
 
     fn max_source(&self) -> f64 {
