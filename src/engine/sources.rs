@@ -244,6 +244,14 @@ mod tests {
         // Half way to the empty cell: σt = 1, source function still the full cell's 3.
         assert!((at(2.0) - 3.0).abs() < 1e-12, "{}", at(2.0));
         assert_eq!(at(2.5), 0.0);
+        // The renderer's path, with the neighbours it found, gives the same values.
+        for x in [0.5, 0.99, 1.3, 2.0, 2.5] {
+            let p = DVec3::new(x, 0.5, 0.5);
+            assert_eq!(
+                source.at_corners(p, &Trilinear::new(&grid, p), DVec3::X),
+                at(x)
+            );
+        }
         let nearest = CellSource::new(
             &values,
             CellLattice {
