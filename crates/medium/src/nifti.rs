@@ -24,15 +24,11 @@
 use std::io::Read;
 use std::path::Path;
 
-use crate::volume_io::{SampleType, VolumeData};
+use crate::volume_io::{gunzip_bounded, SampleType, VolumeData, MAX_DEFLATE_RATIO};
 use crate::{Grid, MediumError};
 
 const NIFTI1_HEADER: usize = 348;
 const NIFTI2_HEADER: usize = 540;
-
-/// Deflate cannot expand better than about 1032:1; a stream shorter than this fraction of
-/// the size the header promises is truncated, and is refused before any of it is inflated.
-const MAX_DEFLATE_RATIO: u64 = 1032;
 
 /// The sample type of NIfTI `datatype` code `code` (nifti1.h), or why it is not read.
 fn nifti_type(code: i16) -> Result<SampleType, String> {
@@ -159,24 +155,6 @@ fn gunzip_prefix(bytes: &[u8], limit: u64) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// The first `needed` bytes of a gzip stream, which must then end cleanly: the rest is
-/// decoded into a sink (no memory, time bounded by the compressed size) so that a truncated
-/// stream or a wrong CRC is refused rather than read as if complete.
-fn gunzip_checked(bytes: &[u8], needed: u64) -> Result<Vec<u8>, String> {
-    let mut dec = flate2::read::MultiGzDecoder::new(bytes);
-    let mut out = Vec::new();
-    let bad = |e: std::io::Error| format!("gzip data cannot be decoded: {e}");
-    dec.by_ref()
-        .take(needed)
-        .read_to_end(&mut out)
-        .map_err(bad)?;
-    if (out.len() as u64) == needed {
-        let bound = (bytes.len() as u64).saturating_mul(MAX_DEFLATE_RATIO);
-        std::io::copy(&mut dec.take(bound), &mut std::io::sink()).map_err(bad)?;
-    }
-    Ok(out)
-}
-
 fn read(bytes: &[u8], max_cells: u64) -> Result<NiftiVolume, String> {
     let gzip = is_gzip(bytes);
     // The header first: at most 540 bytes, so a corrupt stream cannot make us inflate more.
@@ -213,7 +191,7 @@ fn read(bytes: &[u8], max_cells: u64) -> Result<NiftiVolume, String> {
                 bytes.len()
             ));
         }
-        decoded = gunzip_checked(bytes, needed)?;
+        decoded = gunzip_bounded(bytes, needed)?.0;
         &decoded
     } else {
         bytes

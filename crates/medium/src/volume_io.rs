@@ -92,6 +92,30 @@ fn io_err(file: &Path, error: std::io::Error) -> MediumError {
     }
 }
 
+/// Deflate cannot expand better than about 1032:1: a gzip stream shorter than this fraction of
+/// the size a header promises is truncated, and is refused before any of it is inflated.
+pub(crate) const MAX_DEFLATE_RATIO: u64 = 1032;
+
+/// The first `needed` bytes of a gzip stream (all members), and whether more data follow
+/// them. The rest is decoded into a sink (no memory; at most [`MAX_DEFLATE_RATIO`] times the
+/// compressed size) so that a truncated stream or a wrong CRC is refused rather than read as
+/// if complete, and a stream that inflates without bound (a gzip bomb) costs no memory.
+pub(crate) fn gunzip_bounded(bytes: &[u8], needed: u64) -> Result<(Vec<u8>, bool), String> {
+    let mut dec = flate2::read::MultiGzDecoder::new(bytes);
+    let mut out = Vec::new();
+    let bad = |e: std::io::Error| format!("gzip data cannot be decoded: {e}");
+    dec.by_ref()
+        .take(needed)
+        .read_to_end(&mut out)
+        .map_err(bad)?;
+    let mut more = false;
+    if (out.len() as u64) == needed {
+        let bound = (bytes.len() as u64).saturating_mul(MAX_DEFLATE_RATIO);
+        more = std::io::copy(&mut dec.take(bound), &mut std::io::sink()).map_err(bad)? > 0;
+    }
+    Ok((out, more))
+}
+
 /// Reads a whole volume file, refusing anything but a regular file first: a FIFO would block
 /// the read forever, a device or directory is no volume.
 pub(crate) fn read_regular(path: &Path) -> Result<Vec<u8>, MediumError> {
@@ -544,10 +568,35 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
     // NRRD's byte skip counts bytes of the decoded data; -1 means "the data are the last
     // bytes", allowed for raw encoding only.
     let decoded: Vec<u8> = if gzip {
-        let mut dec = flate2::read::MultiGzDecoder::new(&raw[..]);
-        let mut out = Vec::with_capacity(needed);
-        dec.read_to_end(&mut out)
-            .map_err(|e| vol_err(&data_path, format!("gzip data cannot be decoded: {e}")))?;
+        // Inflate only what the header asks for (the skip, then the data); more is an error.
+        // ("The last bytes", skip −1, would need the whole stream: raw encoding only.)
+        if byte_skip < 0 {
+            return Err(vol_err(
+                path,
+                format!("NRRD byte skip {byte_skip} is not supported with encoding `{encoding}`"),
+            ));
+        }
+        let limit = (byte_skip as u64).saturating_add(needed as u64);
+        if limit > (raw.len() as u64).saturating_mul(MAX_DEFLATE_RATIO) {
+            return Err(vol_err(
+                &data_path,
+                format!(
+                    "sizes {dims:?} of type `{ty_text}` need {needed} bytes, more than a gzip \
+                     stream of {} bytes can hold: the file is truncated or its header is wrong",
+                    raw.len()
+                ),
+            ));
+        }
+        let (out, more) = gunzip_bounded(&raw, limit).map_err(|e| vol_err(&data_path, e))?;
+        if more {
+            return Err(vol_err(
+                &data_path,
+                format!(
+                    "NRRD data has more than the {needed} bytes sizes {dims:?} of type \
+                     `{ty_text}` need"
+                ),
+            ));
+        }
         out
     } else {
         raw

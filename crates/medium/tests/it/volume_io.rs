@@ -336,6 +336,42 @@ fn nrrd_byte_skip_counts_decoded_bytes() {
         .contains("byte skip -1"));
 }
 
+/// A gzip NRRD is inflated only as far as its header's sizes: sizes no stream of its length
+/// could hold are refused before inflating (a header claiming 2³¹ floats used to be read to
+/// the end of its stream into a buffer of that capacity), and a stream longer than the sizes
+/// is refused, naming what they need.
+#[test]
+fn gzip_nrrd_is_inflated_only_as_far_as_its_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let gz = |data: &[u8]| {
+        let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+        enc.write_all(data).unwrap();
+        enc.finish().unwrap()
+    };
+    let head = |sizes: &str| {
+        format!("NRRD0004\ntype: float\ndimension: 3\nsizes: {sizes}\nendian: little\nencoding: gzip\n\n")
+    };
+    let p = nrrd_with(
+        dir.path(),
+        "huge.nrrd",
+        &head("2048 1024 1024"),
+        &gz(&[0u8; 64]),
+    );
+    let err = read_nrrd(&p).unwrap_err().to_string();
+    assert!(err.contains("more than a gzip stream"), "{err}");
+    // 8 MB of zeros (about 8 KB compressed) behind sizes of 2 floats.
+    let p = nrrd_with(
+        dir.path(),
+        "long.nrrd",
+        &head("2 1 1"),
+        &gz(&vec![0u8; 8 << 20]),
+    );
+    let err = read_nrrd(&p).unwrap_err().to_string();
+    assert!(err.contains("more than the 8 bytes"), "{err}");
+    let p = nrrd_with(dir.path(), "ok.nrrd", &head("2 1 1"), &gz(&[0u8; 8]));
+    assert_eq!(read_nrrd(&p).unwrap().values, vec![0.0, 0.0]);
+}
+
 /// A FIFO, a directory or a device named as a volume is refused at once, naming it; reading
 /// a FIFO would otherwise block forever.
 #[cfg(unix)]
