@@ -14,6 +14,8 @@
 //!   the basis of every per-cell analytic integral in volrad.
 //! - [`atomic_file`]: the one atomic file writer (temp file beside the target, sync, rename)
 //!   that every file volrad writes goes through, so no half-written file is ever left.
+//! - [`regular_file`]: the one way volrad opens a file a user named (volume, scene,
+//!   solution): FIFOs, devices and directories are refused, naming what they are.
 //!
 //! ```
 //! use medium::{Grid, traversal::Ray};
@@ -36,6 +38,7 @@ pub mod light_pass;
 pub mod nifti;
 pub mod optical;
 pub mod phase;
+pub mod regular_file;
 pub mod resources;
 pub mod transfer;
 pub mod traversal;

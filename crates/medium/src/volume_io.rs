@@ -5,7 +5,6 @@
 //!
 //! Every error names the file and says what was expected and what was found.
 
-use std::fs;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
@@ -116,22 +115,10 @@ pub(crate) fn gunzip_bounded(bytes: &[u8], needed: u64) -> Result<(Vec<u8>, bool
     Ok((out, more))
 }
 
-/// Reads a whole volume file, refusing anything but a regular file first: a FIFO would block
-/// the read forever, a device or directory is no volume.
+/// Reads a whole volume file through [`crate::regular_file`]: a FIFO, device or directory is
+/// refused, naming the path and what it is, before anything is read.
 pub(crate) fn read_regular(path: &Path) -> Result<Vec<u8>, MediumError> {
-    let meta = fs::metadata(path).map_err(|e| io_err(path, e))?;
-    if !meta.is_file() {
-        let what = if meta.is_dir() {
-            "a directory"
-        } else {
-            "not a regular file (a pipe, socket or device)"
-        };
-        return Err(vol_err(
-            path,
-            format!("{what}: a volume must be a regular file"),
-        ));
-    }
-    fs::read(path).map_err(|e| io_err(path, e))
+    crate::regular_file::read(path).map_err(|e| io_err(path, e))
 }
 
 /// Reads a volume in the format its extension names. `dims` is required for raw files; for
@@ -224,14 +211,16 @@ pub fn read_raw_f32(path: &Path, dims: [usize; 3]) -> Result<VolumeData, MediumE
     let expected = cell_count(dims)
         .and_then(|n| n.checked_mul(4))
         .ok_or_else(|| vol_err(path, format!("dims {dims:?} are too large")))?;
-    let actual = fs::metadata(path).map_err(|e| io_err(path, e))?.len();
+    let mut file = crate::regular_file::open(path).map_err(|e| io_err(path, e))?;
+    let actual = file.metadata().map_err(|e| io_err(path, e))?.len();
     if actual != expected as u64 {
         return Err(vol_err(
             path,
             format!("file has {actual} bytes but dims {dims:?} need {expected} bytes (nx·ny·nz·4)"),
         ));
     }
-    let bytes = read_regular(path)?;
+    let mut bytes = Vec::with_capacity(expected);
+    file.read_to_end(&mut bytes).map_err(|e| io_err(path, e))?;
     if bytes.len() != expected {
         return Err(vol_err(
             path,

@@ -139,7 +139,8 @@ impl Scene {
 
     /// Reads and validates a scene file; paths inside are relative to the file's directory.
     pub fn from_file(path: &Path) -> Result<Scene, SceneError> {
-        let text = std::fs::read_to_string(path).map_err(|error| SceneError::Io {
+        // A FIFO, device or directory is refused, naming it, before anything is read.
+        let text = medium::regular_file::read_to_string(path).map_err(|error| SceneError::Io {
             file: path.to_path_buf(),
             error,
         })?;

@@ -372,38 +372,87 @@ fn gzip_nrrd_is_inflated_only_as_far_as_its_sizes() {
     assert_eq!(read_nrrd(&p).unwrap().values, vec![0.0, 0.0]);
 }
 
-/// A FIFO, a directory or a device named as a volume is refused at once, naming it; reading
-/// a FIFO would otherwise block forever.
+/// A FIFO, a directory or a device named as a volume — in every format, and as the detached
+/// data file of an `.nhdr` — is refused at once, naming the path and what it is; reading a
+/// FIFO would otherwise block forever (the reads run on a thread the test stops waiting for).
 #[cfg(unix)]
 #[test]
 fn only_regular_files_are_read_as_volumes() {
     use std::sync::mpsc;
     use std::time::Duration;
     let dir = scratch("fifo");
-    let fifo = dir.join("density.nrrd");
-    let made = std::process::Command::new("mkfifo")
-        .arg(&fifo)
-        .status()
+    let mkfifo = |p: &std::path::Path| {
+        let made = std::process::Command::new("mkfifo")
+            .arg(p)
+            .status()
+            .unwrap();
+        assert!(made.success(), "mkfifo {}", p.display());
+    };
+    let names = [
+        "density.f32",
+        "density.vol",
+        "density.nrrd",
+        "density.nii",
+        "density.nii.gz",
+        "density.vdb",
+    ];
+    // (path to load, path the error must name, what it is)
+    let mut cases = Vec::new();
+    for name in names {
+        let fifo = dir.join(format!("fifo-{name}"));
+        mkfifo(&fifo);
+        cases.push((fifo.clone(), fifo, "is a FIFO, not a regular file"));
+        let folder = dir.join(format!("folder-{name}"));
+        std::fs::create_dir(&folder).unwrap();
+        cases.push((folder.clone(), folder, "is a directory, not a regular file"));
+    }
+    // A detached NRRD header whose data file is a FIFO, then one whose data file is a folder.
+    for (data, what) in [
+        ("data-fifo.raw", "is a FIFO, not a regular file"),
+        ("data-folder.raw", "is a directory, not a regular file"),
+    ] {
+        let target = dir.join(data);
+        if data.contains("fifo") {
+            mkfifo(&target);
+        } else {
+            std::fs::create_dir(&target).unwrap();
+        }
+        let header = dir.join(format!("{data}.nhdr"));
+        std::fs::write(
+            &header,
+            format!(
+                "NRRD0004\ntype: float\ndimension: 3\nsizes: 1 1 1\nendian: little\n\
+                 encoding: raw\ndata file: {data}\n"
+            ),
+        )
         .unwrap();
-    assert!(made.success());
-    let folder = dir.join("folder.vol");
-    std::fs::create_dir(&folder).unwrap();
+        cases.push((header, target, what));
+    }
+    cases.push((
+        "/dev/null".into(),
+        "/dev/null".into(),
+        "is a character device, not a regular file",
+    ));
+    let count = cases.len();
     let (tx, rx) = mpsc::channel();
-    let paths = [fifo.clone(), folder.clone()];
     std::thread::spawn(move || {
-        for p in paths {
-            let _ = tx.send((p.clone(), load_volume(&p, None).map(|_| ())));
+        for (load, named, what) in cases {
+            let result = load_volume(&load, Some([1, 1, 1])).map(|_| ());
+            let _ = tx.send((load, named, what, result));
         }
     });
-    for _ in 0..2 {
-        let (path, result) = rx
+    for _ in 0..count {
+        let (load, named, what, result) = rx
             .recv_timeout(Duration::from_secs(10))
-            .expect("refused at once, not blocked reading");
-        let err = result.expect_err("not a volume").to_string();
-        assert!(err.contains(&*path.to_string_lossy()), "{err}");
-        assert!(
-            err.contains("regular file") || err.contains("directory"),
-            "{err}"
+            .expect("refused at once, not blocked reading a FIFO");
+        let err = result
+            .expect_err(&format!("{} is not a volume", load.display()))
+            .to_string();
+        assert_eq!(
+            err,
+            format!("{}: {what}", named.display()),
+            "{}",
+            load.display()
         );
     }
 }

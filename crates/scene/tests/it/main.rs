@@ -4,4 +4,5 @@ mod nifti_scene;
 mod ordinates_scene;
 mod scene_parse;
 mod scene_samples;
+mod special_files;
 mod vdb_scene;
