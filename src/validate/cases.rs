@@ -118,7 +118,7 @@ pub fn scene_cases(
             scene: Scene::from_file(path)?,
         }]);
     }
-    let text = std::fs::read_to_string(path)
+    let text = medium::regular_file::read_to_string(path)
         .with_context(|| format!("reading the scene {}", path.display()))?;
     let table: toml::Table = text
         .parse()

@@ -519,3 +519,43 @@ const SMALL_SOURCE: [f32; 4] = [0.035039145, 0.081582904, 0.06898902, 0.02412094
 const ORDINATES_RADIANCE_2: [f32; 4] = [0.03274109, 0.07055286, 0.032206617, 0.08675802];
 const TWO_PASS_INTERACTIONS: u64 = 42;
 const TWO_PASS_MAX_SOURCE: f64 = 0.09003358334302902;
+
+/// A solution file that is a FIFO, a directory or a device is refused at once, naming the path
+/// and what it is; reading a FIFO would otherwise block forever (the reads run on a thread the
+/// test stops waiting for).
+#[cfg(unix)]
+#[test]
+fn a_solution_that_is_a_fifo_or_a_directory_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("fifo.volrad");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let folder = dir.path().join("folder.volrad");
+    std::fs::create_dir(&folder).unwrap();
+    let cases = vec![
+        (fifo, "is a FIFO, not a regular file"),
+        (folder, "is a directory, not a regular file"),
+        (
+            PathBuf::from("/dev/null"),
+            "is a character device, not a regular file",
+        ),
+    ];
+    let count = cases.len();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for (path, what) in cases {
+            let result = Solution::read(&path).map(|_| ());
+            let _ = tx.send((path, what, result));
+        }
+    });
+    for _ in 0..count {
+        let (path, what, result) = rx
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .expect("refused at once, not blocked reading a FIFO");
+        let err = result.expect_err("not a solution").to_string();
+        assert_eq!(err, format!("{}: {what}", path.display()));
+    }
+}

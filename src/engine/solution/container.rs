@@ -20,7 +20,6 @@
 //! temporary file in the same directory, is synced, then renamed over the final name, so a
 //! crash never leaves a half-written file under that name.
 
-use std::fs;
 use std::path::{Path, PathBuf};
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -252,7 +251,8 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
     }
 
     pub fn read(path: &Path) -> Result<Self, ContainerError> {
-        let bytes = fs::read(path).map_err(|source| ContainerError::Io {
+        // A FIFO, device or directory is refused, naming it, before anything is read.
+        let bytes = medium::regular_file::read(path).map_err(|source| ContainerError::Io {
             path: path.to_path_buf(),
             source,
         })?;
@@ -355,7 +355,7 @@ mod tests {
         let path = dir.path().join("s.volrad");
         sample().write(&path).unwrap();
         sample().write(&path).unwrap();
-        let names: Vec<_> = fs::read_dir(dir.path())
+        let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name())
             .collect();
