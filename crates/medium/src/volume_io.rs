@@ -248,7 +248,11 @@ const VOL_HEADER_BYTES: usize = 48;
 /// Reads Mitsuba's binary grid: `b"VOL"`, version byte 3, i32 encoding (1 = float32), i32
 /// `xres, yres, zres`, i32 channels (must be 1), 6 f32 bounding box, then x-fastest data.
 pub fn read_mitsuba_vol(path: &Path) -> Result<VolumeData, MediumError> {
-    let bytes = read_regular(path)?;
+    read_mitsuba_vol_bytes(&read_regular(path)?, path)
+}
+
+/// [`read_mitsuba_vol`] on bytes already in memory; `path` only names the file in errors.
+pub fn read_mitsuba_vol_bytes(bytes: &[u8], path: &Path) -> Result<VolumeData, MediumError> {
     if bytes.len() < VOL_HEADER_BYTES {
         return Err(vol_err(
             path,
@@ -419,7 +423,12 @@ fn nrrd_type(s: &str) -> Option<SampleType> {
 /// for multi-byte types, data attached after the blank line or in a detached `data file`
 /// (relative to the header). Values are converted to f32 without rescaling.
 pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
-    let bytes = read_regular(path)?;
+    read_nrrd_bytes(&read_regular(path)?, path)
+}
+
+/// [`read_nrrd`] on the header file's bytes already in memory; `path` names the file in
+/// errors and is where a detached `data file` is looked for (beside it).
+pub fn read_nrrd_bytes(bytes: &[u8], path: &Path) -> Result<VolumeData, MediumError> {
     if !bytes.starts_with(b"NRRD000") {
         return Err(vol_err(
             path,
@@ -551,9 +560,9 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
         None => (path.to_path_buf(), bytes[header_end..].to_vec()),
     };
 
-    let count =
-        cell_count(dims).ok_or_else(|| vol_err(path, format!("sizes {dims:?} are too large")))?;
-    let needed = count * ty.size();
+    let needed = cell_count(dims)
+        .and_then(|n| n.checked_mul(ty.size()))
+        .ok_or_else(|| vol_err(path, format!("sizes {dims:?} are too large")))?;
     // NRRD's byte skip counts bytes of the decoded data; -1 means "the data are the last
     // bytes", allowed for raw encoding only.
     let decoded: Vec<u8> = if gzip {
