@@ -31,6 +31,11 @@ pub const MAGIC: &[u8; 8] = b"VOLRADSL";
 /// `tests/data/solution-golden/` (`VOLRAD_BLESS=1 cargo test --test it solution_file`).
 pub const FORMAT_VERSION: u32 = 5;
 const FIXED_HEADER: usize = 24;
+/// The largest metadata (records and array table, without the arrays) a solution file may
+/// hold. The reader decodes with this limit, so a length inside hostile metadata cannot make
+/// it allocate more (a string length of 2⁶² aborted the process before; the fuzzer's find).
+/// Real metadata is kilobytes: cameras, lights, direction bins, residual history.
+pub const MAX_METADATA_BYTES: usize = 64 << 20;
 const ALIGN: usize = 64;
 
 /// A named array and where it lives in the payload.
@@ -132,6 +137,12 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
                 config,
             )
             .map_err(|e| e.to_string())?;
+            if envelope_bytes.len() > MAX_METADATA_BYTES {
+                return Err(format!(
+                    "metadata of {} bytes exceeds the {MAX_METADATA_BYTES}-byte limit",
+                    envelope_bytes.len()
+                ));
+            }
             let mut offset = align_up(FIXED_HEADER + 8 + envelope_bytes.len());
             let mut changed = false;
             for e in entries.iter_mut() {
@@ -224,12 +235,19 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
             return Err(malformed("no metadata".into()));
         }
         let meta_len = u64::from_le_bytes(bytes[24..32].try_into().unwrap()) as usize;
+        if meta_len > MAX_METADATA_BYTES {
+            return Err(malformed(format!(
+                "metadata length {meta_len} exceeds the {MAX_METADATA_BYTES}-byte limit"
+            )));
+        }
         let meta_bytes = bytes
             .get(32..32usize.saturating_add(meta_len))
             .ok_or_else(|| malformed(format!("metadata length {meta_len} exceeds the file")))?;
-        let (envelope, _): (Envelope<M>, usize) =
-            bincode::serde::decode_from_slice(meta_bytes, bincode::config::standard())
-                .map_err(|e| malformed(e.to_string()))?;
+        let (envelope, _): (Envelope<M>, usize) = bincode::serde::decode_from_slice(
+            meta_bytes,
+            bincode::config::standard().with_limit::<MAX_METADATA_BYTES>(),
+        )
+        .map_err(|e| malformed(e.to_string()))?;
         let mut arrays = Vec::with_capacity(envelope.arrays.len());
         for e in envelope.arrays {
             let start = e.offset as usize;
