@@ -14,6 +14,7 @@ pub mod bench_albedo;
 pub mod cli;
 pub mod commands;
 pub mod engine;
+pub mod fuzzing;
 pub mod info;
 pub mod progress;
 pub mod service;

@@ -5,8 +5,8 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::rejection::{BytesRejection, QueryRejection};
-use axum::extract::{DefaultBodyLimit, Path, Query, State};
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{DefaultBodyLimit, Path, RawQuery, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
@@ -17,7 +17,6 @@ use serde_json::{json, Value};
 
 use super::cache::{self, is_id};
 use super::jobs::{describe, parse_scene, JobState, Service, SubmitError};
-use crate::engine::solution::Solution;
 use crate::views::CameraRequest;
 
 /// The OpenAPI description served at `/v1/openapi.json`.
@@ -89,10 +88,15 @@ fn body_bytes(body: Result<Bytes, BytesRejection>) -> ApiResult<Bytes> {
     })
 }
 
-fn query_map(
-    q: Result<Query<HashMap<String, String>>, QueryRejection>,
-) -> ApiResult<HashMap<String, String>> {
-    q.map(|Query(m)| m)
+fn query_map(RawQuery(q): RawQuery) -> ApiResult<HashMap<String, String>> {
+    query_from_str(q.as_deref().unwrap_or(""))
+}
+
+/// A query string (what follows `?`) as a map, decoded as axum's `Query` would
+/// (`application/x-www-form-urlencoded`; a repeated key keeps its last value); public so that
+/// the fuzz targets and property tests reach it.
+pub fn query_from_str(query: &str) -> ApiResult<HashMap<String, String>> {
+    serde_urlencoded::from_str(query)
         .map_err(|e| ApiError::bad(format!("malformed query string: {e}")))
 }
 
@@ -110,12 +114,7 @@ async fn post_scene(
     let text =
         std::str::from_utf8(&body).map_err(|_| ApiError::bad("the scene is not UTF-8 text"))?;
     let table: toml::Table = if is_json {
-        let v: Value = serde_json::from_str(text)
-            .map_err(|e| ApiError::bad(format!("not valid JSON: {e}")))?;
-        match json_to_toml(&v, "")? {
-            toml::Value::Table(t) => t,
-            _ => return Err(ApiError::bad("a JSON scene must be an object")),
-        }
+        json_scene_table(text)?
     } else {
         // Syntax errors are reported by the scene parser, with the line.
         match text.parse::<toml::Table>() {
@@ -179,6 +178,17 @@ async fn post_scene(
         resp.headers_mut().insert(header::LOCATION, loc);
     }
     Ok(resp)
+}
+
+/// A JSON scene (`POST /v1/scenes` with a JSON content type) as the TOML table the scene
+/// parser reads; public so that the fuzz targets and property tests reach it.
+pub fn json_scene_table(text: &str) -> Result<toml::Table, ApiError> {
+    let v: Value =
+        serde_json::from_str(text).map_err(|e| ApiError::bad(format!("not valid JSON: {e}")))?;
+    match json_to_toml(&v, "")? {
+        toml::Value::Table(t) => Ok(t),
+        _ => Err(ApiError::bad("a JSON scene must be an object")),
+    }
 }
 
 /// JSON → TOML, refusing what TOML cannot hold (null, numbers out of range).
@@ -354,7 +364,7 @@ async fn cancel_scene(
 /// `POST /v1/volumes?dims=NX,NY,NZ`: a raw little-endian f32 volume (x fastest).
 async fn post_volume(
     State(service): State<Service>,
-    q: Result<Query<HashMap<String, String>>, QueryRejection>,
+    q: RawQuery,
     body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Response> {
     let q = query_map(q)?;
@@ -493,20 +503,52 @@ fn parse_vec3(q: &HashMap<String, String>, key: &str) -> ApiResult<Option<DVec3>
 }
 
 /// Output formats of `render`.
-#[derive(Clone, Copy, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 enum RenderFormat {
     Png,
     Pfm,
 }
 
-/// The camera of a render request: the scene camera named by `camera` (default: the
-/// solution's first, or one looking at the volume), with the query's overrides — the same
-/// rules as the command line's ([`CameraRequest`]) — checked against the limits.
-fn request_camera(
-    sol: &Solution,
+/// What a render request's query string asks, checked against the limits that need no
+/// solution: everything but resolving the camera, which [`render_camera`] does.
+#[derive(Clone, Debug)]
+pub struct RenderQuery {
+    format: RenderFormat,
+    pub spp: Option<u32>,
+    pub exposure: Option<f64>,
+    pub camera: CameraRequest,
+}
+
+/// Reads the query of `GET /v1/scenes/{id}/render` (unknown parameters, format, spp,
+/// exposure, the camera overrides); public so that the fuzz targets and property tests reach
+/// it.
+pub fn parse_render_query(
     q: &HashMap<String, String>,
-    service: &Service,
-) -> ApiResult<CameraSpec> {
+    limits: &super::Limits,
+) -> ApiResult<RenderQuery> {
+    refuse_unknown_parameters(q, &RENDER_PARAMETERS)?;
+    let format = match q.get("format").map(String::as_str) {
+        None | Some("png") => RenderFormat::Png,
+        Some("pfm") => RenderFormat::Pfm,
+        Some(other) => {
+            return Err(ApiError::bad(format!(
+                "format: `{other}` is not png or pfm"
+            )))
+        }
+    };
+    let spp = parse_u32(q, "spp")?;
+    if let Some(s) = spp {
+        if s > limits.max_spp {
+            return Err(ApiError::bad(format!(
+                "spp: {s} exceeds the server's limit of {}",
+                limits.max_spp
+            )));
+        }
+    }
+    let exposure = parse_f64(q, "exposure")?;
+    if exposure.is_some_and(|e| e < 0.0) {
+        return Err(ApiError::bad("exposure: must not be negative"));
+    }
     let fov = parse_f64(q, "fov")?;
     if let Some(f) = fov {
         if !(f > 0.0 && f < 180.0) {
@@ -515,7 +557,7 @@ fn request_camera(
             )));
         }
     }
-    let request = CameraRequest {
+    let camera = CameraRequest {
         name: q.get("camera").cloned(),
         eye: parse_vec3(q, "eye")?,
         target: parse_vec3(q, "target")?,
@@ -524,10 +566,26 @@ fn request_camera(
         width: parse_u32(q, "width")?,
         height: parse_u32(q, "height")?,
     };
+    Ok(RenderQuery {
+        format,
+        spp,
+        exposure,
+        camera,
+    })
+}
+
+/// The camera of a render request: the scene camera named by `camera` (default: the
+/// solution's first, or one looking at the volume), with the query's overrides — the same
+/// rules as the command line's ([`CameraRequest`]) — checked against the limits.
+pub fn render_camera(
+    request: &CameraRequest,
+    cameras: &[CameraSpec],
+    grid: &medium::Grid,
+    limits: &super::Limits,
+) -> ApiResult<CameraSpec> {
     let cam = request
-        .camera(&sol.cameras, sol.medium.grid())
+        .camera(cameras, grid)
         .map_err(|e| ApiError::bad(format!("{e:#}")))?;
-    let limits = &service.inner.limits;
     if cam.width > limits.max_image_side || cam.height > limits.max_image_side {
         return Err(ApiError::bad(format!(
             "width/height: {}×{} exceeds the server's limit of {} pixels per side",
@@ -576,33 +634,16 @@ fn refuse_unknown_parameters(q: &HashMap<String, String>, known: &[&str]) -> Api
 async fn render(
     State(service): State<Service>,
     Path(id): Path<String>,
-    q: Result<Query<HashMap<String, String>>, QueryRejection>,
+    q: RawQuery,
 ) -> ApiResult<Response> {
     let q = query_map(q)?;
-    refuse_unknown_parameters(&q, &RENDER_PARAMETERS)?;
-    let format = match q.get("format").map(String::as_str) {
-        None | Some("png") => RenderFormat::Png,
-        Some("pfm") => RenderFormat::Pfm,
-        Some(other) => {
-            return Err(ApiError::bad(format!(
-                "format: `{other}` is not png or pfm"
-            )))
-        }
-    };
-    let spp = parse_u32(&q, "spp")?;
     let limits = &service.inner.limits;
-    if let Some(s) = spp {
-        if s > limits.max_spp {
-            return Err(ApiError::bad(format!(
-                "spp: {s} exceeds the server's limit of {}",
-                limits.max_spp
-            )));
-        }
-    }
-    let exposure = parse_f64(&q, "exposure")?;
-    if exposure.is_some_and(|e| e < 0.0) {
-        return Err(ApiError::bad("exposure: must not be negative"));
-    }
+    let RenderQuery {
+        format,
+        spp,
+        exposure,
+        camera,
+    } = parse_render_query(&q, limits)?;
     let id = resolve(&service, &id)?;
     let solution = match service.solution(&id) {
         Some(s) => s,
@@ -615,7 +656,7 @@ async fn render(
             return Err(ApiError::new(StatusCode::CONFLICT, why));
         }
     };
-    let camera = request_camera(&solution, &q, &service)?;
+    let camera = render_camera(&camera, &solution.cameras, solution.medium.grid(), limits)?;
     if spp.unwrap_or(solution.render.spp) > limits.max_spp {
         return Err(ApiError::bad(format!(
             "spp: the scene's {} exceeds the server's limit of {}; give spp",

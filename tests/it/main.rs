@@ -7,6 +7,7 @@ mod architecture;
 mod bench_albedo;
 mod cli;
 mod environment;
+mod fuzz;
 mod readme;
 mod reference_cloud24;
 mod service;
