@@ -555,7 +555,12 @@ fn a_solution_that_is_a_fifo_or_a_directory_is_refused() {
         let (path, what, result) = rx
             .recv_timeout(std::time::Duration::from_secs(10))
             .expect("refused at once, not blocked reading a FIFO");
-        let err = result.expect_err("not a solution").to_string();
-        assert_eq!(err, format!("{}: {what}", path.display()));
+        let err = result.expect_err("not a solution");
+        assert_eq!(err.to_string(), format!("{}: {what}", path.display()));
+        // As the command line prints it (the whole chain): once, not twice.
+        assert_eq!(
+            format!("{:#}", anyhow::Error::new(err)),
+            format!("{}: {what}", path.display())
+        );
     }
 }

@@ -84,11 +84,12 @@ pub enum ContainerError {
     },
     #[error("{path}: malformed metadata: {message}")]
     Malformed { path: PathBuf, message: String },
-    #[error("{path}: {source}")]
+    /// Reading or writing failed. (The OS error is the message, not a source, so that an
+    /// error chain prints it once.)
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -270,9 +271,9 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
 
     pub fn read(path: &Path) -> Result<Self, ContainerError> {
         // A FIFO, device or directory is refused, naming it, before anything is read.
-        let bytes = medium::regular_file::read(path).map_err(|source| ContainerError::Io {
+        let bytes = medium::regular_file::read(path).map_err(|error| ContainerError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         Self::from_bytes(&bytes, path)
     }
@@ -285,9 +286,9 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
                 path: path.to_path_buf(),
                 message,
             })?;
-        medium::atomic_file::write_bytes(path, &bytes).map_err(|source| ContainerError::Io {
+        medium::atomic_file::write_bytes(path, &bytes).map_err(|error| ContainerError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         })
     }
 }
