@@ -298,7 +298,11 @@ fn the_seeds_are_valid() {
 /// - `solution-string-length.volrad` (found by `cargo fuzz run solution`): a string length of
 ///   about 8·10¹⁸ in the metadata made the decoder allocate it and abort the process;
 /// - `nrrd-size-overflow.nrrd` (found reading the code): sizes whose byte count overflows
-///   (2⁶² doubles) panicked on the multiplication.
+///   (2⁶² doubles) panicked on the multiplication;
+/// - `scene_toml-hot-blackbody.toml` (found by `cargo fuzz run scene_toml` as a 14 s
+///   timeout): a scene whose blackbody temperatures reach 91,200 K built a colour table of
+///   91,200 × 471 Planck evaluations before it was refused for a misspelt camera key (the
+///   table's size is tested in `medium::blackbody`).
 #[test]
 fn inputs_that_broke_a_parser_are_refused() {
     let dir = repo("tests/data/fuzz-regressions");
@@ -319,6 +323,14 @@ fn inputs_that_broke_a_parser_are_refused() {
                 .unwrap_err()
                 .to_string()
             }
+            "scene_toml" => {
+                fuzzing::scene_toml(&bytes);
+                let text = String::from_utf8_lossy(&bytes);
+                scene::Scene::from_toml_str(&text, Path::new(fuzzing::NO_DIR), label)
+                    .map(drop)
+                    .unwrap_err()
+                    .to_string()
+            }
             "nrrd" => {
                 fuzzing::nrrd(&bytes);
                 medium::volume_io::read_nrrd_bytes(&bytes, label)
@@ -331,5 +343,5 @@ fn inputs_that_broke_a_parser_are_refused() {
         assert!(err.starts_with(&format!("{name}: ")), "{err}");
         seen += 1;
     }
-    assert_eq!(seen, 2);
+    assert_eq!(seen, 3);
 }
