@@ -25,6 +25,9 @@ pub(crate) enum SceneLight {
 pub(crate) struct Ctx<'a> {
     pub(crate) file: &'a Path,
     pub(crate) base_dir: &'a Path,
+    /// The volume's data values given by the caller ([`crate::Scene::with_volume_data`]),
+    /// taken once by `[volume]`'s check instead of a `file` or `generator`.
+    pub(crate) supplied: std::cell::Cell<Option<medium::volume_io::VolumeData>>,
 }
 
 pub(crate) fn join(prefix: &str, key: &str) -> String {

@@ -95,6 +95,8 @@ pub enum VolumeSource {
     /// given as text with a relative base directory).
     File(PathBuf),
     Generator(Generator),
+    /// Values given by the caller ([`Scene::with_volume_data`]).
+    Supplied,
 }
 
 /// Why a scene could not be read.
@@ -163,9 +165,32 @@ impl Scene {
         base_dir: &Path,
         file_label: &Path,
     ) -> Result<Scene, SceneError> {
+        Scene::parse(text, base_dir, file_label, None)
+    }
+
+    /// Validates scene text whose volume data come from the caller (an array in memory, as
+    /// the Python package's `Scene(sigma_t=...)` gives them) instead of a `[volume] file` or
+    /// `generator`; every other key means what it means in a file. `[volume] dims`, if given,
+    /// must agree with `data.dims`.
+    pub fn with_volume_data(
+        text: &str,
+        data: VolumeData,
+        base_dir: &Path,
+        file_label: &Path,
+    ) -> Result<Scene, SceneError> {
+        Scene::parse(text, base_dir, file_label, Some(data))
+    }
+
+    fn parse(
+        text: &str,
+        base_dir: &Path,
+        file_label: &Path,
+        supplied: Option<VolumeData>,
+    ) -> Result<Scene, SceneError> {
         let ctx = Ctx {
             file: file_label,
             base_dir,
+            supplied: std::cell::Cell::new(supplied),
         };
         let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
             let line = e

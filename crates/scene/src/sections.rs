@@ -154,7 +154,36 @@ impl Ctx<'_> {
             .transpose()?;
         let mut placement = None;
         let mut voxel_size = None;
+        let supplied = self.supplied.take();
+        if supplied.is_some() {
+            for (key, given) in [
+                ("volume.file", vol.file.is_some()),
+                ("volume.generator", vol.generator.is_some()),
+                ("volume.grid", vol.grid.is_some()),
+            ] {
+                if given {
+                    return Err(self.err(
+                        key,
+                        "the volume's values were given as an array; leave out `file`, `generator` and `grid`",
+                    ));
+                }
+            }
+        }
         let (source, data) = match (&vol.file, &vol.generator) {
+            _ if supplied.is_some() => {
+                let data = supplied.expect("checked above");
+                if let Some(d) = dims.filter(|d| *d != data.dims) {
+                    return Err(self.err(
+                        "volume.dims",
+                        format!("{d:?} disagrees with the given array's {:?}", data.dims),
+                    ));
+                }
+                Grid::new(data.dims, 1.0).map_err(|e| self.err("volume.dims", e.to_string()))?;
+                // The fields are public: a caller may have paired values and dims wrongly.
+                let data = VolumeData::new(data.dims, data.values)
+                    .map_err(|e| self.err("volume", e.to_string()))?;
+                (VolumeSource::Supplied, data)
+            }
             (Some(_), Some(_)) => {
                 return Err(self.err(
                     "volume.generator",
@@ -241,6 +270,7 @@ impl Ctx<'_> {
         let data_key = match source {
             VolumeSource::File(_) => "volume.file",
             VolumeSource::Generator(_) => "volume.generator",
+            VolumeSource::Supplied => "volume",
         };
         if let Some(i) = data.values.iter().position(|v| !v.is_finite()) {
             let [x, y, z] = Grid {
