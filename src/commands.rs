@@ -50,6 +50,41 @@ pub fn run_default(output: &Path, quiet: bool) -> Result<()> {
     Ok(())
 }
 
+/// Changes to a scene's `[solve]` settings for one solve (`volrad solve --method …`, the
+/// Python package's `Scene.solve(method=…)`).
+#[derive(Clone, Debug, Default)]
+pub struct SolveOverrides {
+    pub method: Option<scene::SolveMethod>,
+    pub iteration: Option<solver::Method>,
+    pub tolerance: Option<f64>,
+    pub max_iterations: Option<usize>,
+}
+
+impl SolveOverrides {
+    /// `settings` with the overrides applied; a bad tolerance is refused.
+    pub fn apply(&self, settings: &scene::SolveSettings) -> Result<scene::SolveSettings> {
+        let mut settings = settings.clone();
+        if let Some(method) = self.method {
+            settings.method = method;
+            // A new method brings its own default iteration unless an iteration is given.
+            settings.iteration = method.default_iteration();
+        }
+        if let Some(iteration) = self.iteration {
+            settings.iteration = iteration;
+        }
+        if let Some(t) = self.tolerance {
+            if !(t.is_finite() && t > 0.0) {
+                bail!("tolerance {t}: must be a positive number");
+            }
+            settings.tolerance = t;
+        }
+        if let Some(n) = self.max_iterations {
+            settings.max_iterations = n;
+        }
+        Ok(settings)
+    }
+}
+
 /// Solves with a progress bar and Ctrl-C cancellation.
 pub fn solve_with_progress(
     scene: &Scene,
@@ -315,24 +350,13 @@ fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
 
 pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
     let scene = load_scene(&args.scene)?;
-    let mut settings = scene.solve.clone();
-    if let Some(method) = args.method {
-        settings.method = method;
-        // A new method brings its own default iteration unless --iteration says otherwise.
-        settings.iteration = method.default_iteration();
+    let settings = SolveOverrides {
+        method: args.method,
+        iteration: args.iteration,
+        tolerance: args.tolerance,
+        max_iterations: args.max_iterations,
     }
-    if let Some(iteration) = args.iteration {
-        settings.iteration = iteration;
-    }
-    if let Some(t) = args.tolerance {
-        if !(t.is_finite() && t > 0.0) {
-            bail!("--tolerance {t}: must be a positive number");
-        }
-        settings.tolerance = t;
-    }
-    if let Some(n) = args.max_iterations {
-        settings.max_iterations = n;
-    }
+    .apply(&scene.solve)?;
     // Refused before the solve, not after it: a folder as output, or a folder that cannot be made.
     if is_directory_target(&args.output) {
         bail!(

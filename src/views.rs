@@ -26,6 +26,18 @@ pub struct CameraRequest {
 }
 
 impl CameraRequest {
+    /// This request with every part `other` gives replaced by `other`'s (the name too).
+    pub fn merge(&mut self, other: &CameraRequest) {
+        let other = other.clone();
+        self.name = other.name.or(self.name.take());
+        self.eye = other.eye.or(self.eye);
+        self.target = other.target.or(self.target);
+        self.up = other.up.or(self.up);
+        self.fov_y_degrees = other.fov_y_degrees.or(self.fov_y_degrees);
+        self.width = other.width.or(self.width);
+        self.height = other.height.or(self.height);
+    }
+
     /// The overrides of the command line's view flags.
     pub fn from_args(name: Option<&str>, view: &ViewArgs) -> CameraRequest {
         CameraRequest {
