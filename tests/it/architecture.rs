@@ -74,7 +74,9 @@ fn looks_like_type(token: &str) -> bool {
 }
 
 /// Standard-library traits and types the document may name.
-const STD: [&str; 6] = ["FromStr", "Display", "Default", "Vec", "String", "Option"];
+const STD: [&str; 7] = [
+    "FromStr", "Display", "Default", "Vec", "String", "Option", "Arc",
+];
 
 /// Whether `source` declares `name` as a struct, enum, trait, type alias or enum variant.
 fn declares(source: &str, name: &str) -> bool {

@@ -1,0 +1,223 @@
+"""The Python package against the command line: same renders bit for bit, same messages."""
+
+import os
+import pickle
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import volrad
+from conftest import read_pfm, run_cli
+
+LIGHT = {"kind": "directional", "direction": [0.0, 0.0, -1.0], "irradiance": 1.0}
+
+
+def test_a_loaded_solution_renders_what_the_cli_renders(cloud_scene, tmp_path):
+    stored = tmp_path / "cloud.volrad"
+    run_cli("solve", cloud_scene, "-o", stored)
+    run_cli("render", "--solution", stored, "-o", tmp_path / "front.pfm")
+    run_cli(
+        "render", "--solution", stored, "--eye", "30,-10,20", "--target", "7,6,5",
+        "--up", "0,0,1", "--width", "40", "--height", "24", "-o", tmp_path / "custom.pfm",
+    )
+    solution = volrad.Solution.load(stored)
+    front = solution.render("front")
+    assert front.dtype == np.float32 and front.shape == (36, 48)
+    assert front.max() > 0
+    np.testing.assert_array_equal(front, read_pfm(tmp_path / "front.pfm"))
+    custom = solution.render(eye=[30, -10, 20], target=[7, 6, 5], up=[0, 0, 1], width=40, height=24)
+    np.testing.assert_array_equal(custom, read_pfm(tmp_path / "custom.pfm"))
+    # A camera as a dict is the same request as keyword arguments.
+    as_dict = solution.render(
+        {"eye": [30, -10, 20], "target": [7, 6, 5], "up": [0, 0, 1], "width": 40, "height": 24}
+    )
+    np.testing.assert_array_equal(as_dict, custom)
+
+
+def test_a_python_solve_matches_the_cli_solution(cloud_scene, tmp_path):
+    stored = tmp_path / "cloud.volrad"
+    run_cli("solve", cloud_scene, "-o", stored)
+    cli = volrad.Solution.load(stored)
+    solved = volrad.Scene.from_file(cloud_scene).solve()
+    assert solved.scene_hash == cli.scene_hash
+    np.testing.assert_array_equal(solved.render(), cli.render())
+    np.testing.assert_array_equal(solved.field("fluence"), cli.field("fluence"))
+
+
+def test_an_array_scene_is_the_scene_file_with_the_same_values(tmp_path):
+    rng = np.random.default_rng(5)
+    sigma_t = rng.uniform(0.0, 1.5, size=(6, 7, 8)).astype(np.float32)  # (nz, ny, nx)
+    sigma_t.tofile(tmp_path / "vol.f32")  # C order: x fastest, as volrad's raw files
+    (tmp_path / "scene.toml").write_text(
+        """
+[volume]
+file = "vol.f32"
+dims = [8, 7, 6]
+cell_size = 0.5
+[medium]
+albedo = 0.8
+phase = { kind = "henyey-greenstein", g = 0.3 }
+[[light]]
+kind = "directional"
+direction = [0.0, 0.0, -1.0]
+irradiance = 1.0
+[solve]
+method = "zonal"
+"""
+    )
+    from_file = volrad.Scene.from_file(tmp_path / "scene.toml")
+    from_arrays = volrad.Scene(
+        sigma_t.astype(np.float64),  # converted to float32, as the file holds
+        cell_size=0.5,
+        albedo=0.8,
+        phase={"kind": "henyey-greenstein", "g": 0.3},
+        lights=[LIGHT],
+        method="zonal",
+    )
+    assert from_arrays.dims == (8, 7, 6)
+    assert from_arrays.scene_hash == from_file.scene_hash
+    solution = from_arrays.solve()
+    np.testing.assert_array_equal(solution.field("sigma-t"), sigma_t)
+    assert solution.field("fluence").shape == (6, 7, 8)
+
+
+def test_bad_input_raises_the_cli_message(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[volume]\ngenerator = { kind = "cloud" }\ndims = [8, 8, 8]\n'
+        "[medium]\nalbedo = 1.5\n"
+        '[[light]]\nkind = "directional"\ndirection = [0, 0, -1]\nirradiance = 1\n'
+    )
+    cli = run_cli("solve", bad, "-o", tmp_path / "x.volrad", check=False)
+    assert cli.returncode != 0
+    with pytest.raises(volrad.VolradError) as raised:
+        volrad.Scene.from_file(bad)
+    assert cli.stderr.strip() == f"error: {raised.value}"
+    assert "medium.albedo" in str(raised.value)
+
+    garbage = tmp_path / "garbage.volrad"
+    garbage.write_bytes(b"not a solution at all")
+    cli = run_cli("render", "--solution", garbage, "-o", tmp_path / "x.png", check=False)
+    with pytest.raises(volrad.VolradError) as raised:
+        volrad.Solution.load(garbage)
+    assert cli.stderr.strip() == f"error: {raised.value}"
+
+
+def test_array_arguments_are_checked():
+    with pytest.raises(volrad.VolradError, match="3-dimensional"):
+        volrad.Scene(np.ones((4, 4)), albedo=0.5, lights=[LIGHT])
+    with pytest.raises(volrad.VolradError, match="medium.albedo"):
+        volrad.Scene(np.ones((4, 4, 4)), lights=[LIGHT])
+    with pytest.raises(volrad.VolradError, match="cannot be a scene value"):
+        volrad.Scene(np.ones((4, 4, 4)), albedo=object(), lights=[LIGHT])
+    scene = volrad.Scene(np.ones((4, 4, 4)), albedo=0.5, lights=[LIGHT], method="zonal")
+    with pytest.raises(volrad.VolradError, match="method"):
+        scene.solve(method="no-such-method")
+    solution = scene.solve()
+    with pytest.raises(volrad.VolradError, match="unknown field"):
+        solution.field("temperature")
+    with pytest.raises(volrad.VolradError, match="no camera named"):
+        solution.render("nowhere")
+    with pytest.raises(volrad.VolradError, match="unknown key"):
+        solution.render({"eyes": [0, 0, 0]})
+
+
+def test_solutions_travel_as_bytes_and_pickles(tmp_path):
+    scene = volrad.Scene(np.full((5, 5, 5), 0.7), albedo=0.9, lights=[LIGHT], method="zonal")
+    solution = scene.solve()
+    view = dict(eye=[2.5, -12, 2.5], target=[2.5, 2.5, 2.5], up=[0, 0, 1], width=20, height=16)
+    reference = solution.render(**view)
+    assert reference.max() > 0
+    for copy in (
+        volrad.Solution.from_bytes(solution.to_bytes()),
+        pickle.loads(pickle.dumps(solution)),
+    ):
+        np.testing.assert_array_equal(copy.render(**view), reference)
+    solution.save(tmp_path / "s.volrad")
+    loaded = volrad.Solution.load(tmp_path / "s.volrad")
+    np.testing.assert_array_equal(loaded.render(**view), reference)
+
+
+def test_rgb_fields_put_the_channel_last():
+    scene = volrad.Scene(
+        np.full((4, 5, 6), 0.5), albedo=[0.9, 0.6, 0.3], lights=[LIGHT], method="zonal"
+    )
+    solution = scene.solve()
+    assert solution.channels == 3
+    fluence = solution.field("fluence")
+    assert fluence.shape == (4, 5, 6, 3)
+    for c in range(3):
+        np.testing.assert_array_equal(fluence[..., c], solution.field("fluence", channel=c))
+    # Less albedo, less scattered light: the channels differ in the physical order.
+    assert fluence[..., 0].mean() > fluence[..., 1].mean() > fluence[..., 2].mean()
+    image = solution.render(eye=[3, -15, 2], target=[3, 2.5, 2], up=[0, 0, 1], width=16, height=12)
+    assert image.shape == (12, 16, 3)
+
+
+def test_to_xarray_labels_the_fields_with_cell_centres():
+    xr = pytest.importorskip("xarray")  # optional for users; CI installs it
+    scene = volrad.Scene(
+        np.full((3, 4, 5), 0.5), cell_size=2.0, albedo=0.9, lights=[LIGHT], method="zonal"
+    )
+    ds = scene.solve().to_xarray()
+    assert isinstance(ds, xr.Dataset)
+    assert ds["fluence"].dims == ("z", "y", "x")
+    np.testing.assert_allclose(ds["x"].values, [1, 3, 5, 7, 9])
+    assert float(ds["sigma_t"].max()) == pytest.approx(0.5)
+
+
+def slow_scene():
+    """A solve of many seconds: a thick, bright medium iterated to a tight tolerance."""
+    rng = np.random.default_rng(1)
+    sigma_t = rng.uniform(1.0, 3.0, size=(20, 24, 24)).astype(np.float32)
+    return volrad.Scene(
+        sigma_t,
+        albedo=0.999,
+        lights=[LIGHT],
+        method="discrete-ordinates",
+        solve={"tolerance": 1e-12, "max_iterations": 100000},
+    )
+
+
+def test_solves_release_the_gil():
+    ticks = 0
+    done = threading.Event()
+
+    def count():
+        nonlocal ticks
+        while not done.is_set():
+            ticks += 1
+            time.sleep(0.001)
+
+    scene = volrad.Scene(
+        np.full((16, 16, 16), 2.0),
+        albedo=0.99,
+        lights=[LIGHT],
+        method="discrete-ordinates",
+        solve={"tolerance": 1e-9},
+    )
+    counter = threading.Thread(target=count)
+    counter.start()
+    started = time.time()
+    scene.solve()
+    seconds = time.time() - started
+    done.set()
+    counter.join()
+    # With the GIL held through the solve the counter could not tick during it.
+    assert seconds > 0.2
+    assert ticks > 0.25 * seconds * 1000
+
+
+def test_ctrl_c_cancels_a_solve():
+    scene = slow_scene()
+    timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
+    started = time.time()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        scene.solve()
+    seconds = time.time() - started
+    timer.cancel()
+    assert seconds < 5.0, f"the solve went on for {seconds:.1f} s after Ctrl-C"
