@@ -356,18 +356,7 @@ impl PySolution {
         spp: Option<u32>,
         extinction_scale: Option<f32>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let mut request = match camera {
-            None => CameraRequest::default(),
-            Some(c) if c.is_instance_of::<PyString>() => CameraRequest {
-                name: Some(c.extract()?),
-                ..CameraRequest::default()
-            },
-            Some(c) => camera_request(c.cast::<PyDict>().map_err(|_| {
-                VolradError::new_err(
-                    "camera: expected a camera name, a dict of camera keys or None",
-                )
-            })?)?,
-        };
+        let mut request = camera_argument(camera)?;
         let overrides = CameraRequest {
             name: None,
             eye: eye.map(glam::DVec3::from),
@@ -399,6 +388,45 @@ impl PySolution {
             flat.reshape([h, w, c])?.into_any()
         };
         Ok(shaped)
+    }
+
+    /// `n` cameras on a horizontal circle around `camera`'s target (the same as `volrad
+    /// render --orbit n`), keeping its distance, elevation and image: a list of camera dicts
+    /// for `render`, in order. `camera` is as in `render` (a name, a dict or `None`).
+    #[pyo3(signature = (n, camera = None))]
+    fn orbit<'py>(
+        &self,
+        py: Python<'py>,
+        n: u32,
+        camera: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        if n == 0 {
+            return Err(VolradError::new_err("orbit: n must be at least 1"));
+        }
+        let request = camera_argument(camera)?;
+        let base = request
+            .camera(&self.solution.cameras, self.solution.medium.grid())
+            .map_err(refuse)?;
+        volrad::views::orbit_cameras(&base, n)
+            .into_iter()
+            .map(|cam| {
+                let d = PyDict::new(py);
+                // A stored camera's name carries what a dict cannot say (an orthographic
+                // projection); the keys below override the rest of it.
+                if let Some(name) = &request.name {
+                    d.set_item("name", name)?;
+                }
+                d.set_item("eye", cam.eye.to_array())?;
+                d.set_item("target", cam.target.to_array())?;
+                d.set_item("up", cam.up.to_array())?;
+                if let gather::Projection::Perspective { fov_y_degrees } = cam.projection {
+                    d.set_item("fov_y_degrees", fov_y_degrees)?;
+                }
+                d.set_item("width", cam.width)?;
+                d.set_item("height", cam.height)?;
+                Ok(d)
+            })
+            .collect()
     }
 
     /// A per-cell field as a float32 array `(nz, ny, nx)` for one channel, or `(nz, ny, nx,
@@ -657,6 +685,21 @@ fn to_toml(value: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
 }
 
 /// A camera request from a dict of the camera keys `volrad render` takes.
+/// `render`'s and `orbit`'s `camera` argument: a stored camera's name, a dict of camera
+/// keys, or `None` for the first stored camera.
+fn camera_argument(camera: Option<&Bound<'_, PyAny>>) -> PyResult<CameraRequest> {
+    match camera {
+        None => Ok(CameraRequest::default()),
+        Some(c) if c.is_instance_of::<PyString>() => Ok(CameraRequest {
+            name: Some(c.extract()?),
+            ..CameraRequest::default()
+        }),
+        Some(c) => camera_request(c.cast::<PyDict>().map_err(|_| {
+            VolradError::new_err("camera: expected a camera name, a dict of camera keys or None")
+        })?),
+    }
+}
+
 fn camera_request(d: &Bound<'_, PyDict>) -> PyResult<CameraRequest> {
     const KEYS: [&str; 7] = [
         "name",

@@ -22,6 +22,14 @@ def volrad_bin():
     return str(path)
 
 
+def optional(module):
+    """An optional dependency (xarray, ray): its tests are skipped where it is missing, unless
+    VOLRAD_TEST_OPTIONAL=1 (CI installs them all and must run every test)."""
+    if os.environ.get("VOLRAD_TEST_OPTIONAL") == "1":
+        return __import__(module)
+    return pytest.importorskip(module)
+
+
 def run_cli(*args, check=True):
     return subprocess.run(
         [volrad_bin(), "--quiet", *map(str, args)], capture_output=True, text=True, check=check

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import volrad
-from conftest import read_pfm, run_cli
+from conftest import optional, read_pfm, run_cli
 
 LIGHT = {"kind": "directional", "direction": [0.0, 0.0, -1.0], "irradiance": 1.0}
 
@@ -158,7 +158,7 @@ def test_rgb_fields_put_the_channel_last():
 
 
 def test_to_xarray_labels_the_fields_with_cell_centres():
-    xr = pytest.importorskip("xarray")  # optional for users; CI installs it
+    xr = optional("xarray")
     scene = volrad.Scene(
         np.full((3, 4, 5), 0.5), cell_size=2.0, albedo=0.9, lights=[LIGHT], method="zonal"
     )
@@ -221,3 +221,18 @@ def test_ctrl_c_cancels_a_solve():
     seconds = time.time() - started
     timer.cancel()
     assert seconds < 5.0, f"the solve went on for {seconds:.1f} s after Ctrl-C"
+
+
+def test_an_orbit_renders_what_the_cli_orbit_renders(cloud_scene, tmp_path):
+    stored = tmp_path / "cloud.volrad"
+    run_cli("solve", cloud_scene, "-o", stored)
+    run_cli("render", "--solution", stored, "--orbit", "3", "-o", tmp_path / "v.pfm")
+    solution = volrad.Solution.load(stored)
+    cameras = solution.orbit(3, "front")
+    assert len(cameras) == 3
+    for i, camera in enumerate(cameras):
+        np.testing.assert_array_equal(
+            solution.render(camera), read_pfm(tmp_path / f"v_front_{i:03}.pfm")
+        )
+    with pytest.raises(volrad.VolradError, match="at least 1"):
+        solution.orbit(0)

@@ -154,6 +154,9 @@ fn recover(cache: &CacheDir, id: &str) -> Option<Recovered> {
     })
 }
 
+/// Most solution files one lookup of an unknown id reads from a shared cache directory.
+const MAX_ADOPTED_PER_LOOKUP: usize = 4;
+
 /// Shortest id prefix the API accepts for a scene (the viewer shows 12 characters).
 pub const MIN_ID_PREFIX: usize = 8;
 
@@ -309,7 +312,19 @@ impl Service {
     /// The full id of a known scene given its id or a unique prefix of at least
     /// [`MIN_ID_PREFIX`] characters (what the viewer shows). `Err` names the candidates when
     /// the prefix is ambiguous; `Ok(None)` when nothing matches.
+    ///
+    /// An id this instance does not know may name a solution another instance sharing the
+    /// cache directory wrote since: such solutions are adopted first ([`Service::adopt`]).
     pub fn resolve(&self, id: &str) -> Result<Option<String>, Vec<String>> {
+        match self.resolve_known(id)? {
+            Some(full) => Ok(Some(full)),
+            None if self.adopt(id) > 0 => self.resolve_known(id),
+            None => Ok(None),
+        }
+    }
+
+    /// [`Service::resolve`] among the scenes this instance already holds.
+    fn resolve_known(&self, id: &str) -> Result<Option<String>, Vec<String>> {
         let jobs = self.lock();
         if jobs.contains_key(id) {
             return Ok(Some(id.to_string()));
@@ -326,6 +341,60 @@ impl Service {
                 Err(matches)
             }
         }
+    }
+
+    /// Registers, as done, the valid solution files in the cache directory whose ids begin
+    /// with `prefix` (at least [`MIN_ID_PREFIX`] characters) and that this instance does not
+    /// hold: several instances sharing one cache directory (docs/service.md) serve each
+    /// other's solutions. Only finished solutions are adopted — a scene text without its
+    /// solution may be solving elsewhere, and is left alone. Returns how many were adopted.
+    pub fn adopt(&self, prefix: &str) -> usize {
+        if prefix.len() < MIN_ID_PREFIX {
+            return 0;
+        }
+        let cache = &self.inner.cache;
+        let candidates: Vec<String> = {
+            let jobs = self.lock();
+            cache
+                .known_ids()
+                .into_iter()
+                .filter(|id| id.starts_with(prefix) && !jobs.contains_key(id))
+                .filter(|id| cache.solution_path(id).is_file())
+                // A bound on the work one request can cause; a prefix this loose is
+                // ambiguous anyway.
+                .take(MAX_ADOPTED_PER_LOOKUP)
+                .collect()
+        };
+        let mut adopted = 0;
+        for id in candidates {
+            let Some(found) = recover(cache, &id) else {
+                continue;
+            };
+            let Some(solution) = found.solution else {
+                continue;
+            };
+            let stamp = self.tick();
+            let mut jobs = self.lock();
+            if jobs.contains_key(&id) {
+                continue;
+            }
+            tracing::info!("cache: serving {id}, solved by another instance");
+            jobs.insert(
+                id.clone(),
+                Job {
+                    scene: found.scene,
+                    state: JobState::Done,
+                    solution: Some(solution),
+                    control: Arc::new(solver::SolveControl::new()),
+                    file_bytes: found.bytes,
+                    last_used: stamp,
+                    note: None,
+                },
+            );
+            evict(&mut jobs, cache, self.inner.limits.max_cache_bytes, &id);
+            adopted += 1;
+        }
+        adopted
     }
 
     /// State of scene `id`, if known.
@@ -349,6 +418,18 @@ impl Service {
     /// solve. Returns the id and whether a new solve was queued.
     pub(crate) fn submit(&self, scene: Scene, text: &str) -> Result<(String, bool), SubmitError> {
         let id = scene_id(&scene);
+        // Solved already by another instance sharing the cache directory: served, not solved.
+        if self.adopt(&id) > 0 {
+            let mut jobs = self.lock();
+            if let Some(job) = jobs.get_mut(&id) {
+                if job.scene.is_none() {
+                    job.scene = Some(Arc::new(scene));
+                    cache::write_atomic(&self.inner.cache.scene_path(&id), text.as_bytes())
+                        .map_err(|e| SubmitError::Storage(format!("{e:#}")))?;
+                }
+                return Ok((id, false));
+            }
+        }
         let mut jobs = self.lock();
         if let Some(job) = jobs.get_mut(&id) {
             // The same scene again is the same job; a failed or evicted one is tried again.

@@ -159,7 +159,9 @@ async fn post_scene(
             service.inner.limits.max_solve_bytes >> 20
         )));
     }
-    let (id, queued) = service.submit(scene, &canonical).map_err(|e| match e {
+    // Submitting may read a solution another instance wrote (Service::adopt).
+    let submitted = tokio::task::block_in_place(|| service.submit(scene, &canonical));
+    let (id, queued) = submitted.map_err(|e| match e {
         SubmitError::TooMany(n) => ApiError::new(
             StatusCode::TOO_MANY_REQUESTS,
             format!("the server already holds {n} scenes; DELETE some first"),
@@ -311,7 +313,9 @@ async fn list_scenes(State(service): State<Service>) -> Json<Value> {
 /// The full id for a path's id or unique prefix: 404 when nothing matches, 400 when the
 /// prefix names several scenes.
 fn resolve(service: &Service, id: &str) -> ApiResult<String> {
-    match service.resolve(id) {
+    // An unknown id may read a solution file another instance wrote (Service::adopt): the
+    // read blocks, so the runtime moves this thread's other tasks elsewhere meanwhile.
+    match tokio::task::block_in_place(|| service.resolve(id)) {
         Ok(Some(full)) => Ok(full),
         Ok(None) => Err(ApiError::not_found(id)),
         Err(candidates) => Err(ApiError::bad(format!(

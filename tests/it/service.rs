@@ -664,3 +664,46 @@ fn renders_beyond_the_waiting_limit_are_refused() {
         200
     );
 }
+
+/// Several instances behind a load balancer share one cache directory: a scene solved by one
+/// is served by the others (found by id or prefix, rendered the same), and posting it to
+/// another is not solved again; a scene still solving elsewhere stays unknown there.
+#[test]
+fn instances_sharing_a_cache_directory_serve_each_others_solutions() {
+    let dir = tempfile::tempdir().unwrap();
+    let first = start(dir.path());
+    let second = start(dir.path());
+    let id = submit(first.addr, &scene(6, 0.9));
+    assert_eq!(wait_finished(first.addr, &id)["state"], "done");
+
+    // Unknown to the second instance when it started; found in the shared directory now.
+    let v = get(second.addr, &format!("/v1/scenes/{}", &id[..12]))
+        .unwrap()
+        .json();
+    assert_eq!(v["state"], "done", "{v}");
+    assert_eq!(v["id"], id.as_str());
+    let query = format!("/v1/scenes/{id}/render?width=32&height=24&format=pfm");
+    let from_first = get(first.addr, &query).unwrap();
+    let from_second = get(second.addr, &query).unwrap();
+    assert_eq!(from_second.status, 200, "{}", from_second.text());
+    assert_eq!(from_first.body, from_second.body);
+
+    // Posting the same scene to a third instance serves the stored solution: no new solve.
+    let third = start(dir.path());
+    let r = post_scene(third.addr, &scene(6, 0.9));
+    assert_eq!(r.status, 202, "{}", r.text());
+    let v = r.json();
+    assert_eq!(v["id"], id.as_str());
+    assert_eq!(v["queued"], false, "{v}");
+    assert_eq!(v["state"], "done", "{v}");
+
+    // A scene text without its solution (as while another instance solves it) is left alone.
+    let other = submit(first.addr, &scene(7, 0.9));
+    let _ = wait_finished(first.addr, &other);
+    std::fs::remove_file(dir.path().join(format!("{other}.vrs"))).unwrap();
+    let r = get(second.addr, &format!("/v1/scenes/{other}")).unwrap();
+    assert_eq!(r.status, 404, "{}", r.text());
+    for server in [first, second, third] {
+        server.stop();
+    }
+}
