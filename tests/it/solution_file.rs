@@ -509,6 +509,17 @@ fn golden_two_pass_decodes() {
     assert!(!t.include_first_bounce);
     assert_eq!(t.energy.interactions, TWO_PASS_INTERACTIONS);
     assert_eq!(t.max_source, TWO_PASS_MAX_SOURCE);
+    // The field is stored as arrays, not in the metadata, whose size is bounded
+    // (MAX_METADATA_BYTES): a 48×48×36 two-pass solution's 96 MB field once failed to write.
+    let bytes = std::fs::read(golden_path(TWO_PASS.file)).unwrap();
+    let container = decode(&bytes, TWO_PASS.file);
+    let names: Vec<&str> = container.arrays.iter().map(|(n, _)| n.as_str()).collect();
+    assert!(
+        names.contains(&"two_pass/0/voxel_source") && names.contains(&"two_pass/0/cell_share"),
+        "{names:?}"
+    );
+    let metadata_len = u64::from_le_bytes(bytes[24..32].try_into().unwrap());
+    assert!(metadata_len < 4096, "metadata of {metadata_len} bytes");
 }
 
 // Values read from the committed golden files (exact: they are what the files hold).

@@ -226,7 +226,17 @@ impl Solution {
             let field = match &sol.scattered {
                 ScatteredField::None => FieldKind::None,
                 ScatteredField::TwoPass(t) => {
-                    two_pass = Some(t.as_ref().into());
+                    let mut record: records::TwoPassRecord = t.as_ref().into();
+                    // The fields go with the arrays: metadata stays kilobytes.
+                    arrays.push((
+                        format!("two_pass/{c}/voxel_source"),
+                        std::mem::take(&mut record.voxel_source),
+                    ));
+                    arrays.push((
+                        format!("two_pass/{c}/cell_share"),
+                        std::mem::take(&mut record.cell_share),
+                    ));
+                    two_pass = Some(record);
                     FieldKind::TwoPass
                 }
                 ScatteredField::Isotropic {
@@ -364,9 +374,15 @@ impl Solution {
                     higher_order: take(format!("higher_order/{ci}"), cells)?,
                 },
                 FieldKind::TwoPass => {
-                    let t = cm
+                    let mut record = cm
                         .two_pass
-                        .ok_or_else(|| bad("two-pass field without its stored result".into()))?
+                        .ok_or_else(|| bad("two-pass field without its stored result".into()))?;
+                    let values = record.voxel_source_len().ok_or_else(|| {
+                        bad(format!("channel {ci}: two-pass dims and bins overflow"))
+                    })?;
+                    record.voxel_source = take(format!("two_pass/{ci}/voxel_source"), values)?;
+                    record.cell_share = take(format!("two_pass/{ci}/cell_share"), cells)?;
+                    let t = record
                         .into_library()
                         .map_err(|e| bad(format!("channel {ci}: {e}")))?;
                     t.check_grid(&grid).map_err(|e| bad(e.to_string()))?;

@@ -726,9 +726,12 @@ pub struct TwoPassRecord {
     /// The direction bins: `n_theta` bands times `n_phi` sectors.
     pub n_theta: u64,
     pub n_phi: u64,
-    /// Per optical voxel and outgoing bin (`o · bins + l`).
+    /// Per optical voxel and outgoing bin (`o · bins + l`). Stored as the array
+    /// `two_pass/{channel}/voxel_source`, not in the metadata (it is megabytes to gigabytes).
+    #[serde(skip)]
     pub voxel_source: Vec<f32>,
-    /// Per density cell.
+    /// Per density cell; stored as the array `two_pass/{channel}/cell_share`.
+    #[serde(skip)]
     pub cell_share: Vec<f32>,
     pub energy: PhotonEnergyRecord,
     pub include_first_bounce: bool,
@@ -753,6 +756,17 @@ impl From<&TwoPassSolution> for TwoPassRecord {
 }
 
 impl TwoPassRecord {
+    /// The length of `voxel_source` the record's dims and bins imply (`None` on overflow);
+    /// the reader takes the array of that length, and `into_library` checks it again.
+    pub fn voxel_source_len(&self) -> Option<usize> {
+        let voxels = self
+            .optical_dims
+            .iter()
+            .try_fold(1u64, |acc, &d| acc.checked_mul(d))?;
+        let values = voxels.checked_mul(self.n_theta)?.checked_mul(self.n_phi)?;
+        usize::try_from(values).ok()
+    }
+
     /// Checks what `energetize` guarantees and the render's lookups index by: the grid
     /// ([`Grid::new`]), a storage factor of at least 1 with the optical dims it implies, at
     /// least one direction bin, one source value per optical voxel and bin, one share per
