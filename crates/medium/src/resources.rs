@@ -4,11 +4,23 @@
 
 use crate::MediumError;
 
-/// Memory the system reports as available to new allocations (Linux `MemAvailable`), in
-/// bytes; `None` where it cannot be read.
+/// Memory available to new allocations, in bytes: the system's `MemAvailable` (Linux), or
+/// what this process's cgroup still allows when that is less (a container's limit, which
+/// `MemAvailable` does not show); `None` where neither can be read.
 pub fn available_memory() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let system = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| mem_available(&text));
+    let cgroup = cgroup_headroom();
+    match (system, cgroup) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}
+
+/// `MemAvailable` from the text of `/proc/meminfo`, in bytes.
+fn mem_available(meminfo: &str) -> Option<u64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kib: u64 = line
         .trim_start_matches("MemAvailable:")
         .trim()
@@ -17,6 +29,36 @@ pub fn available_memory() -> Option<u64> {
         .parse()
         .ok()?;
     kib.checked_mul(1024)
+}
+
+/// The cgroup's limit minus its usage: cgroup v2 (`memory.max`, `memory.current`) or v1
+/// (`memory.limit_in_bytes`, `memory.usage_in_bytes`) at the root of the process's view.
+fn cgroup_headroom() -> Option<u64> {
+    let read = |path: &str| std::fs::read_to_string(path).ok();
+    let v2 = || {
+        headroom(
+            &read("/sys/fs/cgroup/memory.max")?,
+            &read("/sys/fs/cgroup/memory.current")?,
+        )
+    };
+    let v1 = || {
+        headroom(
+            &read("/sys/fs/cgroup/memory/memory.limit_in_bytes")?,
+            &read("/sys/fs/cgroup/memory/memory.usage_in_bytes")?,
+        )
+    };
+    v2().or_else(v1)
+}
+
+/// `limit − usage` from a cgroup's files; `None` without a limit (`max`, or v1's huge
+/// "unlimited" value).
+fn headroom(limit: &str, usage: &str) -> Option<u64> {
+    let limit: u64 = limit.trim().parse().ok()?;
+    if limit >= 1 << 60 {
+        return None;
+    }
+    let usage: u64 = usage.trim().parse().ok()?;
+    Some(limit.saturating_sub(usage))
 }
 
 /// Refuses `bytes` for `what` when they exceed the available memory (a machine that does not
@@ -42,6 +84,19 @@ fn gib(bytes: u64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn available_memory_reads_meminfo_and_cgroup_limits() {
+        let meminfo =
+            "MemTotal:       24683584 kB\nMemFree:  100 kB\nMemAvailable:   23290824 kB\n";
+        assert_eq!(mem_available(meminfo), Some(23290824 * 1024));
+        assert_eq!(mem_available("MemTotal: 5 kB\n"), None);
+        assert_eq!(headroom("4294967296\n", "1073741824\n"), Some(3 << 30));
+        assert_eq!(headroom("max\n", "1073741824\n"), None);
+        // cgroup v1 writes a page-rounded i64::MAX for "no limit".
+        assert_eq!(headroom("9223372036854771712\n", "5\n"), None);
+        assert_eq!(headroom("100", "200"), Some(0));
+    }
 
     #[test]
     fn more_than_the_machine_has_is_refused_and_a_little_is_not() {
