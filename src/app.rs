@@ -14,12 +14,12 @@ pub fn run(cli: Cli) -> Result<()> {
             .context("setting up the thread pool")?;
     }
     match cli.command {
-        None => crate::commands::run_default(&cli.default_output, cli.quiet),
-        Some(Command::Render(args)) => crate::commands::render(&args, cli.quiet),
-        Some(Command::Solve(args)) => crate::commands::solve(&args, cli.quiet),
+        None => crate::commands::run_default(&cli.default_output, cli.quiet, cli.max_memory),
+        Some(Command::Render(args)) => crate::commands::render(&args, cli.quiet, cli.max_memory),
+        Some(Command::Solve(args)) => crate::commands::solve(&args, cli.quiet, cli.max_memory),
         Some(Command::Info(args)) => crate::commands::info(&args),
         Some(Command::Export(args)) => crate::commands::export(&args),
-        Some(Command::Serve(args)) => crate::service::run_cli(&args, cli.quiet),
+        Some(Command::Serve(args)) => crate::service::run_cli(&args, cli.quiet, cli.max_memory),
         Some(Command::Bench(crate::cli::BenchCommand::Albedo(args))) => {
             crate::bench_albedo::run(&args, cli.quiet)
         }

@@ -32,6 +32,12 @@ pub struct Cli {
     #[arg(long, global = true)]
     pub threads: Option<usize>,
 
+    /// Largest memory a solve or an image may use, e.g. 4G or 512M (default: what the
+    /// machine has available); a solve predicted to need more is refused before it starts,
+    /// saying what would fit. For `serve`, the limit of each solve.
+    #[arg(long, global = true, value_name = "SIZE", value_parser = crate::engine::budget::parse_size)]
+    pub max_memory: Option<u64>,
+
     /// Output file for the default run (no command).
     #[arg(short = 'o', long = "output", default_value = "volrad-default.png")]
     pub default_output: PathBuf,

@@ -22,10 +22,10 @@ pub fn default_scene() -> Result<Scene> {
 }
 
 /// `volrad` with no command: the built-in cloud, solved with its default method, rendered.
-pub fn run_default(output: &Path, quiet: bool) -> Result<()> {
+pub fn run_default(output: &Path, quiet: bool, max_memory: Option<u64>) -> Result<()> {
     let scene = default_scene()?;
     let started = Instant::now();
-    let solution = solve_with_progress(&scene, &scene.solve, quiet)?;
+    let solution = solve_with_progress(&scene, &scene.solve, quiet, max_memory)?;
     let camera = scene
         .cameras
         .first()
@@ -86,14 +86,24 @@ impl SolveOverrides {
 }
 
 /// Solves with a progress bar and Ctrl-C cancellation.
+/// `max_memory` is `--max-memory`; without it the solve must fit in the memory the machine
+/// has available.
 pub fn solve_with_progress(
     scene: &Scene,
     settings: &scene::SolveSettings,
     quiet: bool,
+    max_memory: Option<u64>,
 ) -> Result<Solution> {
+    let hooks = SolveHooks {
+        control: Default::default(),
+        memory_limit: crate::engine::budget::MemoryLimit::given_or_available(max_memory),
+    };
+    // Refused before the progress bar starts.
+    crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let progress = SolveProgress::start(settings, quiet);
     let hooks = SolveHooks {
         control: Arc::new(progress.control()),
+        ..hooks
     };
     crate::progress::cancel_on_ctrl_c(hooks.control.clone());
     let solution = solve_scene(scene, settings, &hooks);
@@ -113,12 +123,12 @@ pub fn solve_with_progress(
     Ok(solution)
 }
 
-pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
+pub fn render(args: &RenderArgs, quiet: bool, max_memory: Option<u64>) -> Result<()> {
     if args.path_trace {
         if args.extinction_scale.is_some() {
             bail!("--extinction-scale changes a render from a solution; the path tracer has none");
         }
-        return render_path_traced(args, quiet);
+        return render_path_traced(args, quiet, max_memory);
     }
     // Everything that can be refused is refused before the solve: the scene, whether the
     // solution belongs to it, the cameras and every output path.
@@ -139,9 +149,18 @@ pub fn render(args: &RenderArgs, quiet: bool) -> Result<()> {
         (None, None) => bail!("render needs a scene file or --solution FILE"),
     };
     let plan = plan_views(args, &cameras, &grid)?;
+    let channels = match (&scene, &stored) {
+        (Some(s), _) => s.medium.channels().len(),
+        (None, Some(s)) => s.channels.len(),
+        (None, None) => unreachable!("refused above"),
+    };
+    let limit = crate::engine::budget::MemoryLimit::given_or_available(max_memory);
+    for view in &plan.views {
+        crate::engine::budget::check_image(view.width, view.height, channels, limit)?;
+    }
     let solution = match (stored, &scene) {
         (Some(s), _) => s,
-        (None, Some(scene)) => solve_with_progress(scene, &scene.solve, quiet)?,
+        (None, Some(scene)) => solve_with_progress(scene, &scene.solve, quiet, max_memory)?,
         (None, None) => unreachable!("refused above"),
     };
     // The flag, else the scene's, else automatic from the first view (kept for the rest, so
@@ -267,7 +286,7 @@ fn check_image_output(out: &Path) -> Result<()> {
 }
 
 /// `render --path-trace`: unbiased Monte Carlo of the scene, no solve.
-fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
+fn render_path_traced(args: &RenderArgs, quiet: bool, max_memory: Option<u64>) -> Result<()> {
     let (medium, lights, surroundings, cameras, exposure) = match (&args.scene, &args.solution) {
         (Some(path), _) => {
             let scene = load_scene(path)?;
@@ -303,6 +322,12 @@ fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
     let spec = CameraRequest::from_args(args.camera.as_deref(), &args.view)
         .camera(&cameras, medium.grid())?;
     let camera = gather::Camera::from_spec(&spec)?;
+    crate::engine::budget::check_image(
+        camera.width,
+        camera.height,
+        medium.channels().len(),
+        crate::engine::budget::MemoryLimit::given_or_available(max_memory),
+    )?;
     check_image_output(&args.output)?;
     let options = montecarlo::path_trace::PathTraceOptions {
         spp: args.spp.unwrap_or(64),
@@ -348,7 +373,7 @@ fn render_path_traced(args: &RenderArgs, quiet: bool) -> Result<()> {
     Ok(())
 }
 
-pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
+pub fn solve(args: &SolveArgs, quiet: bool, max_memory: Option<u64>) -> Result<()> {
     let scene = load_scene(&args.scene)?;
     let settings = SolveOverrides {
         method: args.method,
@@ -368,7 +393,7 @@ pub fn solve(args: &SolveArgs, quiet: bool) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let started = Instant::now();
-    let solution = solve_with_progress(&scene, &settings, quiet || args.json)?;
+    let solution = solve_with_progress(&scene, &settings, quiet || args.json, max_memory)?;
     solution
         .write(&args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;

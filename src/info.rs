@@ -2,6 +2,7 @@
 
 use std::fmt;
 
+use crate::engine::budget;
 use formfactor::ordinates::{forward_truncation_fraction, DirectionBins};
 use scene::Scene;
 use scene::{SceneOrigin, SolveMethod};
@@ -32,8 +33,10 @@ pub struct SceneInfo {
     /// The linear iteration, as `[solve] iteration` spells it.
     pub iteration: String,
     pub medium_bytes: usize,
-    /// Rough memory a solve needs with the scene's method (unknowns, work vectors, operator).
-    pub solve_memory_estimate_bytes: usize,
+    /// Predicted peak resident memory of `volrad solve` with the scene's settings
+    /// ([`budget::solve_peak`]), and its parts.
+    pub peak_memory_bytes: u64,
+    pub memory_parts: Vec<budget::MemoryPart>,
     /// Largest optical depth of one cell (σt · cell size).
     pub max_cell_optical_depth: f64,
     /// What the discrete-ordinates solve will use (discrete ordinates only).
@@ -108,21 +111,7 @@ impl SceneInfo {
                 occupied += 1;
             }
         }
-        let unknowns_per_cell = match scene.solve.method {
-            SolveMethod::DiscreteOrdinates => scene.solve.bins,
-            SolveMethod::Zonal | SolveMethod::ZonalHierarchical => 1,
-            _ => 0,
-        };
-        // Unknowns and ~4 f64 work vectors, the light pass, plus the operator: the exact zonal
-        // matrix is dense over occupied cells (12 bytes per stored entry); the hierarchical
-        // operator is estimated at ~200 links per cell.
-        let vectors = occupied * unknowns_per_cell * 8 * 5 + cells * 8;
-        let operator = match scene.solve.method {
-            SolveMethod::Zonal => occupied * occupied * 12,
-            SolveMethod::ZonalHierarchical => occupied * 200 * 16,
-            SolveMethod::DiscreteOrdinates => scene.solve.bins * scene.solve.bins * 8,
-            _ => 0,
-        };
+        let peak = budget::solve_peak(scene, &scene.solve);
         let h = m.grid().cell_size;
         let max_cell_optical_depth = hi * h;
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
@@ -193,7 +182,8 @@ impl SceneInfo {
             method: scene.solve.method.name().to_string(),
             iteration: scene.solve.iteration.to_string(),
             medium_bytes: m.memory_bytes(),
-            solve_memory_estimate_bytes: vectors + operator,
+            peak_memory_bytes: peak.total(),
+            memory_parts: peak.parts().to_vec(),
             max_cell_optical_depth,
             ordinates,
             openvdb: scene.volume_placement().map(|p| OpenVdbInfo {
@@ -202,10 +192,6 @@ impl SceneInfo {
             }),
         }
     }
-}
-
-fn mib(bytes: usize) -> f64 {
-    bytes as f64 / (1024.0 * 1024.0)
 }
 
 impl fmt::Display for SceneInfo {
@@ -272,9 +258,14 @@ impl fmt::Display for SceneInfo {
         }
         writeln!(
             f,
-            "memory           medium {:.1} MiB, solve ≈ {:.1} MiB",
-            mib(self.medium_bytes),
-            mib(self.solve_memory_estimate_bytes)
+            "memory           solve peak ≈ {} ({})",
+            budget::human_bytes(self.peak_memory_bytes),
+            self.memory_parts
+                .iter()
+                .filter(|p| p.bytes >= 1 << 20)
+                .map(|p| format!("{} {}", p.what, budget::human_bytes(p.bytes)))
+                .collect::<Vec<_>>()
+                .join(", ")
         )
     }
 }

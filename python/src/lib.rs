@@ -22,6 +22,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyBytes, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 
 use volrad::commands::SolveOverrides;
+use volrad::engine::budget::{parse_size, MemoryLimit};
 use volrad::engine::methods::{export_field, refuse_cancelled, ExportField, SolveSummary};
 use volrad::engine::pipeline::{render_view_through, solve_scene, view_medium};
 use volrad::engine::solution::Solution;
@@ -208,7 +209,11 @@ impl PyScene {
     /// Solves the light transport. `method`, `iteration`, `tolerance` and `max_iterations`
     /// override `[solve]` as `volrad solve`'s flags do. The GIL is released while it runs;
     /// Ctrl-C (KeyboardInterrupt) cancels it. `progress` shows the command line's spinner.
-    #[pyo3(signature = (method = None, *, iteration = None, tolerance = None, max_iterations = None, progress = false))]
+    /// `max_memory` (bytes, or a size such as `"4G"`) is `--max-memory`: a solve predicted to
+    /// need more — by default, more than the machine has available — is refused before it
+    /// starts, saying what would fit.
+    #[pyo3(signature = (method = None, *, iteration = None, tolerance = None, max_iterations = None, progress = false, max_memory = None))]
+    #[allow(clippy::too_many_arguments)]
     fn solve(
         &self,
         py: Python<'_>,
@@ -217,7 +222,20 @@ impl PyScene {
         tolerance: Option<f64>,
         max_iterations: Option<usize>,
         progress: bool,
+        max_memory: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PySolution> {
+        let max_memory = match max_memory {
+            None => None,
+            Some(m) if m.is_instance_of::<PyString>() => Some(
+                parse_size(&m.extract::<String>()?)
+                    .map_err(|e| VolradError::new_err(format!("max_memory: {e}")))?,
+            ),
+            Some(m) => Some(m.extract::<u64>().map_err(|_| {
+                VolradError::new_err(
+                    "max_memory: expected a number of bytes or a size such as \"4G\"",
+                )
+            })?),
+        };
         let overrides = SolveOverrides {
             method: method
                 .map(|m| m.parse::<scene::SolveMethod>())
@@ -235,6 +253,7 @@ impl PyScene {
         let bar = SolveProgress::start(&settings, !progress);
         let hooks = SolveHooks {
             control: Arc::new(bar.control()),
+            memory_limit: MemoryLimit::given_or_available(max_memory),
         };
         let scene = &self.scene;
         let outcome = run_cancellable(py, &hooks.control, || solve_scene(scene, &settings, &hooks));

@@ -236,3 +236,20 @@ def test_an_orbit_renders_what_the_cli_orbit_renders(cloud_scene, tmp_path):
         )
     with pytest.raises(volrad.VolradError, match="at least 1"):
         solution.orbit(0)
+
+
+def test_a_solve_that_cannot_fit_raises_before_it_starts():
+    scene = volrad.Scene(
+        np.full((24, 32, 32), 0.5, dtype=np.float32),
+        albedo=0.9,
+        phase={"kind": "henyey-greenstein", "g": 0.85},
+        lights=[LIGHT],
+        method="discrete-ordinates",
+        solve={"bins": 384},
+    )
+    started = time.monotonic()
+    with pytest.raises(volrad.VolradError, match=r"needs about .*--max-memory.*bins = "):
+        scene.solve(max_memory="256M")
+    assert time.monotonic() - started < 5
+    with pytest.raises(volrad.VolradError, match="max_memory"):
+        scene.solve(max_memory="lots")

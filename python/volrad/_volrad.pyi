@@ -60,6 +60,7 @@ class Scene:
         tolerance: Optional[float] = None,
         max_iterations: Optional[int] = None,
         progress: bool = False,
+        max_memory: Union[None, int, str] = None,
     ) -> "Solution": ...
 
 class Solution:

@@ -4,6 +4,7 @@
 //! solution file ([`solution`]). It knows no command line and no HTTP: the front ends
 //! (`cli`, `commands`, `service`, `validate`, `bench_albedo`) sit above it.
 
+pub mod budget;
 pub mod methods;
 pub mod pipeline;
 pub mod solution;
@@ -15,4 +16,7 @@ use std::sync::Arc;
 #[derive(Clone, Default)]
 pub struct SolveHooks {
     pub control: Arc<solver::SolveControl>,
+    /// The memory the solve must fit in ([`budget::check_solve`], before any work); `None`
+    /// checks nothing.
+    pub memory_limit: Option<budget::MemoryLimit>,
 }

@@ -64,6 +64,7 @@ pub fn solve_scene(
     // Before any light pass or operator: an iteration the method cannot run is refused now.
     crate::engine::methods::check_iteration(settings)?;
     crate::engine::methods::check_environment(scene, settings)?;
+    crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let medium = &scene.medium;
     let mut channels = Vec::with_capacity(medium.channels().len());
     for (c, channel) in medium.channels().iter().enumerate() {
@@ -158,6 +159,12 @@ pub fn render_view_through(
         );
     }
     let camera = Camera::from_spec(camera)?;
+    crate::engine::budget::check_image(
+        camera.width,
+        camera.height,
+        solution.channels.len(),
+        crate::engine::budget::MemoryLimit::given_or_available(None),
+    )?;
     let mut options = RenderOptions::from_settings(&solution.render, solution.background);
     options.environment = solution.environment;
     if let Some(spp) = spp {

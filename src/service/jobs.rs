@@ -13,6 +13,7 @@ use serde_json::{json, Value};
 
 use super::cache::{self, CacheDir};
 use super::{Limits, ServiceConfig};
+use crate::engine::budget::{LimitSource, MemoryLimit};
 use crate::engine::pipeline::{scene_hash, solve_scene};
 use crate::engine::solution::Solution;
 use crate::engine::SolveHooks;
@@ -397,6 +398,19 @@ impl Service {
         adopted
     }
 
+    /// What one solve may use: the per-solve limit, or less when the machine has less
+    /// available now (renders and other solutions hold memory too).
+    pub(crate) fn solve_memory_limit(&self) -> MemoryLimit {
+        let configured = MemoryLimit {
+            bytes: self.inner.limits.max_solve_bytes as u64,
+            source: LimitSource::Service,
+        };
+        match MemoryLimit::given_or_available(None) {
+            Some(available) if available.bytes < configured.bytes => available,
+            _ => configured,
+        }
+    }
+
     /// State of scene `id`, if known.
     pub fn state(&self, id: &str) -> Option<JobState> {
         self.lock().get(id).map(|j| j.state.clone())
@@ -580,6 +594,7 @@ impl Service {
                     }
                 },
             )),
+            memory_limit: Some(self.solve_memory_limit()),
         };
         let started = std::time::Instant::now();
         let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {

@@ -206,13 +206,18 @@ pub fn run(config: ServiceConfig, addr: &str, quiet: bool) -> Result<()> {
 }
 
 /// `volrad serve` from its command-line arguments.
-pub fn run_cli(args: &crate::cli::ServeArgs, quiet: bool) -> Result<()> {
+/// `max_memory` is `--max-memory`: the limit of each solve (default 2 GiB, or what the
+/// machine has available when that is less).
+pub fn run_cli(args: &crate::cli::ServeArgs, quiet: bool, max_memory: Option<u64>) -> Result<()> {
     let mut config = ServiceConfig::new(&args.cache);
     config.limits.max_body_bytes = args.max_body_bytes;
     config.limits.max_cells = args.max_cells;
     config.limits.max_image_side = args.max_image_side;
     config.limits.max_spp = args.max_spp;
     config.limits.max_iterations = args.max_iterations;
+    if let Some(bytes) = max_memory {
+        config.limits.max_solve_bytes = usize::try_from(bytes).unwrap_or(usize::MAX);
+    }
     config.limits.max_cache_bytes = args.max_cache_mib.saturating_mul(1 << 20);
     if let Some(n) = args.render_slots {
         config.render_slots = n.max(1);

@@ -149,16 +149,11 @@ async fn post_scene(
             service.inner.limits.max_cells
         )));
     }
-    let estimate = crate::info::SceneInfo::of(&scene).solve_memory_estimate_bytes;
-    if estimate > service.inner.limits.max_solve_bytes {
-        return Err(ApiError::bad(format!(
-            "solve.method: `{}` on {cells} cells needs about {} MiB, over the server's limit of {} MiB \
-             (use a smaller grid, or zonal-hierarchical / discrete-ordinates with fewer bins)",
-            scene.solve.method.name(),
-            estimate >> 20,
-            service.inner.limits.max_solve_bytes >> 20
-        )));
-    }
+    // The model `volrad info` prints, against the per-solve limit (or less, when the machine
+    // has less available): refused now, not after queueing. The worker checks again when the
+    // solve starts, as memory may have gone meanwhile.
+    crate::engine::budget::check_solve(&scene, &scene.solve, Some(service.solve_memory_limit()))
+        .map_err(|e| ApiError::bad(format!("{e:#}")))?;
     // Submitting may read a solution another instance wrote (Service::adopt).
     let submitted = tokio::task::block_in_place(|| service.submit(scene, &canonical));
     let (id, queued) = submitted.map_err(|e| match e {

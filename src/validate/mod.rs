@@ -729,7 +729,11 @@ fn run_method(
         },
     ));
     crate::progress::cancel_on_ctrl_c(control.clone());
-    let hooks = SolveHooks { control };
+    let hooks = SolveHooks {
+        control,
+        // The report measures every method on the sample scenes: refuse none for its size.
+        memory_limit: None,
+    };
     let started = Instant::now();
     let solution = solve_scene(scene, &solve, &hooks)?;
     let solve_seconds = started.elapsed().as_secs_f64();

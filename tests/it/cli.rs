@@ -584,3 +584,115 @@ fn outputs_and_solutions_are_checked_before_the_work() {
         stderr(&o)
     );
 }
+
+/// A solve predicted to need more memory than allowed is refused before it starts, naming
+/// what needs it and what would fit, and writes nothing; `volrad info` prints the same
+/// prediction, and the same scene solves under a limit it fits.
+#[test]
+fn a_solve_that_cannot_fit_is_refused_before_it_starts() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("big.toml");
+    std::fs::write(
+        &scene,
+        r#"
+[volume]
+generator = { kind = "cloud", seed = 3 }
+dims = [48, 48, 36]
+[medium]
+albedo = 0.9
+phase = { kind = "henyey-greenstein", g = 0.85 }
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, 0.2]
+irradiance = 1.0
+[solve]
+method = "discrete-ordinates"
+bins = 384
+"#,
+    )
+    .unwrap();
+    let info = volrad(&["info", "--json", s(&scene)]);
+    assert!(info.status.success(), "{}", stderr(&info));
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let peak = info["peak_memory_bytes"].as_u64().unwrap();
+    // 82,944 cells × 384 bins of f64 state: gigabytes, not the megabytes of the medium.
+    assert!(peak > 1 << 30, "{info}");
+
+    let out = dir.path().join("big.volrad");
+    let started = std::time::Instant::now();
+    let o = volrad(&[
+        "-q",
+        "--max-memory",
+        "512M",
+        "solve",
+        s(&scene),
+        "-o",
+        s(&out),
+    ]);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("needs about")
+            && err.contains("--max-memory")
+            && err.contains("direction bins")
+            && err.contains("bins = "),
+        "{err}"
+    );
+    assert!(started.elapsed().as_secs() < 10, "refused only after work");
+    assert!(!out.exists());
+
+    // The advice is true: the first suggestion's bins fit under the same limit.
+    let bins: usize = err
+        .split("bins = ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no bin count in {err}"));
+    let o = volrad(&[
+        "info",
+        "--json",
+        s(&std::fs::read_to_string(&scene)
+            .map(|t| {
+                let p = dir.path().join("fewer.toml");
+                std::fs::write(&p, t.replace("bins = 384", &format!("bins = {bins}"))).unwrap();
+                p
+            })
+            .unwrap()),
+    ]);
+    let fewer: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(
+        fewer["peak_memory_bytes"].as_u64().unwrap() <= 512 << 20,
+        "{fewer}"
+    );
+
+    // An image too large for the limit is refused before the scene is solved.
+    let png = dir.path().join("huge.png");
+    let started = std::time::Instant::now();
+    let o = volrad(&[
+        "-q",
+        "--max-memory",
+        "1G",
+        "render",
+        s(&scene),
+        "--width",
+        "20000",
+        "--height",
+        "20000",
+        "-o",
+        s(&png),
+    ]);
+    let err = stderr(&o);
+    assert!(
+        !o.status.success() && err.contains("20000×20000") && err.contains("smaller image"),
+        "{err}"
+    );
+    assert!(
+        started.elapsed().as_secs() < 10,
+        "refused only after the solve"
+    );
+    assert!(!png.exists());
+
+    // A bad size is refused by the argument parser.
+    let o = volrad(&["--max-memory", "lots", "solve", s(&scene), "-o", s(&out)]);
+    assert!(!o.status.success() && stderr(&o).contains("expected a size"));
+}

@@ -1,0 +1,484 @@
+//! What a solve will cost in memory, and the check that refuses one that cannot fit before any
+//! work starts.
+//!
+//! [`solve_peak`] predicts the peak resident memory of solving a scene with given settings as
+//! a sum of named parts (the process, the medium, the light pass, each method's operator and
+//! state, the iteration's work vectors, the solution file's bytes). Its coefficients are the
+//! measured bytes per unit of what each method allocates; `benches/memory.py` compares the
+//! prediction with the measured peak of `volrad solve` on every method (docs/performance.md,
+//! "Memory"). [`check_solve`] compares the prediction with a limit — `--max-memory`, the
+//! service's per-job limit, or the memory the machine has available — and, when it does not
+//! fit, says what would.
+
+use std::fmt;
+
+use anyhow::{bail, Result};
+use scene::{Scene, SolveMethod, SolveSettings};
+
+/// One term of a prediction.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MemoryPart {
+    pub what: &'static str,
+    pub bytes: u64,
+}
+
+/// A predicted peak of resident memory, in named parts.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MemoryEstimate {
+    parts: Vec<MemoryPart>,
+}
+
+impl MemoryEstimate {
+    pub fn total(&self) -> u64 {
+        self.parts.iter().map(|p| p.bytes).sum()
+    }
+
+    pub fn parts(&self) -> &[MemoryPart] {
+        &self.parts
+    }
+
+    /// The largest part (what a refusal names as the cause).
+    pub fn largest(&self) -> &MemoryPart {
+        self.parts
+            .iter()
+            .max_by_key(|p| p.bytes)
+            .expect("an estimate has the process part at least")
+    }
+}
+
+/// The process itself: code, thread stacks, allocator arenas, the runtime (measured: a solve
+/// of a tiny scene peaks at 22–25 MiB).
+const PROCESS_BYTES: u64 = 22 << 20;
+/// Per cell and channel, every method: the light pass's fields and σt copy, the solution's
+/// copy of the medium and its first-bounce data (measured with method `none`).
+const LIGHT_PASS_BYTES_PER_CELL: u64 = 80;
+/// Exact zonal: per pair of non-empty cells — the CSR matrix (value and column index) and the
+/// rows it is assembled from.
+const ZONAL_BYTES_PER_PAIR: u64 = 32;
+/// Hierarchical zonal: per non-empty cell (its links, the cluster tree, the diffusion
+/// operator), and per cell of the grid. Links per cell vary with the medium (measured 24–30
+/// kB per non-empty cell from a 12 %-full cloud to a uniform block).
+const HIERARCHICAL_BYTES_PER_OCCUPIED_CELL: u64 = 26_000;
+const HIERARCHICAL_BYTES_PER_CELL: u64 = 1_500;
+/// Discrete ordinates: per cell and bin — the solution and right-hand side, the sweep's
+/// densities and per-piece outputs, the stored field; the iteration's vectors come on top
+/// (Gauss–Seidel's are the sweep's two bin-major copies).
+const ORDINATES_BYTES_PER_CELL_BIN: u64 = 70;
+/// Discrete ordinates: per cell, the sweep's coefficient tables.
+const ORDINATES_BYTES_PER_CELL: u64 = 200;
+/// Two-pass: per cell and direction bin, and per non-empty cell and bin. Four f64 tallies,
+/// their sum and the f32 source are allocated dense (44 bytes per cell and bin), but zeroed
+/// pages become resident only where photons deposit power, so the measured peak sits between
+/// the non-empty and the whole grid (fitted: 28 + 11 bytes).
+const TWO_PASS_BYTES_PER_CELL_BIN: u64 = 28;
+const TWO_PASS_BYTES_PER_OCCUPIED_CELL_BIN: u64 = 11;
+/// Two-pass and discrete ordinates: what each further channel keeps, per cell and bin (its
+/// solved field and the solution file's copies of it).
+const STORED_BYTES_PER_CELL_BIN: u64 = 18;
+
+/// Vectors of the system's length an iteration keeps beside the solution and right-hand side.
+/// GMRES's basis grows by one vector per iteration up to its restart length: its figure is
+/// that bound, reached by a solve that runs a whole restart cycle.
+fn work_vectors(iteration: &solver::Method, max_iterations: usize) -> u64 {
+    use solver::Method as M;
+    match iteration {
+        M::Jacobi => 1,
+        M::GaussSeidel | M::Sor { .. } => 0,
+        M::Gmres { restart } => (*restart).min(max_iterations) as u64 + 2,
+        M::BiCgStab => 6,
+        M::ConjugateGradient => 3,
+        M::CoarseCg | M::TwoLevelCg { .. } | M::DsaCg => 5,
+        M::CoarseCorrected { .. } => 2,
+    }
+}
+
+/// What the solve's size depends on, read once from the scene.
+struct Sizes {
+    cells: u64,
+    occupied: u64,
+    channels: u64,
+}
+
+impl Sizes {
+    fn of(scene: &Scene) -> Sizes {
+        let medium = &scene.medium;
+        let cells = medium.grid().cell_count();
+        let occupied = (0..cells)
+            .filter(|&i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
+            .count();
+        Sizes {
+            cells: cells as u64,
+            occupied: occupied as u64,
+            channels: medium.channels().len() as u64,
+        }
+    }
+}
+
+/// The predicted peak resident memory of solving `scene` with `settings`.
+pub fn solve_peak(scene: &Scene, settings: &SolveSettings) -> MemoryEstimate {
+    peak_of(&Sizes::of(scene), scene, settings)
+}
+
+fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate {
+    let mut parts = vec![
+        MemoryPart {
+            what: "the process",
+            bytes: PROCESS_BYTES,
+        },
+        MemoryPart {
+            what: "the medium",
+            bytes: scene.medium.memory_bytes() as u64,
+        },
+        MemoryPart {
+            what: "the light pass",
+            bytes: s
+                .cells
+                .saturating_mul(s.channels)
+                .saturating_mul(LIGHT_PASS_BYTES_PER_CELL),
+        },
+    ];
+    // Channels are solved one after the other; each keeps its solved field.
+    let per_channel = |bytes: u64, stored: u64| {
+        bytes.saturating_add(stored.saturating_mul(s.channels.saturating_sub(1)))
+    };
+    match settings.method {
+        SolveMethod::None | SolveMethod::SingleScatter => {}
+        SolveMethod::Zonal => {
+            let pairs = s.occupied.saturating_mul(s.occupied);
+            parts.push(MemoryPart {
+                what: "the zonal form-factor matrix (non-empty cells squared)",
+                bytes: pairs.saturating_mul(ZONAL_BYTES_PER_PAIR),
+            });
+            parts.push(MemoryPart {
+                what: "the iteration's vectors",
+                bytes: per_channel(
+                    s.cells.saturating_mul(8).saturating_mul(
+                        2 + work_vectors(&settings.iteration, settings.max_iterations),
+                    ),
+                    s.cells.saturating_mul(8),
+                ),
+            });
+        }
+        SolveMethod::ZonalHierarchical => {
+            parts.push(MemoryPart {
+                what: "the hierarchical operator (links per non-empty cell)",
+                bytes: s
+                    .occupied
+                    .saturating_mul(HIERARCHICAL_BYTES_PER_OCCUPIED_CELL)
+                    .saturating_add(s.cells.saturating_mul(HIERARCHICAL_BYTES_PER_CELL)),
+            });
+            parts.push(MemoryPart {
+                what: "the iteration's vectors",
+                bytes: per_channel(
+                    s.cells.saturating_mul(8).saturating_mul(
+                        2 + work_vectors(&settings.iteration, settings.max_iterations),
+                    ),
+                    s.cells.saturating_mul(8),
+                ),
+            });
+        }
+        SolveMethod::DiscreteOrdinates => {
+            let unknowns = s.cells.saturating_mul(settings.bins as u64);
+            parts.push(MemoryPart {
+                what: "the discrete-ordinates state (cells × direction bins)",
+                bytes: per_channel(
+                    unknowns
+                        .saturating_mul(ORDINATES_BYTES_PER_CELL_BIN)
+                        .saturating_add(s.cells.saturating_mul(ORDINATES_BYTES_PER_CELL)),
+                    unknowns.saturating_mul(STORED_BYTES_PER_CELL_BIN),
+                ),
+            });
+            let vectors = match settings.iteration {
+                // The sweep's bin-major copies of the solution and the source.
+                solver::Method::GaussSeidel | solver::Method::Sor { .. } => 2,
+                ref other => work_vectors(other, settings.max_iterations),
+            };
+            if vectors > 0 {
+                parts.push(MemoryPart {
+                    what: "the iteration's vectors (cells × direction bins each)",
+                    bytes: unknowns.saturating_mul(8).saturating_mul(vectors),
+                });
+            }
+        }
+        SolveMethod::TwoPass => {
+            let bins = if scene.medium.phase().is_isotropic() {
+                1
+            } else {
+                12 * 24
+            };
+            let tallies = s.cells.saturating_mul(bins);
+            let occupied = s.occupied.saturating_mul(bins);
+            parts.push(MemoryPart {
+                what: "the two-pass tallies (cells × direction bins)",
+                bytes: per_channel(
+                    tallies
+                        .saturating_mul(TWO_PASS_BYTES_PER_CELL_BIN)
+                        .saturating_add(
+                            occupied.saturating_mul(TWO_PASS_BYTES_PER_OCCUPIED_CELL_BIN),
+                        ),
+                    tallies.saturating_mul(STORED_BYTES_PER_CELL_BIN),
+                ),
+            });
+        }
+    }
+    MemoryEstimate { parts }
+}
+
+/// Where a memory limit comes from, for messages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LimitSource {
+    /// The machine's available memory (Linux `MemAvailable`, or the cgroup's limit).
+    Available,
+    /// `--max-memory` (or Python's `max_memory`).
+    Given,
+    /// The service's per-solve limit.
+    Service,
+}
+
+/// A limit a solve must fit under.
+#[derive(Clone, Copy, Debug)]
+pub struct MemoryLimit {
+    pub bytes: u64,
+    pub source: LimitSource,
+}
+
+impl MemoryLimit {
+    /// `given` when set, else what the machine has available; `None` when neither is known.
+    pub fn given_or_available(given: Option<u64>) -> Option<MemoryLimit> {
+        match given {
+            Some(bytes) => Some(MemoryLimit {
+                bytes,
+                source: LimitSource::Given,
+            }),
+            None => medium::resources::available_memory().map(|bytes| MemoryLimit {
+                bytes,
+                source: LimitSource::Available,
+            }),
+        }
+    }
+}
+
+impl fmt::Display for MemoryLimit {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let size = human_bytes(self.bytes);
+        match self.source {
+            LimitSource::Available => write!(f, "this machine has {size} available"),
+            LimitSource::Given => write!(f, "the limit is {size} (--max-memory)"),
+            LimitSource::Service => write!(f, "the server allows {size} per solve"),
+        }
+    }
+}
+
+/// Refuses a solve whose predicted peak exceeds `limit`, naming the largest part and the
+/// settings that would fit (fewer direction bins, another method, a coarser grid).
+pub fn check_solve(
+    scene: &Scene,
+    settings: &SolveSettings,
+    limit: Option<MemoryLimit>,
+) -> Result<()> {
+    let Some(limit) = limit else {
+        return Ok(());
+    };
+    let sizes = Sizes::of(scene);
+    let estimate = peak_of(&sizes, scene, settings);
+    if estimate.total() <= limit.bytes {
+        return Ok(());
+    }
+    let largest = estimate.largest();
+    let fits = alternatives(&sizes, scene, settings, limit.bytes);
+    let advice = if fits.is_empty() {
+        "nothing fits on this grid: use a coarser grid (fewer cells)".to_string()
+    } else {
+        format!("what would fit: {}", fits.join("; "))
+    };
+    bail!(
+        "solve.method: `{}` needs about {} ({} alone: {}) but {limit}; {advice}",
+        settings.method.name(),
+        human_bytes(estimate.total()),
+        largest.what,
+        human_bytes(largest.bytes),
+    )
+}
+
+/// Settings close to `settings` whose predicted peak fits under `limit`, spelled as a user
+/// would change them.
+fn alternatives(s: &Sizes, scene: &Scene, settings: &SolveSettings, limit: u64) -> Vec<String> {
+    let mut out = Vec::new();
+    let with = |f: &dyn Fn(&mut SolveSettings)| {
+        let mut other = settings.clone();
+        f(&mut other);
+        let bytes = peak_of(s, scene, &other).total();
+        (bytes <= limit).then_some(bytes)
+    };
+    if settings.method == SolveMethod::DiscreteOrdinates {
+        if !matches!(
+            settings.iteration,
+            solver::Method::GaussSeidel | solver::Method::Sor { .. }
+        ) {
+            if let Some(bytes) = with(&|o| o.iteration = solver::Method::GaussSeidel) {
+                out.push(format!(
+                    "iteration = \"gauss-seidel\" (about {})",
+                    human_bytes(bytes)
+                ));
+            }
+        }
+        let fewer = formfactor::ordinates::VALID_BINS
+            .iter()
+            .rev()
+            .copied()
+            .filter(|&b| b < settings.bins)
+            .find_map(|b| with(&|o| o.bins = b).map(|bytes| (b, bytes)));
+        if let Some((bins, bytes)) = fewer {
+            out.push(format!("bins = {bins} (about {})", human_bytes(bytes)));
+        }
+    }
+    for method in [
+        SolveMethod::ZonalHierarchical,
+        SolveMethod::DiscreteOrdinates,
+        SolveMethod::TwoPass,
+    ] {
+        if method == settings.method {
+            continue;
+        }
+        let mut other = SolveSettings {
+            method,
+            iteration: method.default_iteration(),
+            ..settings.clone()
+        };
+        if method == SolveMethod::DiscreteOrdinates {
+            other.bins = SolveSettings::default_for(&scene.medium.phase()).bins;
+        }
+        let bytes = peak_of(s, scene, &other).total();
+        if bytes <= limit {
+            out.push(format!(
+                "method = \"{}\" (about {})",
+                method.name(),
+                human_bytes(bytes)
+            ));
+        }
+    }
+    out
+}
+
+/// Refuses an image whose pixels (f32 radiance per channel, the tone-mapped copy and the
+/// encoder's buffer) would not fit in the memory the machine has available — a 65536² camera
+/// is a valid scene key but 48 GiB of RGB pixels.
+/// `limit` as for a solve (`--max-memory`, else what is available).
+pub fn check_image(
+    width: u32,
+    height: u32,
+    channels: usize,
+    limit: Option<MemoryLimit>,
+) -> Result<()> {
+    let pixels = u64::from(width) * u64::from(height);
+    let bytes = pixels.saturating_mul(channels as u64 * 4 * 2 + 4);
+    if let Some(limit) = limit {
+        if bytes > limit.bytes {
+            bail!(
+                "camera: a {width}×{height} image needs about {} but {limit}; render a smaller image",
+                human_bytes(bytes)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// `1.5 GiB`, `640 MiB`.
+pub fn human_bytes(bytes: u64) -> String {
+    const GIB: f64 = (1u64 << 30) as f64;
+    const MIB: f64 = (1u64 << 20) as f64;
+    let b = bytes as f64;
+    if b >= GIB {
+        format!("{:.1} GiB", b / GIB)
+    } else {
+        format!("{:.0} MiB", (b / MIB).max(1.0))
+    }
+}
+
+/// Parses a size as `--max-memory` takes it: bytes, or a number with K, M, G or T (powers of
+/// 1024, an optional `iB` or `B`), e.g. `512M`, `4G`, `1.5GiB`.
+pub fn parse_size(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("`{text}`: expected a size such as 512M, 4G or 1.5GiB"))?;
+    let scale: u64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1,
+        "k" | "kb" | "kib" => 1 << 10,
+        "m" | "mb" | "mib" => 1 << 20,
+        "g" | "gb" | "gib" => 1 << 30,
+        "t" | "tb" | "tib" => 1 << 40,
+        other => {
+            return Err(format!(
+                "`{text}`: unknown unit `{other}` (expected K, M, G or T)"
+            ))
+        }
+    };
+    let bytes = value * scale as f64;
+    if !(bytes >= 1.0 && bytes < u64::MAX as f64) {
+        return Err(format!("`{text}`: expected a size of at least 1 byte"));
+    }
+    Ok(bytes as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_with_binary_units_and_bad_ones_are_refused() {
+        assert_eq!(parse_size("4096"), Ok(4096));
+        assert_eq!(parse_size("512M"), Ok(512 << 20));
+        assert_eq!(parse_size("4G"), Ok(4 << 30));
+        assert_eq!(parse_size("1.5GiB"), Ok(3 << 29));
+        assert_eq!(parse_size(" 2 t "), Ok(2 << 40));
+        for bad in ["", "G", "lots", "4X", "0", "-1G", "1e30T"] {
+            assert!(parse_size(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn the_prediction_grows_with_what_each_method_stores() {
+        let scene = |method: &str, bins: usize, dims: usize| {
+            let text = format!(
+                "[volume]\ngenerator = {{ kind = \"cloud\", seed = 1 }}\ndims = [{dims}, {dims}, {dims}]\n\
+                 [medium]\nalbedo = 0.9\nphase = {{ kind = \"henyey-greenstein\", g = 0.6 }}\n\
+                 [[light]]\nkind = \"directional\"\ndirection = [0, 0, -1]\nirradiance = 1.0\n\
+                 [solve]\nmethod = \"{method}\"\nbins = {bins}\n"
+            );
+            Scene::from_toml_str(&text, std::path::Path::new("."), std::path::Path::new("t"))
+                .unwrap()
+        };
+        let peak = |s: &Scene| solve_peak(s, &s.solve).total();
+        let small = scene("discrete-ordinates", 24, 16);
+        let more_bins = scene("discrete-ordinates", 384, 16);
+        let more_cells = scene("discrete-ordinates", 24, 32);
+        // The state is cells × bins: 16× the bins or 8× the cells add about that much state.
+        let state = |s: &Scene| peak(s) - PROCESS_BYTES;
+        assert!(state(&more_bins) > 10 * state(&small));
+        assert!(state(&more_cells) > 6 * state(&small));
+        // Exact zonal grows with the square of the non-empty cells.
+        let z16 = scene("zonal", 24, 16);
+        let z32 = scene("zonal", 24, 32);
+        assert!(state(&z32) > 30 * state(&z16));
+        // A solve that fits is not refused; one over the limit is, naming the cause.
+        let limit = |bytes| {
+            Some(MemoryLimit {
+                bytes,
+                source: LimitSource::Given,
+            })
+        };
+        assert!(check_solve(&more_bins, &more_bins.solve, limit(peak(&more_bins))).is_ok());
+        let err = check_solve(&more_bins, &more_bins.solve, limit(peak(&small)))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("direction bins") && err.contains("bins = 24"),
+            "{err}"
+        );
+    }
+}
