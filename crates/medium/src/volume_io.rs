@@ -429,6 +429,26 @@ pub fn read_nrrd(path: &Path) -> Result<VolumeData, MediumError> {
 /// [`read_nrrd`] on the header file's bytes already in memory; `path` names the file in
 /// errors and is where a detached `data file` is looked for (beside it).
 pub fn read_nrrd_bytes(bytes: &[u8], path: &Path) -> Result<VolumeData, MediumError> {
+    nrrd_from_bytes(bytes, path, u64::MAX, true)
+}
+
+/// [`read_nrrd_bytes`] for bytes from elsewhere (an upload): the data must follow the header
+/// in `bytes` (a detached `data file` would name a file on this machine), and a header asking
+/// for more than `max_cells` cells is refused before any data is read or inflated.
+pub fn read_nrrd_bytes_attached(
+    bytes: &[u8],
+    path: &Path,
+    max_cells: u64,
+) -> Result<VolumeData, MediumError> {
+    nrrd_from_bytes(bytes, path, max_cells, false)
+}
+
+fn nrrd_from_bytes(
+    bytes: &[u8],
+    path: &Path,
+    max_cells: u64,
+    allow_detached: bool,
+) -> Result<VolumeData, MediumError> {
     if !bytes.starts_with(b"NRRD000") {
         return Err(vol_err(
             path,
@@ -509,6 +529,16 @@ pub fn read_nrrd_bytes(bytes: &[u8], path: &Path) -> Result<VolumeData, MediumEr
         ));
     }
     let dims = [sizes[0], sizes[1], sizes[2]];
+    let cells = dims
+        .iter()
+        .try_fold(1u64, |acc, &d| acc.checked_mul(d as u64))
+        .unwrap_or(u64::MAX);
+    if cells > max_cells {
+        return Err(vol_err(
+            path,
+            format!("NRRD sizes `{sizes_text}` are {cells} cells, over the limit of {max_cells}"),
+        ));
+    }
     let encoding = required("encoding")?;
     let gzip = match encoding {
         "raw" => false,
@@ -546,6 +576,12 @@ pub fn read_nrrd_bytes(bytes: &[u8], path: &Path) -> Result<VolumeData, MediumEr
 
     let (data_path, raw): (PathBuf, Vec<u8>) = match field(&["data file", "datafile"]) {
         Some(name) => {
+            if !allow_detached {
+                return Err(vol_err(
+                    path,
+                    format!("NRRD `data file: {name}`: the data must follow the header in the same file"),
+                ));
+            }
             if name.starts_with("LIST") || name.split_whitespace().count() > 1 {
                 return Err(vol_err(
                     path,
