@@ -243,13 +243,16 @@ fn check_scene_limits(service: &Service, table: &toml::Table) -> ApiResult<()> {
     if let Some(volume) = volume {
         if let Some(file) = volume.get("file") {
             let name = file.as_str().unwrap_or("");
-            let ok = name
-                .strip_suffix(".f32")
-                .is_some_and(|stem| stem.len() == 64 && is_id(stem));
+            let ok = UPLOAD_EXTENSIONS.iter().any(|ext| {
+                name.strip_suffix(ext)
+                    .and_then(|stem| stem.strip_suffix('.'))
+                    .is_some_and(|stem| stem.len() == 64 && is_id(stem))
+            });
             if !ok {
                 return Err(ApiError::bad(
-                    "volume.file: the service only reads uploaded volumes: POST the raw f32 data to \
-                     /v1/volumes?dims=NX,NY,NZ and use the `file` it returns",
+                    "volume.file: the service only reads uploaded volumes: POST the volume file \
+                     (NRRD, Mitsuba .vol, OpenVDB, NIfTI, or raw f32 with ?dims=NX,NY,NZ) to \
+                     /v1/volumes and use the `file` it returns",
                 ));
             }
             if !service.inner.cache.volume_path(name).exists() {
@@ -360,7 +363,13 @@ async fn cancel_scene(
     Ok(Json(v))
 }
 
-/// `POST /v1/volumes?dims=NX,NY,NZ`: a raw little-endian f32 volume (x fastest).
+/// The file names uploaded volumes are stored under: `SHA256.EXT`, by format.
+const UPLOAD_EXTENSIONS: [&str; 6] = ["f32", "nrrd", "vol", "vdb", "nii", "nii.gz"];
+
+/// `POST /v1/volumes`: a volume in any format the command line reads — NRRD (data attached),
+/// Mitsuba `.vol`, OpenVDB, NIfTI (`.nii`, gzip or not), told apart by their magic numbers —
+/// or raw little-endian f32 (x fastest) with `?dims=NX,NY,NZ`. Read with the command line's
+/// readers before it is stored, under the server's cell limit.
 async fn post_volume(
     State(service): State<Service>,
     q: RawQuery,
@@ -369,58 +378,29 @@ async fn post_volume(
     let q = query_map(q)?;
     refuse_unknown_parameters(&q, &["dims"])?;
     let body = body_bytes(body)?;
-    let dims_text = q
-        .get("dims")
-        .ok_or_else(|| ApiError::bad("dims: required, as NX,NY,NZ"))?;
-    let parts: Vec<&str> = dims_text.split(',').map(str::trim).collect();
-    if parts.len() != 3 {
-        return Err(ApiError::bad(format!(
-            "dims: expected NX,NY,NZ, got `{dims_text}`"
-        )));
-    }
-    let mut dims = [0usize; 3];
-    for (slot, p) in dims.iter_mut().zip(&parts) {
-        *slot = p
-            .parse::<usize>()
-            .ok()
-            .filter(|&n| n >= 1)
-            .ok_or_else(|| ApiError::bad(format!("dims: `{p}` is not a positive integer")))?;
-    }
-    let cells = dims
-        .iter()
-        .try_fold(1usize, |a, &n| a.checked_mul(n))
-        .unwrap_or(usize::MAX);
     let limits = &service.inner.limits;
-    if cells > limits.max_cells {
-        return Err(ApiError::bad(format!(
-            "dims: {cells} cells exceed the server's limit of {}",
-            limits.max_cells
-        )));
-    }
-    if body.len() as u128 != cells as u128 * 4 {
-        return Err(ApiError::bad(format!(
-            "volume size {} bytes does not match dims {}×{}×{} ({} bytes of f32)",
-            body.len(),
-            dims[0],
-            dims[1],
-            dims[2],
-            cells as u128 * 4
-        )));
-    }
-    if let Some(i) = body
-        .chunks_exact(4)
-        .position(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite())
-    {
-        return Err(ApiError::bad(format!(
-            "volume value {i} is not a finite number"
-        )));
-    }
+    let (dims, extension, format) = match q.get("dims") {
+        Some(dims_text) => (
+            raw_volume_dims(&body, dims_text, limits.max_cells)?,
+            "f32",
+            "raw f32",
+        ),
+        None => {
+            let max_cells = limits.max_cells as u64;
+            let body = body.clone();
+            tokio::task::spawn_blocking(move || read_uploaded_volume(&body, max_cells))
+                .await
+                .map_err(|_| {
+                    ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "volume reading panicked")
+                })??
+        }
+    };
     let name = {
         use sha2::{Digest, Sha256};
         let mut h = Sha256::new();
         h.update(&body);
         let hex: String = h.finalize().iter().map(|b| format!("{b:02x}")).collect();
-        format!("{hex}.f32")
+        format!("{hex}.{extension}")
     };
     let svc = service.clone();
     let stored = name.clone();
@@ -453,9 +433,107 @@ async fn post_volume(
     .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}")))?;
     Ok((
         StatusCode::CREATED,
-        Json(json!({ "file": name, "dims": dims })),
+        Json(json!({ "file": name, "dims": dims, "format": format })),
     )
         .into_response())
+}
+
+/// The dims of a raw f32 upload, checked against the body's length, the cell limit and the
+/// values (finite).
+fn raw_volume_dims(body: &[u8], dims_text: &str, max_cells: usize) -> ApiResult<[usize; 3]> {
+    let parts: Vec<&str> = dims_text.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(ApiError::bad(format!(
+            "dims: expected NX,NY,NZ, got `{dims_text}`"
+        )));
+    }
+    let mut dims = [0usize; 3];
+    for (slot, p) in dims.iter_mut().zip(&parts) {
+        *slot = p
+            .parse::<usize>()
+            .ok()
+            .filter(|&n| n >= 1)
+            .ok_or_else(|| ApiError::bad(format!("dims: `{p}` is not a positive integer")))?;
+    }
+    let cells = dims
+        .iter()
+        .try_fold(1usize, |a, &n| a.checked_mul(n))
+        .unwrap_or(usize::MAX);
+    if cells > max_cells {
+        return Err(ApiError::bad(format!(
+            "dims: {cells} cells exceed the server's limit of {max_cells}"
+        )));
+    }
+    if body.len() as u128 != cells as u128 * 4 {
+        return Err(ApiError::bad(format!(
+            "volume size {} bytes does not match dims {}×{}×{} ({} bytes of f32)",
+            body.len(),
+            dims[0],
+            dims[1],
+            dims[2],
+            cells as u128 * 4
+        )));
+    }
+    if let Some(i) = body
+        .chunks_exact(4)
+        .position(|c| !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite())
+    {
+        return Err(ApiError::bad(format!(
+            "volume value {i} is not a finite number"
+        )));
+    }
+    Ok(dims)
+}
+
+/// Reads a self-describing upload with the command line's readers (so a stored volume is one
+/// a scene can load): its dims, the extension it is stored under, and its format's name.
+fn read_uploaded_volume(
+    body: &[u8],
+    max_cells: u64,
+) -> ApiResult<([usize; 3], &'static str, &'static str)> {
+    use medium::{nifti, vdb, volume_io};
+    let bad = |e: medium::MediumError| ApiError::bad(format!("volume: {e}"));
+    let is_nifti_header = |b: &[u8]| {
+        b.len() >= 348
+            && [348i32, 540]
+                .iter()
+                .any(|n| b[..4] == n.to_le_bytes() || b[..4] == n.to_be_bytes())
+    };
+    let (dims, extension, format) = if body.starts_with(b"NRRD000") {
+        let v = volume_io::read_nrrd_bytes_attached(
+            body,
+            std::path::Path::new("upload.nrrd"),
+            max_cells,
+        )
+        .map_err(bad)?;
+        (v.dims, "nrrd", "NRRD")
+    } else if body.starts_with(b"VOL") {
+        let v = volume_io::read_mitsuba_vol_bytes(body, std::path::Path::new("upload.vol"))
+            .map_err(bad)?;
+        (v.dims, "vol", "Mitsuba .vol")
+    } else if body.len() >= 8 && body[..8] == 0x5644_4220i64.to_le_bytes() {
+        let v =
+            vdb::read_vdb_bytes_capped(body, std::path::Path::new("upload.vdb"), None, max_cells)
+                .map_err(bad)?;
+        (v.data.dims, "vdb", "OpenVDB")
+    } else if body.starts_with(&[0x1f, 0x8b]) || is_nifti_header(body) {
+        let v = nifti::read_nifti_bytes_capped(body, std::path::Path::new("upload.nii"), max_cells)
+            .map_err(bad)?;
+        let gzip = body.starts_with(&[0x1f, 0x8b]);
+        (v.data.dims, if gzip { "nii.gz" } else { "nii" }, "NIfTI")
+    } else {
+        return Err(ApiError::bad(
+            "volume: not a format volrad reads (NRRD, Mitsuba .vol, OpenVDB, NIfTI); for raw \
+             f32 give ?dims=NX,NY,NZ",
+        ));
+    };
+    let cells = dims.iter().map(|&d| d as u64).product::<u64>();
+    if cells > max_cells {
+        return Err(ApiError::bad(format!(
+            "volume: {cells} cells exceed the server's limit of {max_cells}"
+        )));
+    }
+    Ok((dims, extension, format))
 }
 
 fn parse_f64(q: &HashMap<String, String>, key: &str) -> ApiResult<Option<f64>> {

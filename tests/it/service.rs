@@ -707,3 +707,81 @@ fn instances_sharing_a_cache_directory_serve_each_others_solutions() {
         server.stop();
     }
 }
+
+/// Volumes upload in every format the command line reads (told apart by their magic numbers),
+/// are read with its readers before they are stored, and solve and render like raw ones;
+/// a detached NRRD, a header over the cell limit and an unknown format are refused.
+#[test]
+fn volumes_upload_in_every_format_the_command_line_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let root = crate::fixtures::root();
+    let vol = {
+        let path = dir.path().join("v.vol");
+        let data = medium::volume_io::VolumeData::new(
+            [5, 4, 3],
+            (0..60).map(|i| 0.1 + (i % 5) as f32 * 0.2).collect(),
+        )
+        .unwrap();
+        medium::volume_io::write_mitsuba_vol(&path, &data, 1.0).unwrap();
+        std::fs::read(path).unwrap()
+    };
+    let uploads = [
+        (
+            std::fs::read(root.join("data/smoke32.nrrd")).unwrap(),
+            "nrrd",
+            [32, 32, 32],
+        ),
+        (vol, "vol", [5, 4, 3]),
+        (
+            std::fs::read(root.join("data/cloud24.vdb")).unwrap(),
+            "vdb",
+            [0, 0, 0],
+        ),
+        (
+            std::fs::read(root.join("crates/medium/tests/data/nifti/float32_gz.nii.gz")).unwrap(),
+            "nii.gz",
+            [0, 0, 0],
+        ),
+    ];
+    for (bytes, extension, dims) in uploads {
+        let r = request(addr, "POST", "/v1/volumes", None, &bytes).unwrap();
+        assert_eq!(r.status, 201, "{extension}: {}", r.text());
+        let v = r.json();
+        let file = v["file"].as_str().unwrap().to_string();
+        assert!(file.ends_with(&format!(".{extension}")), "{v}");
+        if dims != [0, 0, 0] {
+            assert_eq!(v["dims"], serde_json::json!(dims), "{v}");
+        }
+        let text = scene(1, 0.7)
+            .replace(
+                "generator = { kind = \"cloud\", seed = 1 }\ndims = [10, 10, 8]",
+                &format!("file = \"{file}\""),
+            )
+            .replace("method = \"zonal\"", "method = \"single-scatter\"");
+        let id = submit(addr, &text);
+        assert_eq!(wait_finished(addr, &id)["state"], "done", "{extension}");
+        let png = get(addr, &format!("/v1/scenes/{id}/render?width=16&height=12")).unwrap();
+        assert_eq!(png.status, 200, "{extension}: {}", png.text());
+    }
+    // A detached NRRD would read a file of the server's choosing: refused.
+    let detached = b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nendian: little\n\
+                     encoding: raw\ndata file: /etc/passwd\n\n";
+    let r = request(addr, "POST", "/v1/volumes", None, detached).unwrap();
+    assert_error(&r, 400, "same file");
+    // A header asking for more cells than the server allows: refused before inflating data.
+    let huge = b"NRRD0004\ntype: float\ndimension: 3\nsizes: 4000 4000 4000\nendian: little\n\
+                 encoding: gzip\n\n\x1f\x8b";
+    assert_error(
+        &request(addr, "POST", "/v1/volumes", None, huge).unwrap(),
+        400,
+        "over the limit",
+    );
+    assert_error(
+        &request(addr, "POST", "/v1/volumes", None, b"hello, volume").unwrap(),
+        400,
+        "?dims=",
+    );
+    server.stop();
+}
