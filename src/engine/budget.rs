@@ -141,6 +141,17 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
     let per_channel = |bytes: u64, stored: u64| {
         bytes.saturating_add(stored.saturating_mul(s.channels.saturating_sub(1)))
     };
+    // The zonal methods' unknowns are one per cell: the solution, the right-hand side and the
+    // iteration's vectors.
+    let zonal_vectors = MemoryPart {
+        what: "the iteration's vectors",
+        bytes: per_channel(
+            s.cells
+                .saturating_mul(8)
+                .saturating_mul(2 + work_vectors(&settings.iteration, settings.max_iterations)),
+            s.cells.saturating_mul(8),
+        ),
+    };
     match settings.method {
         SolveMethod::None | SolveMethod::SingleScatter => {}
         SolveMethod::Zonal => {
@@ -149,15 +160,7 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                 what: "the zonal form-factor matrix (non-empty cells squared)",
                 bytes: pairs.saturating_mul(ZONAL_BYTES_PER_PAIR),
             });
-            parts.push(MemoryPart {
-                what: "the iteration's vectors",
-                bytes: per_channel(
-                    s.cells.saturating_mul(8).saturating_mul(
-                        2 + work_vectors(&settings.iteration, settings.max_iterations),
-                    ),
-                    s.cells.saturating_mul(8),
-                ),
-            });
+            parts.push(zonal_vectors);
         }
         SolveMethod::ZonalHierarchical => {
             parts.push(MemoryPart {
@@ -167,15 +170,7 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                     .saturating_mul(HIERARCHICAL_BYTES_PER_OCCUPIED_CELL)
                     .saturating_add(s.cells.saturating_mul(HIERARCHICAL_BYTES_PER_CELL)),
             });
-            parts.push(MemoryPart {
-                what: "the iteration's vectors",
-                bytes: per_channel(
-                    s.cells.saturating_mul(8).saturating_mul(
-                        2 + work_vectors(&settings.iteration, settings.max_iterations),
-                    ),
-                    s.cells.saturating_mul(8),
-                ),
-            });
+            parts.push(zonal_vectors);
         }
         SolveMethod::DiscreteOrdinates => {
             let unknowns = s.cells.saturating_mul(settings.bins as u64);
