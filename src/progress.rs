@@ -46,8 +46,16 @@ impl SolveProgress {
         let bar = self.bar.clone();
         let tol = self.tolerance;
         let max_iterations = self.max_iterations;
-        let first: std::sync::Mutex<Option<(usize, f64, Instant)>> = std::sync::Mutex::new(None);
-        SolveControl::new().with_progress(move |iteration, residual| {
+        // The first report of the current phase: each channel's iterations start again.
+        let first: Arc<std::sync::Mutex<Option<(usize, f64, Instant)>>> = Arc::default();
+        let phase_first = Arc::clone(&first);
+        let phase_bar = self.bar.clone();
+        SolveControl::new()
+            .with_phase(move |phase| {
+                *phase_first.lock().unwrap_or_else(|e| e.into_inner()) = None;
+                phase_bar.set_message(format!("{phase}; Ctrl-C cancels"));
+            })
+            .with_progress(move |iteration, residual| {
             let mut first = first.lock().unwrap_or_else(|e| e.into_inner());
             let start = *first.get_or_insert((iteration, residual, Instant::now()));
             let left = time_left(

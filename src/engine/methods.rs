@@ -4,6 +4,7 @@
 use std::f64::consts::PI;
 use std::fmt;
 
+use crate::engine::pipeline::channel_phase;
 use anyhow::{bail, Context, Result};
 use formfactor::ordinates::{
     default_forward_truncation_degrees, DirectionBins, OrdinatesOperator, OrdinatesOptions,
@@ -102,6 +103,9 @@ fn run_solver(
     hooks: &SolveHooks,
 ) -> Result<(Vec<f64>, SolveReport)> {
     let options = solve_options(settings);
+    hooks
+        .control
+        .phase(&format!("iterating ({})", options.method));
     let (g, report) = solver::solve(op, source, None, &options, &hooks.control)
         .with_context(|| format!("solving with {}", options.method))?;
     tracing::info!(
@@ -141,8 +145,14 @@ pub fn solve_zonal(
             )),
         ));
     }
+    let channels = scene.medium.channels().len();
     let op: Box<dyn TransportOperator> = match settings.method {
         SolveMethod::Zonal => {
+            hooks.control.phase(&channel_phase(
+                "building the exact form factors",
+                c,
+                channels,
+            ));
             let op = FormFactorMatrix::build(&scene.medium, c, &ExactOptions::default(), None)
                 .context("building the exact form factors")?;
             tracing::info!(
@@ -153,6 +163,11 @@ pub fn solve_zonal(
             Box::new(op)
         }
         _ => {
+            hooks.control.phase(&channel_phase(
+                "building the hierarchical form factors",
+                c,
+                channels,
+            ));
             let op = HierarchicalOperator::build(
                 &scene.medium,
                 c,
@@ -255,6 +270,12 @@ pub fn solve_ordinates(
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     let bins = DirectionBins::with_count(settings.bins)?;
     let options = ordinates_options(settings, &bins, &scene.medium.phase());
+    let channels = scene.medium.channels().len();
+    hooks.control.phase(&channel_phase(
+        "preparing the transport sweeps",
+        c,
+        channels,
+    ));
     let op = OrdinatesOperator::new(&scene.medium, c, bins, options)?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source.
     let external = op.external_density_from_pass(light_pass)?;
@@ -326,6 +347,11 @@ pub fn solve_two_pass(
     if hooks.control.is_cancelled() {
         bail!("solve cancelled");
     }
+    hooks.control.phase(&channel_phase(
+        "tracing photons",
+        c,
+        scene.medium.channels().len(),
+    ));
     let solution = energetize(&scene.medium, c, &scene.lights, &options, None)
         .context("two-pass energetization")?;
     tracing::info!(
@@ -560,6 +586,52 @@ pub fn refuse_cancelled(solution: &Solution) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each solve announces its phases before its iterations, in order, so that a progress
+    /// display has something true to say while an operator is built.
+    #[test]
+    fn solves_announce_their_phases() {
+        use std::sync::Arc;
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/cloud24-isotropic/scene.toml");
+        let scene = Scene::from_file(&path).unwrap();
+        for (method, expected) in [
+            (
+                SolveMethod::ZonalHierarchical,
+                vec![
+                    "light pass",
+                    "building the hierarchical form factors",
+                    "iterating (dsa-cg)",
+                ],
+            ),
+            (
+                SolveMethod::DiscreteOrdinates,
+                vec![
+                    "light pass",
+                    "preparing the transport sweeps",
+                    "iterating (gauss-seidel)",
+                ],
+            ),
+            (SolveMethod::TwoPass, vec!["light pass", "tracing photons"]),
+        ] {
+            let mut settings = scene.solve.clone();
+            settings.method = method;
+            settings.iteration = method.default_iteration();
+            settings.max_iterations = 2;
+            settings.photons = 1000;
+            let phases = Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+            let seen = Arc::clone(&phases);
+            let hooks = SolveHooks {
+                control: Arc::new(
+                    solver::SolveControl::new()
+                        .with_phase(move |p| seen.lock().unwrap().push(p.to_string())),
+                ),
+                memory_limit: None,
+            };
+            crate::engine::pipeline::solve_scene(&scene, &settings, &hooks).unwrap();
+            assert_eq!(*phases.lock().unwrap(), expected, "{method:?}");
+        }
+    }
 
     /// A cancel that landed in a later channel refuses the solution just as one in channel 0.
     #[test]

@@ -70,6 +70,9 @@ pub fn solve_scene(
     for (c, channel) in medium.channels().iter().enumerate() {
         let span = tracing::info_span!("channel", c);
         let _enter = span.enter();
+        hooks
+            .control
+            .phase(&channel_phase("light pass", c, medium.channels().len()));
         let light_pass = LightPass::compute(medium.grid(), channel, &scene.lights)
             .with_context(|| format!("light pass of channel {c}"))?;
         let (scattered, report) = match settings.method {
@@ -104,6 +107,15 @@ pub fn solve_scene(
         bins: crate::engine::methods::stored_bins(settings),
         channels,
     })
+}
+
+/// `what` of channel `c`, naming the channel only when there are several.
+pub fn channel_phase(what: &str, c: usize, channels: usize) -> String {
+    if channels > 1 {
+        format!("{what} (channel {} of {channels})", c + 1)
+    } else {
+        what.to_string()
+    }
 }
 
 /// Renders one view of a solution.

@@ -22,9 +22,17 @@ use crate::engine::SolveHooks;
 #[derive(Clone, Debug, PartialEq)]
 pub enum JobState {
     Queued,
-    Solving { iteration: usize, residual: f64 },
+    /// `phase` says what the solve does (a light pass, building the operator, iterating);
+    /// `iteration` and `residual` are the iteration's latest (0 and NaN before the first).
+    Solving {
+        phase: String,
+        iteration: usize,
+        residual: f64,
+    },
     Done,
-    Failed { reason: String },
+    Failed {
+        reason: String,
+    },
 }
 
 impl JobState {
@@ -572,6 +580,7 @@ impl Service {
                 return;
             };
             job.state = JobState::Solving {
+                phase: "starting".into(),
                 iteration: 0,
                 residual: f64::NAN,
             };
@@ -580,20 +589,33 @@ impl Service {
         let progress_service = self.clone();
         let progress_id = id.to_string();
         let flag = control.flag();
-        let hooks = SolveHooks {
-            control: Arc::new(solver::SolveControl::with_flag(flag).with_progress(
-                move |iteration, residual| {
-                    let mut jobs = progress_service.lock();
-                    if let Some(job) = jobs.get_mut(&progress_id) {
-                        if let JobState::Solving { .. } = job.state {
-                            job.state = JobState::Solving {
-                                iteration,
-                                residual,
-                            };
-                        }
+        let phase_service = self.clone();
+        let phase_id = id.to_string();
+        let solve_control = solver::SolveControl::with_flag(flag)
+            .with_phase(move |name| {
+                let mut jobs = phase_service.lock();
+                if let Some(job) = jobs.get_mut(&phase_id) {
+                    if let JobState::Solving { phase, .. } = &mut job.state {
+                        *phase = name.to_string();
                     }
-                },
-            )),
+                }
+            })
+            .with_progress(move |iteration, residual| {
+                let mut jobs = progress_service.lock();
+                if let Some(job) = jobs.get_mut(&progress_id) {
+                    if let JobState::Solving {
+                        iteration: i,
+                        residual: r,
+                        ..
+                    } = &mut job.state
+                    {
+                        *i = iteration;
+                        *r = residual;
+                    }
+                }
+            });
+        let hooks = SolveHooks {
+            control: Arc::new(solve_control),
             memory_limit: Some(self.solve_memory_limit()),
         };
         let started = std::time::Instant::now();
@@ -679,9 +701,11 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
     let mut v = json!({ "id": id, "state": job.state.name() });
     match &job.state {
         JobState::Solving {
+            phase,
             iteration,
             residual,
         } => {
+            v["phase"] = json!(phase);
             v["iteration"] = json!(iteration);
             v["residual"] = if residual.is_finite() {
                 json!(residual)

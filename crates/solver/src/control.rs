@@ -5,12 +5,16 @@ use std::sync::Arc;
 
 /// Progress callback: `(iteration, relative residual)`, called once per iteration.
 pub type ProgressFn = dyn Fn(usize, f64) + Send + Sync;
+/// Phase callback: what the solve does now, before its iterations (`"building the
+/// hierarchical form factors"`), called as each phase starts.
+pub type PhaseFn = dyn Fn(&str) + Send + Sync;
 
 /// Cancellation flag and optional progress callback shared with a running solve.
 #[derive(Clone, Default)]
 pub struct SolveControl {
     cancel: Arc<AtomicBool>,
     progress: Option<Arc<ProgressFn>>,
+    phase: Option<Arc<PhaseFn>>,
 }
 
 impl SolveControl {
@@ -23,6 +27,20 @@ impl SolveControl {
         Self {
             cancel: flag,
             progress: None,
+            phase: None,
+        }
+    }
+
+    pub fn with_phase(mut self, phase: impl Fn(&str) + Send + Sync + 'static) -> Self {
+        self.phase = Some(Arc::new(phase));
+        self
+    }
+
+    /// Announces the phase a solve enters (the steps before the iterations, which can take
+    /// longer than them); the iterations report through the progress callback.
+    pub fn phase(&self, name: &str) {
+        if let Some(p) = &self.phase {
+            p(name);
         }
     }
 
@@ -58,6 +76,7 @@ impl std::fmt::Debug for SolveControl {
         f.debug_struct("SolveControl")
             .field("cancelled", &self.is_cancelled())
             .field("progress", &self.progress.is_some())
+            .field("phase", &self.phase.is_some())
             .finish()
     }
 }
