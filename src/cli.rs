@@ -149,7 +149,7 @@ pub struct RenderArgs {
     /// Stratified samples per pixel (default: the scene's, else 1).
     #[arg(long)]
     pub spp: Option<u32>,
-    /// PNG exposure (default: the scene's).
+    /// PNG exposure (default: the scene's, else automatic: the 99.5th-percentile radiance at 85 % of white).
     #[arg(long)]
     pub exposure: Option<f64>,
     #[command(flatten)]
