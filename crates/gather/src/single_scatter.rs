@@ -11,6 +11,8 @@
 //! with `λ = σt (1 + ∂d/∂t)`; the integral is taken by Gauss–Legendre in the variable
 //! `u = (1 − e^{−λ(t−t0)})/λ`, which absorbs that exponential exactly: a thick cell is then
 //! integrated as accurately as a thin one. Without shadows ("Utah", `T_L ≡ 1`) `λ = σt`.
+//! The point samples of a `trilinear` render ([`InScattering::at`]) take `T_l` from the same
+//! lattice where the light has one (continuous across cell faces), else the exit-face model.
 //!
 //! Optional gradient shading (Max eq. 11) adds `strength · max(∇f·ω′, 0) · E_l T_l` per light,
 //! `ω′` the direction toward the light and `∇f` the central-difference gradient of the
@@ -259,10 +261,18 @@ impl<'a> SingleScatter<'a> {
             .sum()
     }
 
-    /// Light `l`'s flow direction and irradiance (times `T_L` with shadows) at `x`.
+    /// Light `l`'s flow direction and irradiance (times `T_L` with shadows) at `x`. A
+    /// `trilinear` render takes `T_L` from the light's depth lattice where it has one, as the
+    /// `nearest` segments do: the lattice is continuous across cell faces (the exit-face model
+    /// is not, where σt changes steeply from cell to cell) and the more accurate of the two.
     #[inline]
     fn light_at(&self, l: usize, x: DVec3, cell: usize) -> (DVec3, f64) {
         if self.options.shadows {
+            if let Some(lattice) = self.depth.lattice(l).filter(|_| self.trilinear) {
+                let (flow, e) = self.pass.unshadowed_at(l, x);
+                let depth = lattice.depth_at(x, self.pass.grid.coords(cell));
+                return (flow, e * (-depth).exp());
+            }
             self.pass.irradiance_at(l, x, cell)
         } else {
             self.pass.unshadowed_at(l, x)

@@ -587,3 +587,89 @@ fn lattice_models_handle_one_cell_grids_axis_lights_and_point_lights() {
     };
     assert!(lit([6, 5, 4], 0.8, &[oblique, point]) < 0.03);
 }
+
+/// A `trilinear` render's first bounce (`InScattering::at`, sampled by the fixed-step march)
+/// takes the light's optical depth from the same depth lattice as the `nearest` segments: it is
+/// continuous across cell faces, where the exit-face model it used before jumps (by up to
+/// 3.4× in `T_L` at these points), and it is the closer of the two to exact shadow rays
+/// through the piecewise-constant medium. A 3-D checkerboard of σt 0.3 and 1.5 is the worst
+/// case for both (measured over 300 points on faces: mean |T_L error| 12 % for the lattice,
+/// 53 % for the exit face).
+#[test]
+fn trilinear_first_bounce_is_continuous_across_cell_faces() {
+    let dims = [4, 4, 4];
+    let sigma_t: Vec<f32> = (0..64)
+        .map(|c| {
+            if (c % 4 + (c / 4) % 4 + c / 16) % 2 == 0 {
+                0.3
+            } else {
+                1.5
+            }
+        })
+        .collect();
+    let medium = Medium::new(
+        Grid::new(dims, 1.0).unwrap(),
+        vec![ChannelMedium {
+            sigma_t: sigma_t.clone(),
+            albedo: CellValues::Uniform(0.9),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::Isotropic,
+        Interpolation::Trilinear,
+        None,
+    )
+    .unwrap();
+    let direction = DVec3::new(0.2, -1.0, 0.1).normalize();
+    let lights = [Light::Directional {
+        direction,
+        irradiance: 1.0,
+    }];
+    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &lights).unwrap();
+    let ss = SingleScatter::new(&medium, 0, &pass, SingleScatterOptions::default()).unwrap();
+    let grid = *medium.grid();
+    let w = DVec3::new(0.0, 0.0, -1.0);
+    let q = |x: DVec3| ss.at(x, grid.cell_at(x).unwrap(), w);
+    // σs(x) p E: the source without the light's attenuation (σt trilinear at x).
+    let unshadowed = |x: DVec3| {
+        gather::Trilinear::new(&grid, x).sample(|c| sigma_t[c] as f64) * 0.9
+            / (4.0 * std::f64::consts::PI)
+    };
+    let exit_face = |x: DVec3| pass.transmittance_at(0, x, grid.cell_at(x).unwrap());
+    let (mut jump, mut exit_face_jump) = (0.0f64, 0.0f64);
+    let (mut error, mut exit_face_error) = (0.0f64, 0.0f64);
+    let mut rng = Pcg64Mcg::seed_from_u64(24);
+    let n = 300;
+    for _ in 0..n {
+        // A point on an interior face, and its two sides.
+        let axis = rng.random_range(0..3);
+        let mut x = DVec3::new(
+            rng.random_range(0.05..3.95),
+            rng.random_range(0.05..3.95),
+            rng.random_range(0.05..3.95),
+        );
+        x[axis] = rng.random_range(1..4) as f64;
+        let mut e = DVec3::ZERO;
+        e[axis] = 1e-7;
+        let (below, above) = (q(x - e), q(x + e));
+        jump = jump.max((above - below).abs() / below.max(above));
+        let (a, b) = (exit_face(x - e), exit_face(x + e));
+        exit_face_jump = exit_face_jump.max(a.max(b) / a.min(b));
+        let exact =
+            (-grid.optical_depth(&sigma_t, &Ray::new(x + e, -direction), 0.0, f64::INFINITY)).exp();
+        error += (above / unshadowed(x + e) / exact - 1.0).abs() / n as f64;
+        exit_face_error += (exit_face(x + e) / exact - 1.0).abs() / n as f64;
+    }
+    println!(
+        "largest relative jump across a face: {jump:.1e} (exit face: ×{exit_face_jump:.2}); \
+         mean |T_L error|: {error:.3} (exit face {exit_face_error:.3})"
+    );
+    assert!(jump < 1e-4, "the first bounce jumps by {jump} at a face");
+    assert!(
+        exit_face_jump > 1.1,
+        "the case must be one the exit face gets wrong"
+    );
+    assert!(
+        error < 0.5 * exit_face_error,
+        "{error} vs exit face {exit_face_error}"
+    );
+}
