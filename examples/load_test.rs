@@ -81,6 +81,8 @@ fn scene_text(dims: [usize; 3]) -> String {
 generator = {{ kind = "cloud", seed = 7 }}
 dims = [{}, {}, {}]
 sigma_t_scale = 0.6
+# The render the p50 floor (#7) is about: exact per-cell segments.
+interpolation = "nearest"
 
 [medium]
 albedo = 0.95

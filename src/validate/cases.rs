@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use medium::Interpolation;
 use scene::{CameraSpec, Scene};
 
 /// A scene key `--vary` can sweep.
@@ -103,8 +104,23 @@ pub struct SceneCase {
     pub scene: Scene,
 }
 
+/// The scene as validation sees it: with the piecewise-constant (`nearest`) medium the solvers
+/// discretise and the path tracer traces, whatever `[volume] interpolation` says, so that the
+/// renders and the reference see the same medium (`trilinear`, the default, is a render look;
+/// docs/physics.md).
+fn as_validated(mut scene: Scene) -> Scene {
+    if scene.medium.interpolation() != Interpolation::Nearest {
+        scene.medium = scene
+            .medium
+            .clone()
+            .with_interpolation(Interpolation::Nearest);
+    }
+    scene
+}
+
 /// The scene at `path` once per combination of the variations (once as written when there
-/// are none). Every combination is checked here, before any work.
+/// are none), each with the `nearest` medium ([`as_validated`]). Every combination is checked
+/// here, before any work.
 pub fn scene_cases(
     path: &Path,
     base_name: &str,
@@ -115,7 +131,7 @@ pub fn scene_cases(
             name: base_name.to_string(),
             path: path.to_path_buf(),
             variant: String::new(),
-            scene: Scene::from_file(path)?,
+            scene: as_validated(Scene::from_file(path)?),
         }]);
     }
     let text = medium::regular_file::read_to_string(path)
@@ -142,7 +158,7 @@ pub fn scene_cases(
             name,
             path: path.to_path_buf(),
             variant: variant.join(", "),
-            scene,
+            scene: as_validated(scene),
         });
     }
     Ok(cases)
@@ -273,6 +289,42 @@ mod tests {
         assert_eq!(c.len(), 6);
         assert_eq!(c[0], vec![(VaryKey::Albedo, 0.5), (VaryKey::G, 0.0)]);
         assert_eq!(c[5], vec![(VaryKey::Albedo, 0.9), (VaryKey::G, 0.85)]);
+    }
+
+    /// The path tracer traces the piecewise-constant medium, so validation renders it too:
+    /// a scene that does not say (`trilinear`, the default) or says `trilinear` is validated
+    /// as `nearest`, as written and in every variant; nothing else of the medium changes.
+    #[test]
+    fn cases_use_the_nearest_medium_the_path_tracer_traces() {
+        let dir = tempfile::tempdir().unwrap();
+        let text = |line: &str| {
+            format!(
+                "[volume]\ngenerator = {{ kind = \"cloud\", seed = 5 }}\ndims = [6, 6, 4]\n{line}\n\
+                 [medium]\nalbedo = 0.9\n\
+                 [[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 1.0\n\
+                 [[camera]]\nname = \"front\"\neye = [3.0, 3.0, -9.0]\ntarget = [3.0, 3.0, 2.0]\n\
+                 up = [0.0, 1.0, 0.0]\nfov_y = 40.0\nwidth = 8\nheight = 8\n"
+            )
+        };
+        let nearest_path = dir.path().join("nearest.toml");
+        std::fs::write(&nearest_path, text("interpolation = \"nearest\"")).unwrap();
+        let nearest = Scene::from_file(&nearest_path).unwrap().medium;
+        assert_eq!(nearest.interpolation(), Interpolation::Nearest);
+        for line in ["", "interpolation = \"trilinear\""] {
+            let path = dir.path().join("scene.toml");
+            std::fs::write(&path, text(line)).unwrap();
+            assert_eq!(
+                Scene::from_file(&path).unwrap().medium.interpolation(),
+                Interpolation::Trilinear
+            );
+            let cases = scene_cases(&path, "s", &[]).unwrap();
+            assert_eq!(cases[0].scene.medium, nearest, "{line:?}");
+            let varied = scene_cases(&path, "s", &[parse_variation("g=0,0.6").unwrap()]).unwrap();
+            assert_eq!(varied.len(), 2);
+            for case in &varied {
+                assert_eq!(case.scene.medium.interpolation(), Interpolation::Nearest);
+            }
+        }
     }
 
     #[test]

@@ -54,6 +54,13 @@ impl ValidationReport {
         );
         let _ = writeln!(
             md,
+            "- **Medium:** the renders and the reference see the same piecewise-constant \
+             (`nearest`) medium, the one the solvers discretise and the path tracer traces, \
+             whatever the scene's `[volume] interpolation` says (`trilinear`, the default, is a \
+             render look and is not what is validated)."
+        );
+        let _ = writeln!(
+            md,
             "- **Error:** relative RMS over the pixels above {:.0} % of the reference maximum, \
              with the reference's own noise (its per-pixel standard error) taken out: \
              `sqrt(max(0, Σ[(x−r)² − s²]) / Σ r²)` (`crates/montecarlo/src/compare.rs`); channel 0. **Mean:** \

@@ -12,6 +12,8 @@ fn small_scene(dir: &Path, method: &str, phase: &str) -> PathBuf {
 generator = {{ kind = "cloud", seed = 3 }}
 dims = [12, 12, 10]
 sigma_t_scale = 0.8
+# The medium the path tracer traces (path_traced_render_agrees_with_the_zonal_solution).
+interpolation = "nearest"
 
 [medium]
 albedo = 0.9

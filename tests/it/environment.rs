@@ -33,6 +33,8 @@ generator = {{ kind = "cloud", seed = 3 }}
 dims = {dims:?}
 cell_size = {cell_size}
 sigma_t_scale = 2.0
+# The medium the path tracer traces, which every test here compares with.
+interpolation = "nearest"
 
 [medium]
 albedo = {albedo}

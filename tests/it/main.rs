@@ -8,6 +8,7 @@ mod bench_albedo;
 mod cli;
 mod environment;
 mod fuzz;
+mod interpolation;
 mod readme;
 mod reference_cloud24;
 mod service;

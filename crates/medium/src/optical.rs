@@ -85,12 +85,16 @@ impl ChannelMedium {
     }
 }
 
-/// How renders reconstruct the medium between cell centres. Solvers always use the
-/// piecewise-constant (`Nearest`) medium.
+/// How renders reconstruct the medium between cell centres. Solvers (and the path tracer)
+/// always use the piecewise-constant (`Nearest`) medium; `Trilinear`, the default, draws σt,
+/// emission and the solved sources smoothly between cell centres, so a render shows no cell
+/// edges where the data is smooth.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Interpolation {
-    #[default]
+    /// Piecewise constant per cell: the medium the solvers discretise, integrated exactly.
     Nearest,
+    /// Cell-centred trilinear reconstruction (render look only).
+    #[default]
     Trilinear,
 }
 

@@ -345,7 +345,8 @@ impl Ctx<'_> {
         let grid =
             Grid::new(data.dims, cell_size).map_err(|e| self.err("volume.dims", e.to_string()))?;
         let interpolation = match &vol.interpolation {
-            None => Interpolation::Nearest,
+            // Smooth pictures unless the scene asks for cells (docs/scene-format.md).
+            None => Interpolation::default(),
             Some(v) => match self.string(v, "volume.interpolation")? {
                 "nearest" => Interpolation::Nearest,
                 "trilinear" => Interpolation::Trilinear,

@@ -76,7 +76,8 @@ fn minimal_scene_gets_the_contract_defaults() {
     let m = &s.medium;
     assert_eq!(m.grid().dims, [4, 3, 2]);
     assert_eq!(m.grid().cell_size, 1.0);
-    assert_eq!(m.interpolation(), Interpolation::Nearest);
+    // Smooth pictures unless the scene asks for cells (issue 24; `nearest` before).
+    assert_eq!(m.interpolation(), Interpolation::Trilinear);
     assert_eq!(m.phase(), PhaseFunction::Isotropic);
     assert_eq!(m.channels().len(), 1);
     // σt = value × 1.0, x fastest.
@@ -118,6 +119,32 @@ fn minimal_scene_gets_the_contract_defaults() {
     );
     assert_eq!(s.origin, SceneOrigin::File(dir.join("scene.toml")));
     assert_eq!(s.source, VolumeSource::File(dir.join("vol.f32")));
+}
+
+/// `interpolation`: `trilinear` when the scene does not say, and either spelling as written;
+/// the default changes the look only, not the medium the solvers see.
+#[test]
+fn interpolation_defaults_to_trilinear_and_nearest_stays() {
+    let dir = scratch("interpolation");
+    write_volume(&dir);
+    let parse = |line: &str| {
+        parse_in(
+            &dir,
+            &scene_text(&[&format!("{VOLUME}{line}"), MEDIUM, LIGHT, CAMERA]),
+        )
+        .unwrap()
+        .medium
+    };
+    let default = parse("");
+    let nearest = parse("interpolation = \"nearest\"\n");
+    let trilinear = parse("interpolation = \"trilinear\"\n");
+    assert_eq!(default.interpolation(), Interpolation::Trilinear);
+    assert_eq!(nearest.interpolation(), Interpolation::Nearest);
+    assert_eq!(trilinear, default);
+    assert_eq!(
+        nearest.with_interpolation(Interpolation::Trilinear),
+        default
+    );
 }
 
 #[test]
