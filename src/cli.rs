@@ -251,6 +251,17 @@ pub struct ServeArgs {
     /// Renders at once (default: the core count).
     #[arg(long)]
     pub render_slots: Option<usize>,
+    /// Seconds a client may take to send a request's headers, and again its body; slower
+    /// clients are cut off (headers) or answered 408 (body).
+    #[arg(long, default_value_t = 30.0, value_parser = positive_seconds)]
+    pub request_timeout_secs: f64,
+}
+
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x > 0.0 && x <= 86_400.0 => Ok(x),
+        _ => Err(format!("`{s}` is not a number of seconds in (0, 86400]")),
+    }
 }
 
 #[derive(Debug, Args)]

@@ -60,6 +60,45 @@ impl CacheDir {
         ids
     }
 
+    /// Deletes temporary files ([`medium::atomic_file`]'s `.NAME.tmp-PID-N`) in the cache
+    /// directory and `volumes/` that nothing has written to for `older_than`: what a writer
+    /// killed mid-write (kill -9, a crash, a power cut) leaves behind. Such files are never
+    /// read — their names are not `ID.vrs` or `ID.toml` — but would fill the disk over many
+    /// crashes. Younger ones are kept: another instance sharing the directory may be writing
+    /// them now (a file being written is modified as it grows, and renamed seconds after).
+    /// Returns how many were deleted.
+    pub fn remove_stale_temp_files(&self, older_than: std::time::Duration) -> usize {
+        let now = std::time::SystemTime::now();
+        let mut removed = 0;
+        for dir in [self.root.clone(), self.volumes_dir()] {
+            let Ok(entries) = fs::read_dir(&dir) else {
+                continue;
+            };
+            for e in entries.flatten() {
+                let name = e.file_name();
+                let Some(name) = name.to_str() else { continue };
+                if !is_temp_name(name) {
+                    continue;
+                }
+                let Ok(meta) = e.metadata() else { continue };
+                let age = meta
+                    .modified()
+                    .ok()
+                    .and_then(|t| now.duration_since(t).ok())
+                    .unwrap_or_default();
+                if meta.is_file() && age >= older_than && fs::remove_file(e.path()).is_ok() {
+                    tracing::info!(
+                        "cache: removed {name}, a temporary file left by a writer that stopped \
+                         {:.0} s ago",
+                        age.as_secs_f64()
+                    );
+                    removed += 1;
+                }
+            }
+        }
+        removed
+    }
+
     /// Uploaded volumes with their sizes and modification times, oldest first.
     pub fn volumes_by_age(&self) -> Vec<(PathBuf, u64)> {
         let mut v: Vec<(PathBuf, u64, std::time::SystemTime)> = Vec::new();
@@ -85,6 +124,24 @@ pub fn is_id(s: &str) -> bool {
         && s.bytes()
             .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
 }
+
+/// Whether `name` is a temporary file of [`medium::atomic_file`]: `.NAME.tmp-PID-N`.
+pub fn is_temp_name(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix('.') else {
+        return false;
+    };
+    let Some((_, tail)) = rest.rsplit_once(".tmp-") else {
+        return false;
+    };
+    let mut parts = tail.split('-');
+    let numeric =
+        |p: Option<&str>| p.is_some_and(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()));
+    numeric(parts.next()) && numeric(parts.next()) && parts.next().is_none()
+}
+
+/// How long a temporary file must have gone unwritten before start-up deletes it
+/// ([`CacheDir::remove_stale_temp_files`]).
+pub const STALE_TEMP_AGE: std::time::Duration = std::time::Duration::from_secs(10 * 60);
 
 /// Replaces `path` with `bytes` atomically ([`medium::atomic_file`]: temp file beside it,
 /// sync, rename); the error names the file.

@@ -185,9 +185,12 @@ pub(crate) fn parse_scene(cache: &CacheDir, text: &str) -> Result<Scene, scene::
 impl Service {
     /// Opens (or creates) the cache directory, loads what it holds and starts the worker.
     /// Valid solutions are served; a corrupt one is deleted and, when its scene text is
-    /// known, queued to be solved again, otherwise reported as failed.
+    /// known, queued to be solved again, otherwise reported as failed. Temporary files
+    /// abandoned by a writer killed mid-write are deleted once stale
+    /// ([`CacheDir::remove_stale_temp_files`]).
     pub fn open(config: ServiceConfig) -> Result<Service> {
         let cache = CacheDir::open(&config.cache_dir)?;
+        cache.remove_stale_temp_files(cache::STALE_TEMP_AGE);
         let (tx, rx) = mpsc::channel();
         let inner = Arc::new(Inner {
             cache: cache.clone(),
@@ -632,8 +635,14 @@ impl Service {
         }
         let path = self.inner.cache.solution_path(id);
         let outcome = outcome.and_then(|sol| {
-            sol.write(&path)
-                .map_err(|e| format!("writing the solution: {e}"))?;
+            // A full disk or a file-size limit fails here (ENOSPC, EFBIG): the temporary file
+            // is removed, nothing is stored under the final name, and this scene alone fails.
+            sol.write(&path).map_err(|e| {
+                format!(
+                    "the solve finished but writing its solution to the cache failed, so \
+                     nothing was stored (POST the scene again to retry): {e}"
+                )
+            })?;
             // Before "done": the first view then costs what every later one does.
             sol.prepare_renders();
             Ok(sol)

@@ -34,8 +34,10 @@ pub mod jobs;
 pub mod routes;
 
 use anyhow::{Context, Result};
+use std::future::Future;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::time::Duration;
 
 pub use jobs::{JobState, Service};
 
@@ -66,6 +68,11 @@ pub struct Limits {
     pub max_cache_bytes: u64,
     /// Total size of uploaded volumes; oldest ones are evicted beyond it.
     pub max_volume_bytes: u64,
+    /// Longest a client may take to send a request's head (request line and headers), and
+    /// again its body. A connection whose head is late is closed (an idle kept-alive one
+    /// too); a late body is answered 408. A slow client holds only its own connection, and
+    /// only this long.
+    pub request_read_timeout: Duration,
 }
 
 impl Default for Limits {
@@ -83,6 +90,7 @@ impl Default for Limits {
             max_scenes: 1000,
             max_cache_bytes: 2 << 30,
             max_volume_bytes: 1 << 30,
+            request_read_timeout: Duration::from_secs(30),
         }
     }
 }
@@ -119,6 +127,7 @@ pub struct ServerHandle {
 impl ServerHandle {
     /// Opens the cache, binds `addr` (port 0 picks a free one) and serves in the background.
     pub fn start(config: ServiceConfig, addr: &str) -> Result<ServerHandle> {
+        let read_timeout = config.limits.request_read_timeout;
         let service = Service::open(config)?;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
@@ -135,11 +144,10 @@ impl ServerHandle {
             .name("volrad-http".into())
             .spawn(move || {
                 runtime.block_on(async move {
-                    let _ = axum::serve(listener, app)
-                        .with_graceful_shutdown(async move {
-                            let _ = rx.await;
-                        })
-                        .await;
+                    serve(listener, app, read_timeout, async move {
+                        let _ = rx.await;
+                    })
+                    .await;
                 });
                 runtime.shutdown_timeout(std::time::Duration::from_secs(2));
             })
@@ -174,8 +182,77 @@ impl Drop for ServerHandle {
     }
 }
 
+/// Serves `app` on `listener` until `shutdown` completes, then lets requests in progress
+/// finish and returns. What `axum::serve` does, with HTTP/1.1 connections built here so that
+/// a request's head has a deadline (hyper's `header_read_timeout`, which needs a timer that
+/// `axum::serve` does not give it): a client that connects and sends nothing, or its headers
+/// a byte at a time, is cut off after `read_timeout` instead of holding its connection (and
+/// a task, and a file descriptor) forever. The body's deadline is [`routes::router`]'s.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    app: axum::Router,
+    read_timeout: Duration,
+    shutdown: impl Future<Output = ()>,
+) {
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    use hyper_util::service::TowerToHyperService;
+
+    let mut http = hyper::server::conn::http1::Builder::new();
+    http.timer(TokioTimer::new())
+        .header_read_timeout(read_timeout);
+    // Connections hold a receiver each; closing them and waiting for the sender to see
+    // none left is the graceful shutdown.
+    let (closing_tx, closing_rx) = tokio::sync::watch::channel(false);
+    tokio::pin!(shutdown);
+    loop {
+        let accepted = tokio::select! {
+            accepted = listener.accept() => accepted,
+            () = &mut shutdown => break,
+        };
+        let stream = match accepted {
+            Ok((stream, _peer)) => stream,
+            Err(e) => {
+                // Out of file descriptors, or a connection reset before it was accepted:
+                // wait a moment (as axum::serve does) instead of spinning.
+                tracing::warn!("accepting a connection: {e}");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        let service = TowerToHyperService::new(app.clone());
+        let http = http.clone();
+        let mut closing = closing_rx.clone();
+        tokio::spawn(async move {
+            let conn = http.serve_connection(TokioIo::new(stream), service);
+            tokio::pin!(conn);
+            tokio::select! {
+                _ = conn.as_mut() => {}
+                _ = closing.changed() => {
+                    conn.as_mut().graceful_shutdown();
+                    let _ = conn.await;
+                }
+            }
+            drop(closing);
+        });
+    }
+    drop(listener);
+    drop(closing_rx);
+    let _ = closing_tx.send(true);
+    closing_tx.closed().await;
+}
+
 /// `volrad serve`: serves until Ctrl-C.
 pub fn run(config: ServiceConfig, addr: &str, quiet: bool) -> Result<()> {
+    // A write beyond the file-size limit (RLIMIT_FSIZE: `ulimit -f`, a container's or a
+    // supervisor's limit) raises SIGXFSZ, whose default action kills the process: every
+    // client would lose the server, and solves in progress, over one large solution file.
+    // Ignored, the write fails with EFBIG instead, and that solve alone reports it.
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to SIG_IGN has no handler to run.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     let service = Service::open(config.clone())?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -194,12 +271,11 @@ pub fn run(config: ServiceConfig, addr: &str, quiet: bool) -> Result<()> {
             );
         }
         let app = routes::router(service.clone());
-        axum::serve(listener, app)
-            .with_graceful_shutdown(async {
-                let _ = tokio::signal::ctrl_c().await;
-            })
-            .await
-            .context("serving HTTP")
+        serve(listener, app, config.limits.request_read_timeout, async {
+            let _ = tokio::signal::ctrl_c().await;
+        })
+        .await;
+        anyhow::Ok(())
     })?;
     service.shutdown();
     Ok(())
@@ -219,6 +295,7 @@ pub fn run_cli(args: &crate::cli::ServeArgs, quiet: bool, max_memory: Option<u64
         config.limits.max_solve_bytes = usize::try_from(bytes).unwrap_or(usize::MAX);
     }
     config.limits.max_cache_bytes = args.max_cache_mib.saturating_mul(1 << 20);
+    config.limits.request_read_timeout = Duration::from_secs_f64(args.request_timeout_secs);
     if let Some(n) = args.render_slots {
         config.render_slots = n.max(1);
     }

@@ -4,10 +4,11 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use axum::body::Bytes;
+use axum::body::{Body, Bytes};
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{DefaultBodyLimit, Path, RawQuery, State};
+use axum::extract::{DefaultBodyLimit, Path, RawQuery, Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
+use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
@@ -66,7 +67,57 @@ pub fn router(service: Service) -> Router {
         .route("/v1/volumes", post(post_volume))
         .fallback(|| async { ApiError::new(StatusCode::NOT_FOUND, "no such route") })
         .layer(DefaultBodyLimit::max(body_limit))
+        .layer(axum::middleware::from_fn_with_state(
+            service.clone(),
+            read_body_in_time,
+        ))
         .with_state(service)
+}
+
+/// Reads every request's whole body before it is routed, under the body limit and the read
+/// timeout ([`Limits`](super::Limits)): a `Content-Length` over the limit is refused (413)
+/// before a byte of the body is read, a body that grows over it (chunked, or longer than
+/// announced) as soon as it does, and one that has not all arrived within the timeout —
+/// a client sending slowly — is answered 408; hyper then closes the connection. Without
+/// this a client announcing a large body and sending nothing held its connection forever.
+async fn read_body_in_time(State(service): State<Service>, req: Request, next: Next) -> Response {
+    let limits = &service.inner.limits;
+    let max = limits.max_body_bytes;
+    let announced = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    if let Some(len) = announced.filter(|&n| n > max as u64) {
+        return ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("request body of {len} bytes is larger than the server's limit of {max} bytes"),
+        )
+        .into_response();
+    }
+    let (parts, body) = req.into_parts();
+    let limited = http_body_util::Limited::new(body, max);
+    let read = http_body_util::BodyExt::collect(limited);
+    match tokio::time::timeout(limits.request_read_timeout, read).await {
+        Ok(Ok(collected)) => {
+            let body = Body::from(collected.to_bytes());
+            next.run(Request::from_parts(parts, body)).await
+        }
+        Ok(Err(e)) if e.is::<http_body_util::LengthLimitError>() => ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("request body is larger than the server's limit of {max} bytes"),
+        )
+        .into_response(),
+        Ok(Err(e)) => ApiError::bad(format!("cannot read the request body: {e}")).into_response(),
+        Err(_) => ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            format!(
+                "the request body did not arrive within {} s",
+                limits.request_read_timeout.as_secs_f64()
+            ),
+        )
+        .into_response(),
+    }
 }
 
 async fn viewer() -> Html<&'static str> {

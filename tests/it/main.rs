@@ -12,5 +12,6 @@ mod interpolation;
 mod readme;
 mod reference_cloud24;
 mod service;
+mod service_faults;
 mod solution_file;
 mod validate;
