@@ -15,6 +15,10 @@ use volrad::engine::solution::Solution;
 use volrad::service::client::{get, request, HttpResponse};
 use volrad::service::{ServerHandle, ServiceConfig};
 
+#[path = "../../examples/soak.rs"]
+#[allow(dead_code)]
+mod soak;
+
 /// A `volrad serve` process on 127.0.0.1 (a port the kernel picks) and a cache directory.
 struct Server {
     child: Child,
@@ -614,4 +618,34 @@ fn slow_clients_are_cut_off_and_oversized_bodies_refused_without_blocking_others
     let id = submit(addr, &small_scene(3));
     assert_eq!(wait_finished(addr, &id)["state"], "done");
     assert_renders(addr, &id);
+}
+
+/// The soak (examples/soak.rs) for a few seconds against the binary: 8 clients, no errors,
+/// and the server's memory bounded.
+#[test]
+fn soak_for_a_few_seconds_has_no_errors_and_bounded_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let max_body = soak::MAX_BODY_BYTES.to_string();
+    let server = Server::spawn(dir.path(), &["--max-body-bytes", &max_body], None);
+    let main_id = soak::setup(server.addr).unwrap();
+    let options = soak::SoakOptions {
+        clients: 8,
+        duration: Duration::from_secs(6),
+        sample_every: Duration::from_millis(500),
+        server_pid: Some(server.child.id()),
+    };
+    let summary = soak::soak(server.addr, &main_id, &options);
+    summary.print();
+    assert_eq!(summary.errors, 0, "{:?}", summary.error_samples);
+    assert!(summary.requests > 100, "{summary:?}");
+    assert!(summary.by_kind.iter().all(|&n| n > 0), "{summary:?}");
+    // Growth from the first third of the run to its end: allocator arenas and caches settle
+    // early; a leak per request would keep growing.
+    let third = summary.rss_kib[summary.rss_kib.len() / 3];
+    assert!(third > 0, "{summary:?}");
+    assert!(
+        summary.rss_max() < third + 48 * 1024,
+        "RSS grew from {third} KiB to {} KiB",
+        summary.rss_max()
+    );
 }
