@@ -542,49 +542,18 @@ fn read_uploaded_volume(
     body: &[u8],
     max_cells: u64,
 ) -> ApiResult<([usize; 3], &'static str, &'static str)> {
-    use medium::{nifti, vdb, volume_io};
-    let bad = |e: medium::MediumError| ApiError::bad(format!("volume: {e}"));
-    let is_nifti_header = |b: &[u8]| {
-        b.len() >= 348
-            && [348i32, 540]
-                .iter()
-                .any(|n| b[..4] == n.to_le_bytes() || b[..4] == n.to_be_bytes())
-    };
-    let (dims, extension, format) = if body.starts_with(b"NRRD000") {
-        let v = volume_io::read_nrrd_bytes_attached(
-            body,
-            std::path::Path::new("upload.nrrd"),
-            max_cells,
-        )
-        .map_err(bad)?;
-        (v.dims, "nrrd", "NRRD")
-    } else if body.starts_with(b"VOL") {
-        let v = volume_io::read_mitsuba_vol_bytes(body, std::path::Path::new("upload.vol"))
-            .map_err(bad)?;
-        (v.dims, "vol", "Mitsuba .vol")
-    } else if body.len() >= 8 && body[..8] == 0x5644_4220i64.to_le_bytes() {
-        let v =
-            vdb::read_vdb_bytes_capped(body, std::path::Path::new("upload.vdb"), None, max_cells)
-                .map_err(bad)?;
-        (v.data.dims, "vdb", "OpenVDB")
-    } else if body.starts_with(&[0x1f, 0x8b]) || is_nifti_header(body) {
-        let v = nifti::read_nifti_bytes_capped(body, std::path::Path::new("upload.nii"), max_cells)
-            .map_err(bad)?;
-        let gzip = body.starts_with(&[0x1f, 0x8b]);
-        (v.data.dims, if gzip { "nii.gz" } else { "nii" }, "NIfTI")
-    } else {
-        return Err(ApiError::bad(
+    use medium::volume_io::{read_volume_bytes_capped, VolumeFormat};
+    let format = VolumeFormat::sniff(body).ok_or_else(|| {
+        ApiError::bad(
             "volume: not a format volrad reads (NRRD, Mitsuba .vol, OpenVDB, NIfTI); for raw \
              f32 give ?dims=NX,NY,NZ",
-        ));
-    };
-    let cells = dims.iter().map(|&d| d as u64).product::<u64>();
-    if cells > max_cells {
-        return Err(ApiError::bad(format!(
-            "volume: {cells} cells exceed the server's limit of {max_cells}"
-        )));
-    }
-    Ok((dims, extension, format))
+        )
+    })?;
+    let extension = format.extension(body);
+    let label = format!("upload.{extension}");
+    let data = read_volume_bytes_capped(body, format, std::path::Path::new(&label), max_cells)
+        .map_err(|e| ApiError::bad(format!("volume: {e}")))?;
+    Ok((data.dims, extension, format.name()))
 }
 
 fn parse_f64(q: &HashMap<String, String>, key: &str) -> ApiResult<Option<f64>> {

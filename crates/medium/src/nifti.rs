@@ -141,8 +141,19 @@ pub fn read_nifti_bytes_capped(
     })
 }
 
-fn is_gzip(bytes: &[u8]) -> bool {
+/// Whether `bytes` are gzip-compressed (a `.nii.gz`; only the header tells more).
+pub fn is_gzip(bytes: &[u8]) -> bool {
     bytes.starts_with(&[0x1f, 0x8b])
+}
+
+/// Whether `bytes` may be a NIfTI file: gzip-compressed, or beginning with a `sizeof_hdr` of
+/// 348 (NIfTI-1) or 540 (NIfTI-2) in either byte order.
+pub fn has_magic(bytes: &[u8]) -> bool {
+    is_gzip(bytes)
+        || (bytes.len() >= 4
+            && [348i32, 540]
+                .iter()
+                .any(|n| bytes[..4] == n.to_le_bytes() || bytes[..4] == n.to_be_bytes()))
 }
 
 /// At most `limit` bytes of a gzip stream (all members); fewer if the stream ends first.

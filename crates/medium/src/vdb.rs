@@ -35,6 +35,11 @@ pub const MAX_VDB_CELLS: u64 = 1 << 31;
 
 /// `"VDB "` as OpenVDB's int64 magic number.
 const MAGIC: i64 = 0x5644_4220;
+/// Whether `bytes` begin with OpenVDB's magic number.
+pub fn has_magic(bytes: &[u8]) -> bool {
+    bytes.len() >= 8 && bytes[..8] == MAGIC.to_le_bytes()
+}
+
 /// NODE_MASK_COMPRESSION: per-grid compression and per-node metadata bytes (OpenVDB 3.0+).
 const MIN_VERSION: u32 = 222;
 /// HALF_GRID (OpenVDB 12).

@@ -73,6 +73,84 @@ impl VolumeFormat {
     }
 }
 
+impl VolumeFormat {
+    /// The format of a file's `bytes`, told by its magic number: `NRRD000x`, `VOL`, OpenVDB's
+    /// int64, NIfTI's `sizeof_hdr` (or gzip); `None` for anything else (raw f32 has none).
+    pub fn sniff(bytes: &[u8]) -> Option<VolumeFormat> {
+        if bytes.starts_with(b"NRRD000") {
+            Some(VolumeFormat::Nrrd)
+        } else if bytes.starts_with(b"VOL") {
+            Some(VolumeFormat::MitsubaVol)
+        } else if crate::vdb::has_magic(bytes) {
+            Some(VolumeFormat::OpenVdb)
+        } else if crate::nifti::has_magic(bytes) {
+            Some(VolumeFormat::Nifti)
+        } else {
+            None
+        }
+    }
+
+    /// The file-name suffix [`VolumeFormat::from_path`] reads `bytes` of this format by:
+    /// `nii.gz` for a gzip-compressed NIfTI file.
+    pub fn extension(self, bytes: &[u8]) -> &'static str {
+        match self {
+            VolumeFormat::RawF32 => "f32",
+            VolumeFormat::MitsubaVol => "vol",
+            VolumeFormat::Nrrd => "nrrd",
+            VolumeFormat::OpenVdb => "vdb",
+            VolumeFormat::Nifti if crate::nifti::is_gzip(bytes) => "nii.gz",
+            VolumeFormat::Nifti => "nii",
+        }
+    }
+
+    /// The format's name in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            VolumeFormat::RawF32 => "raw f32",
+            VolumeFormat::MitsubaVol => "Mitsuba .vol",
+            VolumeFormat::Nrrd => "NRRD",
+            VolumeFormat::OpenVdb => "OpenVDB",
+            VolumeFormat::Nifti => "NIfTI",
+        }
+    }
+}
+
+/// Reads a self-describing volume file's `bytes` (not raw f32, which has no header) received
+/// from elsewhere — an upload: at most `max_cells` cells, refused from the header before the
+/// data is read or inflated where the format allows, and NRRD data attached to its header
+/// ([`read_nrrd_bytes_attached`]). `label` names the bytes in errors. A `.vdb` gives its
+/// first float grid.
+pub fn read_volume_bytes_capped(
+    bytes: &[u8],
+    format: VolumeFormat,
+    label: &Path,
+    max_cells: u64,
+) -> Result<VolumeData, MediumError> {
+    let data = match format {
+        VolumeFormat::RawF32 => {
+            return Err(vol_err(
+                label,
+                "raw f32 has no header: its dims must be given",
+            ))
+        }
+        VolumeFormat::Nrrd => read_nrrd_bytes_attached(bytes, label, max_cells)?,
+        // Uncompressed: the data it describes is in `bytes`, so no larger than they are.
+        VolumeFormat::MitsubaVol => read_mitsuba_vol_bytes(bytes, label)?,
+        VolumeFormat::OpenVdb => {
+            crate::vdb::read_vdb_bytes_capped(bytes, label, None, max_cells)?.data
+        }
+        VolumeFormat::Nifti => crate::nifti::read_nifti_bytes_capped(bytes, label, max_cells)?.data,
+    };
+    let cells = data.dims.iter().map(|&d| d as u64).product::<u64>();
+    if cells > max_cells {
+        return Err(vol_err(
+            label,
+            format!("{cells} cells, over the limit of {max_cells}"),
+        ));
+    }
+    Ok(data)
+}
+
 fn cell_count(dims: [usize; 3]) -> Option<usize> {
     dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d))
 }

@@ -456,3 +456,49 @@ fn only_regular_files_are_read_as_volumes() {
         );
     }
 }
+
+/// Bytes received without a file name (an upload) are told apart by their magic numbers, as
+/// the extension tells files apart: every format's sample sniffs as the format its name says,
+/// with the suffix that name ends in, and reads back within a cell cap; a cap below the
+/// volume's cells is refused.
+#[test]
+fn bytes_are_recognised_by_magic_number_and_read_under_a_cap() {
+    use medium::volume_io::{read_volume_bytes_capped, VolumeFormat};
+    let dir = scratch("sniff");
+    let data = sample();
+    write_nrrd(&dir.join("v.nrrd"), &data, &NrrdWriteOptions::default()).unwrap();
+    write_mitsuba_vol(&dir.join("v.vol"), &data, 1.0).unwrap();
+    write_raw_f32(&dir.join("v.f32"), &data).unwrap();
+    let tests = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let files = [
+        dir.join("v.nrrd"),
+        dir.join("v.vol"),
+        tests.join("vdb/blosc.vdb"),
+        tests.join("nifti/float32.nii"),
+        tests.join("nifti/float32_gz.nii.gz"),
+    ];
+    for path in &files {
+        let bytes = std::fs::read(path).unwrap();
+        let format = VolumeFormat::sniff(&bytes).unwrap_or_else(|| panic!("{path:?}"));
+        assert_eq!(format, VolumeFormat::from_path(path), "{path:?}");
+        let name = path.file_name().unwrap().to_str().unwrap();
+        assert!(
+            name.ends_with(&format!(".{}", format.extension(&bytes))),
+            "{name}"
+        );
+        let read = read_volume_bytes_capped(&bytes, format, path, 1 << 20).unwrap();
+        let cells: usize = read.dims.iter().product();
+        assert_eq!(read.values.len(), cells);
+        let err = read_volume_bytes_capped(&bytes, format, path, cells as u64 - 1).unwrap_err();
+        // The message names the cap.
+        assert!(
+            err.to_string().contains(&(cells - 1).to_string()),
+            "{name}: {err}"
+        );
+    }
+    // Raw f32 has no magic number.
+    assert_eq!(
+        VolumeFormat::sniff(&std::fs::read(dir.join("v.f32")).unwrap()),
+        None
+    );
+}
