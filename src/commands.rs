@@ -94,16 +94,11 @@ pub fn solve_with_progress(
     quiet: bool,
     max_memory: Option<u64>,
 ) -> Result<Solution> {
-    let hooks = SolveHooks {
-        control: Default::default(),
-        memory_limit: crate::engine::budget::MemoryLimit::given_or_available(max_memory),
-    };
-    // Refused before the progress bar starts.
-    crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let progress = SolveProgress::start(settings, quiet);
+    // solve_scene checks the memory budget before any work.
     let hooks = SolveHooks {
         control: Arc::new(progress.control()),
-        ..hooks
+        memory_limit: crate::engine::budget::MemoryLimit::given_or_available(max_memory),
     };
     crate::progress::cancel_on_ctrl_c(hooks.control.clone());
     let solution = solve_scene(scene, settings, &hooks);

@@ -99,19 +99,15 @@ impl SceneInfo {
     pub fn of(scene: &Scene) -> SceneInfo {
         let m = &scene.medium;
         let cells = m.grid().cell_count();
-        let (mut lo, mut hi, mut occupied) = (f64::INFINITY, 0.0f64, 0usize);
+        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
         for ch in m.channels() {
             for &s in &ch.sigma_t {
                 lo = lo.min(s as f64);
                 hi = hi.max(s as f64);
             }
         }
-        for i in 0..cells {
-            if m.channels().iter().any(|c| c.sigma_t[i] > 0.0) {
-                occupied += 1;
-            }
-        }
-        let peak = budget::solve_peak(scene, &scene.solve);
+        let occupied = budget::occupied_cells(m);
+        let peak = budget::solve_peak(scene, &scene.solve, occupied);
         let h = m.grid().cell_size;
         let max_cell_optical_depth = hi * h;
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {

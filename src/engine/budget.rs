@@ -3,7 +3,7 @@
 //!
 //! [`solve_peak`] predicts the peak resident memory of solving a scene with given settings as
 //! a sum of named parts (the process, the medium, the light pass, each method's operator and
-//! state, the iteration's work vectors, the solution file's bytes). Its coefficients are the
+//! state, the iteration's work vectors, what further channels keep). Its coefficients are the
 //! measured bytes per unit of what each method allocates; `benches/memory.py` compares the
 //! prediction with the measured peak of `volrad solve` on every method (docs/performance.md,
 //! "Memory"). [`check_solve`] compares the prediction with a limit — `--max-memory`, the
@@ -100,23 +100,28 @@ struct Sizes {
 }
 
 impl Sizes {
-    fn of(scene: &Scene) -> Sizes {
+    fn of(scene: &Scene, occupied: usize) -> Sizes {
         let medium = &scene.medium;
-        let cells = medium.grid().cell_count();
-        let occupied = (0..cells)
-            .filter(|&i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
-            .count();
         Sizes {
-            cells: cells as u64,
+            cells: medium.grid().cell_count() as u64,
             occupied: occupied as u64,
             channels: medium.channels().len() as u64,
         }
     }
 }
 
-/// The predicted peak resident memory of solving `scene` with `settings`.
-pub fn solve_peak(scene: &Scene, settings: &SolveSettings) -> MemoryEstimate {
-    peak_of(&Sizes::of(scene), scene, settings)
+/// Cells with σt > 0 in any channel: what the zonal operators and the two-pass tallies grow
+/// with.
+pub fn occupied_cells(medium: &medium::Medium) -> usize {
+    (0..medium.grid().cell_count())
+        .filter(|&i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
+        .count()
+}
+
+/// The predicted peak resident memory of solving `scene` with `settings`; `occupied` is
+/// [`occupied_cells`] of its medium (a caller that has counted them passes its count).
+pub fn solve_peak(scene: &Scene, settings: &SolveSettings, occupied: usize) -> MemoryEstimate {
+    peak_of(&Sizes::of(scene, occupied), scene, settings)
 }
 
 fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate {
@@ -196,11 +201,8 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
             }
         }
         SolveMethod::TwoPass => {
-            let bins = if scene.medium.phase().is_isotropic() {
-                1
-            } else {
-                12 * 24
-            };
+            let bins = crate::engine::methods::two_pass_bins(&scene.medium.phase());
+            let bins = (bins.n_theta * bins.n_phi) as u64;
             let tallies = s.cells.saturating_mul(bins);
             let occupied = s.occupied.saturating_mul(bins);
             parts.push(MemoryPart {
@@ -274,7 +276,7 @@ pub fn check_solve(
     let Some(limit) = limit else {
         return Ok(());
     };
-    let sizes = Sizes::of(scene);
+    let sizes = Sizes::of(scene, occupied_cells(&scene.medium));
     let estimate = peak_of(&sizes, scene, settings);
     if estimate.total() <= limit.bytes {
         return Ok(());
@@ -448,7 +450,7 @@ mod tests {
             Scene::from_toml_str(&text, std::path::Path::new("."), std::path::Path::new("t"))
                 .unwrap()
         };
-        let peak = |s: &Scene| solve_peak(s, &s.solve).total();
+        let peak = |s: &Scene| solve_peak(s, &s.solve, occupied_cells(&s.medium)).total();
         let small = scene("discrete-ordinates", 24, 16);
         let more_bins = scene("discrete-ordinates", 384, 16);
         let more_cells = scene("discrete-ordinates", 24, 32);

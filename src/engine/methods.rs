@@ -329,14 +329,7 @@ pub fn solve_two_pass(
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     use montecarlo::two_pass::{energetize, EnergetizeOptions};
-    let bins = if scene.medium.phase().is_isotropic() {
-        montecarlo::DirectionBins::ISOTROPIC
-    } else {
-        montecarlo::DirectionBins {
-            n_theta: 12,
-            n_phi: 24,
-        }
-    };
+    let bins = two_pass_bins(&scene.medium.phase());
     let options = EnergetizeOptions {
         photons_per_light: settings.photons,
         bins,
@@ -360,6 +353,19 @@ pub fn solve_two_pass(
         "two-pass energetization done"
     );
     Ok((ScatteredField::TwoPass(Box::new(solution)), None))
+}
+
+/// The direction bins the two-pass method tallies photons in: one for isotropic scattering,
+/// 12 × 24 otherwise.
+pub fn two_pass_bins(phase: &medium::PhaseFunction) -> montecarlo::DirectionBins {
+    if phase.is_isotropic() {
+        montecarlo::DirectionBins::ISOTROPIC
+    } else {
+        montecarlo::DirectionBins {
+            n_theta: 12,
+            n_phi: 24,
+        }
+    }
 }
 
 /// The direction bins a solution stores (discrete ordinates only).
