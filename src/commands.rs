@@ -105,14 +105,9 @@ pub fn solve_with_progress(
     progress.finish();
     let solution = solution?;
     crate::engine::methods::refuse_cancelled(&solution)?;
-    for (c, ch) in solution.channels.iter().enumerate() {
-        if let Some(r) = &ch.report {
-            if !r.converged && !quiet {
-                eprintln!(
-                    "warning: channel {c} did not converge: relative residual {:.3e} after {} iterations ({})",
-                    r.final_residual, r.iterations, r.stop_reason
-                );
-            }
+    if !quiet {
+        for warning in crate::engine::methods::convergence_warnings(&solution) {
+            eprintln!("warning: {warning}");
         }
     }
     Ok(solution)

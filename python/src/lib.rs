@@ -23,7 +23,9 @@ use pyo3::types::{PyBool, PyBytes, PyDict, PyFloat, PyInt, PyList, PyString, PyT
 
 use volrad::commands::SolveOverrides;
 use volrad::engine::budget::{parse_size, MemoryLimit};
-use volrad::engine::methods::{export_field, refuse_cancelled, ExportField, SolveSummary};
+use volrad::engine::methods::{
+    convergence_warnings, export_field, refuse_cancelled, ExportField, SolveSummary,
+};
 use volrad::engine::pipeline::{render_view_through, solve_scene, view_medium};
 use volrad::engine::solution::Solution;
 use volrad::engine::SolveHooks;
@@ -261,15 +263,9 @@ impl PyScene {
         let solution = outcome?.map_err(refuse)?;
         refuse_cancelled(&solution).map_err(refuse)?;
         let seconds = started.elapsed().as_secs_f64();
-        for (c, ch) in solution.channels.iter().enumerate() {
-            if let Some(r) = ch.report.as_ref().filter(|r| !r.converged) {
-                let message = format!(
-                    "channel {c} did not converge: relative residual {:.3e} after {} iterations ({})",
-                    r.final_residual, r.iterations, r.stop_reason
-                );
-                let category = py.get_type::<pyo3::exceptions::PyRuntimeWarning>();
-                PyErr::warn(py, &category, &std::ffi::CString::new(message)?, 1)?;
-            }
+        for message in convergence_warnings(&solution) {
+            let category = py.get_type::<pyo3::exceptions::PyRuntimeWarning>();
+            PyErr::warn(py, &category, &std::ffi::CString::new(message)?, 1)?;
         }
         Ok(PySolution {
             solution: Arc::new(solution),
@@ -390,6 +386,14 @@ impl PySolution {
         let image = py
             .detach(|| -> anyhow::Result<gather::Image> {
                 let view = request.camera(&solution.cameras, solution.medium.grid())?;
+                // As `volrad render` does before its views (the service bounds image sizes
+                // by its own limits): a camera too large for memory is refused, not aborted.
+                volrad::engine::budget::check_image(
+                    view.width,
+                    view.height,
+                    solution.channels.len(),
+                    MemoryLimit::given_or_available(None),
+                )?;
                 let medium = view_medium(solution, extinction_scale)?;
                 render_view_through(solution, &medium, &view, spp)
             })
@@ -535,28 +539,15 @@ impl PySolution {
         self.solution.scene_hash.clone()
     }
 
-    /// What `volrad solve` reports, per channel: the iteration, its count, the final relative
-    /// residual, whether it converged, and seconds (`seconds` is `None` for a loaded file).
-    fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    /// What `volrad solve --json` prints, as a dict: the method, the scene hash, seconds
+    /// (`None` for a loaded file) and per channel the iteration, its count, the final relative
+    /// residual, whether it converged, and its seconds.
+    fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        // The command line's own JSON (a NaN time is `null`), so the two cannot drift apart.
         let summary = SolveSummary::of(&self.solution, self.solve_seconds.unwrap_or(f64::NAN));
-        let out = PyDict::new(py);
-        out.set_item("method", &summary.method)?;
-        out.set_item("scene_hash", &summary.scene_hash)?;
-        out.set_item("seconds", self.solve_seconds)?;
-        let channels = PyList::empty(py);
-        for ch in &summary.channels {
-            let d = PyDict::new(py);
-            d.set_item("iteration", &ch.iteration)?;
-            d.set_item("iterations", ch.iterations)?;
-            d.set_item("converged", ch.converged)?;
-            d.set_item("final_residual", ch.final_residual)?;
-            d.set_item("stop_reason", &ch.stop_reason)?;
-            d.set_item("solve_seconds", ch.solve_seconds)?;
-            d.set_item("light_energy_imbalance", ch.light_energy_imbalance)?;
-            channels.append(d)?;
-        }
-        out.set_item("channels", channels)?;
-        Ok(out)
+        let json = serde_json::to_string(&summary)
+            .map_err(|e| VolradError::new_err(format!("report: {e}")))?;
+        py.import("json")?.call_method1("loads", (json,))
     }
 
     /// The per-cell fields (`fluence`, `source`, `sigma_t`) as an xarray Dataset with cell
@@ -703,7 +694,6 @@ fn to_toml(value: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
     )))
 }
 
-/// A camera request from a dict of the camera keys `volrad render` takes.
 /// `render`'s and `orbit`'s `camera` argument: a stored camera's name, a dict of camera
 /// keys, or `None` for the first stored camera.
 fn camera_argument(camera: Option<&Bound<'_, PyAny>>) -> PyResult<CameraRequest> {
@@ -719,6 +709,7 @@ fn camera_argument(camera: Option<&Bound<'_, PyAny>>) -> PyResult<CameraRequest>
     }
 }
 
+/// A camera request from a dict of the camera keys `volrad render` takes.
 fn camera_request(d: &Bound<'_, PyDict>) -> PyResult<CameraRequest> {
     const KEYS: [&str; 7] = [
         "name",

@@ -253,3 +253,26 @@ def test_a_solve_that_cannot_fit_raises_before_it_starts():
     assert time.monotonic() - started < 5
     with pytest.raises(volrad.VolradError, match="max_memory"):
         scene.solve(max_memory="lots")
+
+
+def test_the_report_is_what_volrad_solve_json_prints(cloud_scene, tmp_path):
+    import json
+
+    stored = tmp_path / "cloud.volrad"
+    cli = json.loads(run_cli("solve", cloud_scene, "-o", stored, "--json").stdout)
+    report = volrad.Solution.load(stored).report()
+    assert report["seconds"] is None  # a loaded file does not know how long its solve took
+    for key in ("method", "scene_hash", "channels"):
+        assert report[key] == cli[key], key
+    assert report["channels"][0]["iterations"] > 0
+
+
+def test_an_image_too_large_for_memory_is_refused_before_rendering(cloud_scene, tmp_path):
+    stored = tmp_path / "cloud.volrad"
+    run_cli("solve", cloud_scene, "-o", stored)
+    solution = volrad.Solution.load(stored)
+    started = time.monotonic()
+    # 10⁶ × 10⁶ pixels: terabytes, more than any machine has.
+    with pytest.raises(volrad.VolradError, match="smaller image"):
+        solution.render("front", width=1_000_000, height=1_000_000)
+    assert time.monotonic() - started < 5

@@ -355,6 +355,23 @@ pub fn solve_two_pass(
     Ok((ScatteredField::TwoPass(Box::new(solution)), None))
 }
 
+/// One line per channel whose iteration stopped before its tolerance (what `volrad solve`
+/// warns and the Python package raises as a `RuntimeWarning`).
+pub fn convergence_warnings(solution: &Solution) -> Vec<String> {
+    solution
+        .channels
+        .iter()
+        .enumerate()
+        .filter_map(|(c, ch)| {
+            let r = ch.report.as_ref().filter(|r| !r.converged)?;
+            Some(format!(
+                "channel {c} did not converge: relative residual {:.3e} after {} iterations ({})",
+                r.final_residual, r.iterations, r.stop_reason
+            ))
+        })
+        .collect()
+}
+
 /// The direction bins the two-pass method tallies photons in: one for isotropic scattering,
 /// 12 × 24 otherwise.
 pub fn two_pass_bins(phase: &medium::PhaseFunction) -> montecarlo::DirectionBins {

@@ -171,12 +171,6 @@ pub fn render_view_through(
         );
     }
     let camera = Camera::from_spec(camera)?;
-    crate::engine::budget::check_image(
-        camera.width,
-        camera.height,
-        solution.channels.len(),
-        crate::engine::budget::MemoryLimit::given_or_available(None),
-    )?;
     let mut options = RenderOptions::from_settings(&solution.render, solution.background);
     options.environment = solution.environment;
     if let Some(spp) = spp {
