@@ -357,8 +357,8 @@ impl Service {
 
     /// Registers, as done, the valid solution files in the cache directory whose ids begin
     /// with `prefix` (at least [`MIN_ID_PREFIX`] characters) and that this instance does not
-    /// hold: several instances sharing one cache directory (docs/service.md) serve each
-    /// other's solutions. Only finished solutions are adopted — a scene text without its
+    /// hold: several instances sharing one cache directory (README, "Several instances")
+    /// serve each other's solutions. Only finished solutions are adopted — a scene text without its
     /// solution may be solving elsewhere, and is left alone. Returns how many were adopted.
     pub fn adopt(&self, prefix: &str) -> usize {
         if prefix.len() < MIN_ID_PREFIX {
@@ -367,15 +367,23 @@ impl Service {
         let cache = &self.inner.cache;
         let candidates: Vec<String> = {
             let jobs = self.lock();
-            cache
-                .known_ids()
-                .into_iter()
-                .filter(|id| id.starts_with(prefix) && !jobs.contains_key(id))
-                .filter(|id| cache.solution_path(id).is_file())
-                // A bound on the work one request can cause; a prefix this loose is
-                // ambiguous anyway.
-                .take(MAX_ADOPTED_PER_LOOKUP)
-                .collect()
+            if jobs.contains_key(prefix) {
+                return 0;
+            }
+            if cache.solution_path(prefix).is_file() {
+                // A whole id: no need to list the directory.
+                vec![prefix.to_string()]
+            } else {
+                cache
+                    .known_ids()
+                    .into_iter()
+                    .filter(|id| id.starts_with(prefix) && !jobs.contains_key(id))
+                    .filter(|id| cache.solution_path(id).is_file())
+                    // A bound on the work one request can cause; a prefix this loose is
+                    // ambiguous anyway.
+                    .take(MAX_ADOPTED_PER_LOOKUP)
+                    .collect()
+            }
         };
         let mut adopted = 0;
         for id in candidates {
@@ -407,6 +415,23 @@ impl Service {
             adopted += 1;
         }
         adopted
+    }
+
+    /// Updates the phase, iteration and residual of scene `id` while it is solving (a cancel
+    /// or a delete may have ended that meanwhile: then nothing changes).
+    fn update_solving(&self, id: &str, update: impl FnOnce(&mut String, &mut usize, &mut f64)) {
+        if let Some(Job {
+            state:
+                JobState::Solving {
+                    phase,
+                    iteration,
+                    residual,
+                },
+            ..
+        }) = self.lock().get_mut(id)
+        {
+            update(phase, iteration, residual);
+        }
     }
 
     /// What one solve may use: the per-solve limit, or less when the machine has less
@@ -444,7 +469,8 @@ impl Service {
     pub(crate) fn submit(&self, scene: Scene, text: &str) -> Result<(String, bool), SubmitError> {
         let id = scene_id(&scene);
         // Solved already by another instance sharing the cache directory: served, not solved.
-        if self.adopt(&id) > 0 {
+        // (A stat first: a new scene, the common case, costs no directory listing.)
+        if self.inner.cache.solution_path(&id).is_file() && self.adopt(&id) > 0 {
             let mut jobs = self.lock();
             if let Some(job) = jobs.get_mut(&id) {
                 if job.scene.is_none() {
@@ -589,33 +615,17 @@ impl Service {
             };
             (scene, Arc::clone(&job.control))
         };
-        let progress_service = self.clone();
-        let progress_id = id.to_string();
-        let flag = control.flag();
-        let phase_service = self.clone();
-        let phase_id = id.to_string();
-        let solve_control = solver::SolveControl::with_flag(flag)
+        let (phase_service, phase_id) = (self.clone(), id.to_string());
+        let (progress_service, progress_id) = (self.clone(), id.to_string());
+        let solve_control = solver::SolveControl::with_flag(control.flag())
             .with_phase(move |name| {
-                let mut jobs = phase_service.lock();
-                if let Some(job) = jobs.get_mut(&phase_id) {
-                    if let JobState::Solving { phase, .. } = &mut job.state {
-                        *phase = name.to_string();
-                    }
-                }
+                phase_service.update_solving(&phase_id, |phase, _, _| *phase = name.to_string())
             })
             .with_progress(move |iteration, residual| {
-                let mut jobs = progress_service.lock();
-                if let Some(job) = jobs.get_mut(&progress_id) {
-                    if let JobState::Solving {
-                        iteration: i,
-                        residual: r,
-                        ..
-                    } = &mut job.state
-                    {
-                        *i = iteration;
-                        *r = residual;
-                    }
-                }
+                progress_service.update_solving(&progress_id, |_, i, r| {
+                    *i = iteration;
+                    *r = residual;
+                })
             });
         let hooks = SolveHooks {
             control: Arc::new(solve_control),
