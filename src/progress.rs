@@ -1,12 +1,11 @@
 //! Progress on stderr (indicatif) and Ctrl-C cancellation for long solves and renders.
 
 use std::sync::{Arc, OnceLock};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use scene::SolveSettings;
 use solver::SolveControl;
-use std::time::Instant;
 
 /// A spinner that shows the iteration and residual of the running solve.
 pub struct SolveProgress {
@@ -56,21 +55,22 @@ impl SolveProgress {
                 phase_bar.set_message(format!("{phase}; Ctrl-C cancels"));
             })
             .with_progress(move |iteration, residual| {
-            let mut first = first.lock().unwrap_or_else(|e| e.into_inner());
-            let start = *first.get_or_insert((iteration, residual, Instant::now()));
-            let left = time_left(
-                (start.0, start.1),
-                (iteration, residual),
-                start.2.elapsed(),
-                tol,
-                max_iterations,
-            )
-            .map(|(n, t)| format!(", about {n} more ({})", seconds(t)))
-            .unwrap_or_default();
-            bar.set_message(format!(
-                "iteration {iteration}: relative residual {residual:.3e} (target {tol:.1e}){left}; Ctrl-C cancels"
-            ));
-        })
+                let mut first = first.lock().unwrap_or_else(|e| e.into_inner());
+                let start = *first.get_or_insert((iteration, residual, Instant::now()));
+                let left = time_left(
+                    (start.0, start.1),
+                    (iteration, residual),
+                    start.2.elapsed(),
+                    tol,
+                    max_iterations,
+                )
+                .map(|(n, t)| format!(", about {n} more ({})", seconds(t)))
+                .unwrap_or_default();
+                let residual = format!("relative residual {residual:.3e} (target {tol:.1e})");
+                bar.set_message(format!(
+                    "iteration {iteration}: {residual}{left}; Ctrl-C cancels"
+                ));
+            })
     }
 
     pub fn finish(self) {
