@@ -47,7 +47,8 @@ fn start(dir: &std::path::Path) -> ServerHandle {
     ServerHandle::start(ServiceConfig::new(dir), "127.0.0.1:0").expect("server starts")
 }
 
-fn post_scene(addr: SocketAddr, text: &str) -> HttpResponse {
+/// `POST /v1/scenes` with a TOML scene (shared with `service_faults`).
+pub(crate) fn post_scene(addr: SocketAddr, text: &str) -> HttpResponse {
     request(
         addr,
         "POST",
@@ -58,14 +59,16 @@ fn post_scene(addr: SocketAddr, text: &str) -> HttpResponse {
     .unwrap()
 }
 
-fn submit(addr: SocketAddr, text: &str) -> String {
+/// Posts a scene that must be accepted; its id.
+pub(crate) fn submit(addr: SocketAddr, text: &str) -> String {
     let r = post_scene(addr, text);
     assert_eq!(r.status, 202, "{}", r.text());
     r.json()["id"].as_str().expect("id").to_string()
 }
 
-/// Polls until the scene leaves queued/solving; returns its final description.
-fn wait_finished(addr: SocketAddr, id: &str) -> Value {
+/// Polls until the scene leaves queued/solving (at most 60 s); returns its final
+/// description.
+pub(crate) fn wait_finished(addr: SocketAddr, id: &str) -> Value {
     let start = Instant::now();
     loop {
         let r = get(addr, &format!("/v1/scenes/{id}")).unwrap();
@@ -76,7 +79,7 @@ fn wait_finished(addr: SocketAddr, id: &str) -> Value {
             _ => return v,
         }
         assert!(
-            start.elapsed() < Duration::from_secs(20),
+            start.elapsed() < Duration::from_secs(60),
             "solve took too long: {v}"
         );
         std::thread::sleep(Duration::from_millis(20));

@@ -12,8 +12,10 @@ use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::Value;
 use volrad::engine::solution::Solution;
-use volrad::service::client::{get, request, HttpResponse};
+use volrad::service::client::{get, request};
 use volrad::service::{ServerHandle, ServiceConfig};
+
+use crate::service::{post_scene, submit, wait_finished};
 
 #[path = "../../examples/soak.rs"]
 #[allow(dead_code)]
@@ -171,40 +173,10 @@ fn small_scene(seed: u32) -> String {
     scene(seed, [8, 8, 6], "zonal", "")
 }
 
-fn post(addr: SocketAddr, text: &str) -> HttpResponse {
-    request(
-        addr,
-        "POST",
-        "/v1/scenes",
-        Some("application/toml"),
-        text.as_bytes(),
-    )
-    .unwrap()
-}
-
-fn submit(addr: SocketAddr, text: &str) -> String {
-    let r = post(addr, text);
-    assert_eq!(r.status, 202, "{}", r.text());
-    r.json()["id"].as_str().unwrap().to_string()
-}
-
 fn state(addr: SocketAddr, id: &str) -> Value {
     let r = get(addr, &format!("/v1/scenes/{id}")).unwrap();
     assert_eq!(r.status, 200, "{}", r.text());
     r.json()
-}
-
-/// Polls until the scene leaves queued/solving (at most 60 s).
-fn wait_finished(addr: SocketAddr, id: &str) -> Value {
-    let start = Instant::now();
-    loop {
-        let v = state(addr, id);
-        if !matches!(v["state"].as_str(), Some("queued") | Some("solving")) {
-            return v;
-        }
-        assert!(start.elapsed() < Duration::from_secs(60), "too slow: {v}");
-        std::thread::sleep(Duration::from_millis(25));
-    }
 }
 
 fn assert_renders(addr: SocketAddr, id: &str) {
@@ -428,7 +400,7 @@ fn a_cache_write_past_the_file_size_limit_fails_that_scene_only() {
     let other = submit(server.addr, &small_scene(2));
     assert_eq!(wait_finished(server.addr, &other)["state"], "done");
     assert_renders(server.addr, &other);
-    let again = post(server.addr, &mid_solution_scene(2));
+    let again = post_scene(server.addr, &mid_solution_scene(2));
     assert_eq!(again.json()["queued"], true, "{}", again.text());
     assert_eq!(wait_finished(server.addr, &big)["state"], "failed");
     assert!(server.alive(), "the server died:\n{}", server.log());
