@@ -28,8 +28,9 @@ pub struct CameraRequest {
 impl CameraRequest {
     /// This request with every part `other` gives replaced by `other`'s (the name too).
     pub fn merge(&mut self, other: &CameraRequest) {
-        let other = other.clone();
-        self.name = other.name.or(self.name.take());
+        if other.name.is_some() {
+            self.name.clone_from(&other.name);
+        }
         self.eye = other.eye.or(self.eye);
         self.target = other.target.or(self.target);
         self.up = other.up.or(self.up);
