@@ -29,6 +29,9 @@ pub struct SceneInfo {
     /// The environment light, described (none: `None`).
     pub environment: Option<String>,
     pub cameras: Vec<String>,
+    /// The emitting cells and how the solve method carries their light (`None`: nothing
+    /// emits).
+    pub emission: Option<String>,
     pub method: String,
     /// The linear iteration, as `[solve] iteration` spells it.
     pub iteration: String,
@@ -93,6 +96,28 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64) -> String {
     } else {
         angular
     }
+}
+
+/// How many cells emit, and how the scene's solve method carries their light.
+fn emission_info(scene: &Scene) -> Option<String> {
+    let m = &scene.medium;
+    let emitting = (0..m.grid().cell_count())
+        .filter(|&i| m.channels().iter().any(|c| c.emission.get(i) > 0.0))
+        .count();
+    if emitting == 0 {
+        return None;
+    }
+    let how = match scene.solve.method {
+        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates => {
+            "uncollided light traced to every cell centre (emitter pass), its first collision \
+             the solve's source"
+        }
+        SolveMethod::TwoPass => "photons sent from the emitting cells as from a light",
+        SolveMethod::None | SolveMethod::SingleScatter => {
+            "integrated along view rays only (not scattered)"
+        }
+    };
+    Some(format!("{emitting} emitting cells; {how}"))
 }
 
 impl SceneInfo {
@@ -175,6 +200,7 @@ impl SceneInfo {
                 ),
             }),
             cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
+            emission: emission_info(scene),
             method: scene.solve.method.name().to_string(),
             iteration: scene.solve.iteration.to_string(),
             medium_bytes: m.memory_bytes(),
@@ -229,6 +255,9 @@ impl fmt::Display for SceneInfo {
             writeln!(f, "cameras          none (a render frames the whole grid)")?;
         } else {
             writeln!(f, "cameras          {}", self.cameras.join(", "))?;
+        }
+        if let Some(e) = &self.emission {
+            writeln!(f, "emission         {e}")?;
         }
         writeln!(f, "solve method     {}", self.method)?;
         writeln!(f, "iteration        {}", self.iteration)?;

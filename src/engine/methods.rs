@@ -11,6 +11,7 @@ use formfactor::ordinates::{
 };
 use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, HierarchicalOptions};
 use glam::DVec3;
+use medium::emitter_pass::{EmitterPass, EmitterPassOptions};
 use medium::light_pass::LightPass;
 use medium::{Environment, PhaseFunction};
 use scene::{Scene, SolveMethod, SolveSettings};
@@ -119,11 +120,50 @@ fn run_solver(
     Ok((g, report))
 }
 
-/// Zonal multiple scattering (exact or hierarchical form factors) for channel `c`.
+/// The emitter pass of channel `c` (the emitters' uncollided light, traced to every cell
+/// centre) when the solve method takes it as its first-collision source — the zonal methods
+/// and discrete ordinates — and the channel emits; `None` otherwise.
+pub fn emitter_pass(
+    scene: &Scene,
+    c: usize,
+    settings: &SolveSettings,
+    hooks: &SolveHooks,
+) -> Result<Option<EmitterPass>> {
+    let uses_it = matches!(
+        settings.method,
+        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
+    );
+    if !uses_it || scene.medium.channels()[c].emission.is_zero() {
+        return Ok(None);
+    }
+    hooks.control.phase(&channel_phase(
+        "tracing the emitters' uncollided light",
+        c,
+        scene.medium.channels().len(),
+    ));
+    let pass = EmitterPass::compute(&scene.medium, c, &EmitterPassOptions::default())
+        .context("the emitter pass")?;
+    let report = pass.report();
+    tracing::info!(
+        emitting_cells = report.emitting_cells,
+        clusters = report.clusters,
+        near_cells = report.near_cells,
+        far_rays = report.far_rays,
+        seconds = report.seconds,
+        "emitter pass"
+    );
+    Ok(Some(pass))
+}
+
+/// Zonal multiple scattering (exact or hierarchical form factors) for channel `c`. With an
+/// emitter pass, the emission's uncollided light is the pass's (traced exactly) and the
+/// operator carries only scattered light: `g = e + g_s` with
+/// `g_s = S₁ + σs φ_e / 4π + K g_s` instead of `g = S₁ + e + K g`.
 pub fn solve_zonal(
     scene: &Scene,
     c: usize,
     light_pass: &LightPass,
+    emitters: Option<&EmitterPass>,
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
@@ -186,10 +226,21 @@ pub fn solve_zonal(
         }
     };
     let mut source = light_source.clone();
+    if let Some(pass) = emitters {
+        // The emission leaves the iterated source; its first collision comes in exactly.
+        for (i, (s, phi)) in source.iter_mut().zip(pass.fluence()).enumerate() {
+            *s += channel.sigma_s(i) as f64 * phi / (4.0 * PI) - channel.emission.get(i) as f64;
+        }
+    }
     if let Some(env) = scene.environment.as_ref().filter(|e| !e.is_dark()) {
         add_zonal_environment(&mut source, env, scene, c, op.as_ref())?;
     }
-    let (g, report) = run_solver(op.as_ref(), &source, settings, hooks)?;
+    let (mut g, report) = run_solver(op.as_ref(), &source, settings, hooks)?;
+    if emitters.is_some() {
+        for (i, g) in g.iter_mut().enumerate() {
+            *g += channel.emission.get(i) as f64;
+        }
+    }
     let higher_order = g
         .iter()
         .zip(&light_source)
@@ -260,11 +311,15 @@ pub fn ordinates_options(
     }
 }
 
-/// Discrete-ordinates multiple scattering for channel `c`.
+/// Discrete-ordinates multiple scattering for channel `c`. With an emitter pass the bins
+/// carry no uncollided emission (whose few directions would show as ray effects): the
+/// emission's first collision, from the pass, is the external density instead of `e`, and is
+/// what the render adds as its first scattering.
 pub fn solve_ordinates(
     scene: &Scene,
     c: usize,
     light_pass: &LightPass,
+    emitters: Option<&EmitterPass>,
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
@@ -277,8 +332,16 @@ pub fn solve_ordinates(
         channels,
     ));
     let op = OrdinatesOperator::new(&scene.medium, c, bins, options)?;
-    // I = T(S1 + e) + K I: the once-transported external density is the system's source.
-    let external = op.external_density_from_pass(light_pass)?;
+    // I = T(S1 + e) + K I: the once-transported external density is the system's source
+    // (with an emitter pass, the emission's first collision S_e in place of e).
+    let external = match emitters {
+        Some(pass) => {
+            let mut density = op.first_bounce_density_from_pass(light_pass)?;
+            op.add_collision_density(pass.fluence(), pass.current(), &mut density)?;
+            density
+        }
+        None => op.external_density_from_pass(light_pass)?,
+    };
     let mut source = vec![0.0; op.len()];
     op.transport(&external, &mut source);
     // The environment's uncollided radiance ψ on the bins, in the sweep's own discretisation
@@ -311,6 +374,10 @@ pub fn solve_ordinates(
     // interpolates).
     let mut higher = vec![0.0; op.len()];
     op.gather_density(&radiance, &mut higher);
+    if let Some(pass) = emitters {
+        // The emission's own first scattering, which the bins no longer hold.
+        op.add_collision_density(pass.fluence(), pass.current(), &mut higher)?;
+    }
     Ok((
         ScatteredField::Binned {
             radiance: radiance.iter().map(|&v| v as f32).collect(),
@@ -535,7 +602,7 @@ pub fn export_field(
             ScatteredField::Isotropic { source, .. } => (source.clone(), "radiance/length"),
             _ => {
                 // Angular mean of the source: emission + σs (fluence / 4π).
-                let fluence = fluence(solution, channel);
+                let fluence = fluence(solution, channel)?;
                 let values = (0..cells)
                     .map(|i| {
                         (medium.emission.get(i) as f64
@@ -547,7 +614,7 @@ pub fn export_field(
             }
         },
         ExportField::Fluence => (
-            fluence(solution, channel)
+            fluence(solution, channel)?
                 .into_iter()
                 .map(|v| v as f32)
                 .collect(),
@@ -556,37 +623,55 @@ pub fn export_field(
     })
 }
 
-/// `∫ I dω` per cell of channel `c`, including the unscattered light.
-pub fn fluence(solution: &Solution, c: usize) -> Vec<f64> {
+/// `∫ I dω` per cell of channel `c`: the lights' unscattered light, the emitters'
+/// uncollided light and the scattered light. (Methods that solve without an emitter pass —
+/// two-pass, single scatter, none — get the emitters' light from one now; their scattered
+/// light is not counted: two-pass stores it per optical voxel as a directional source, the
+/// others do not solve it.)
+pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let ch = &solution.channels[c];
     let m = &solution.medium.channels()[c];
     let unscattered = ch.light_pass.total_cell_irradiance();
-    match (&ch.scattered, &solution.bins) {
+    let emitted: Vec<f64> = match &ch.emitted_fluence {
+        Some(f) => f.iter().map(|&v| v as f64).collect(),
+        None if !m.emission.is_zero() => {
+            EmitterPass::compute(&solution.medium, c, &EmitterPassOptions::default())
+                .context("the emitter pass")?
+                .fluence()
+                .to_vec()
+        }
+        None => vec![0.0; unscattered.len()],
+    };
+    Ok(match (&ch.scattered, &solution.bins) {
         (ScatteredField::Isotropic { source, .. }, _) => (0..unscattered.len())
             .map(|i| {
                 // g = e + σs φ / 4π for isotropic scattering; where σs = 0 the scattered part
-                // cannot be recovered from g, so only the unscattered light is counted there.
+                // cannot be recovered from g, so only the uncollided light is counted there.
                 let ss = m.sigma_s(i) as f64;
                 if ss > 0.0 {
                     4.0 * PI * (source[i] as f64 - m.emission.get(i) as f64) / ss
                 } else {
-                    unscattered[i]
+                    unscattered[i] + emitted[i]
                 }
             })
             .collect(),
         (ScatteredField::Binned { radiance, .. }, Some(bins)) => radiance
             .chunks(bins.solid_angles.len())
-            .zip(&unscattered)
-            .map(|(r, u)| {
-                u + r
-                    .iter()
-                    .zip(&bins.solid_angles)
-                    .map(|(a, w)| *a as f64 * w)
-                    .sum::<f64>()
+            .zip(unscattered.iter().zip(&emitted))
+            .map(|(r, (u, e))| {
+                u + e
+                    + r.iter()
+                        .zip(&bins.solid_angles)
+                        .map(|(a, w)| *a as f64 * w)
+                        .sum::<f64>()
             })
             .collect(),
-        _ => unscattered,
-    }
+        _ => unscattered
+            .iter()
+            .zip(&emitted)
+            .map(|(u, e)| u + e)
+            .collect(),
+    })
 }
 
 /// Refuses a solution whose solve was cancelled in any channel: its fields are partial. (Not

@@ -75,14 +75,27 @@ pub fn solve_scene(
             .phase(&channel_phase("light pass", c, medium.channels().len()));
         let light_pass = LightPass::compute(medium.grid(), channel, &scene.lights)
             .with_context(|| format!("light pass of channel {c}"))?;
+        let emitters = crate::engine::methods::emitter_pass(scene, c, settings, hooks)?;
         let (scattered, report) = match settings.method {
             SolveMethod::None | SolveMethod::SingleScatter => (ScatteredField::None, None),
             SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
-                crate::engine::methods::solve_zonal(scene, c, &light_pass, settings, hooks)?
+                crate::engine::methods::solve_zonal(
+                    scene,
+                    c,
+                    &light_pass,
+                    emitters.as_ref(),
+                    settings,
+                    hooks,
+                )?
             }
-            SolveMethod::DiscreteOrdinates => {
-                crate::engine::methods::solve_ordinates(scene, c, &light_pass, settings, hooks)?
-            }
+            SolveMethod::DiscreteOrdinates => crate::engine::methods::solve_ordinates(
+                scene,
+                c,
+                &light_pass,
+                emitters.as_ref(),
+                settings,
+                hooks,
+            )?,
             SolveMethod::TwoPass => {
                 crate::engine::methods::solve_two_pass(scene, c, settings, hooks)?
             }
@@ -91,6 +104,7 @@ pub fn solve_scene(
             light_pass,
             scattered,
             report,
+            emitted_fluence: emitters.map(|e| e.fluence().iter().map(|&v| v as f32).collect()),
             render_cache: Default::default(),
         });
     }

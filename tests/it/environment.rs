@@ -10,6 +10,8 @@ use volrad::engine::pipeline::{render_view, solve_scene};
 use volrad::engine::solution::Solution;
 use volrad::engine::SolveHooks;
 
+use crate::fixtures::masked_error;
+
 /// A 12×12×10 generated cloud (optical depth through the middle about 10) under a uniform
 /// environment of radiance 0.5, seen from one side.
 fn scene_text(albedo: f64, phase: &str, method: &str, extra_light: &str) -> String {
@@ -86,35 +88,6 @@ fn path_traced(scene: &Scene, c: usize) -> montecarlo::path_trace::PathTraced {
         },
     )
     .unwrap()
-}
-
-/// Relative RMS (the reference's noise taken out), relative mean difference and pixel count
-/// of channel `c` of `image` against `traced` over the pixels `counts(i, reference)` selects.
-fn masked_error(
-    image: &gather::Image,
-    c: usize,
-    traced: &montecarlo::path_trace::PathTraced,
-    counts: impl Fn(usize, f64) -> bool,
-) -> (f64, f64, usize) {
-    let n = image.channels as usize;
-    let (mut err2, mut ref2, mut diff, mut sum, mut count) = (0.0, 0.0, 0.0, 0.0, 0);
-    for (i, (&r, &e)) in traced
-        .mean
-        .pixels
-        .iter()
-        .zip(&traced.std_error.pixels)
-        .enumerate()
-    {
-        let (x, r, e) = (image.pixels[n * i + c] as f64, r as f64, e as f64);
-        if counts(i, r) {
-            err2 += (x - r).powi(2) - e * e;
-            ref2 += r * r;
-            diff += x - r;
-            sum += r;
-            count += 1;
-        }
-    }
-    ((err2.max(0.0) / ref2).sqrt(), diff / sum, count)
 }
 
 const ISOTROPIC: &str = r#"{ kind = "isotropic" }"#;

@@ -24,3 +24,32 @@ pub fn s(p: &Path) -> &str {
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
+
+/// Relative RMS (the reference's noise taken out), relative mean difference and pixel count
+/// of channel `c` of `image` against `traced` over the pixels `counts(i, reference)` selects.
+pub fn masked_error(
+    image: &gather::Image,
+    c: usize,
+    traced: &montecarlo::path_trace::PathTraced,
+    counts: impl Fn(usize, f64) -> bool,
+) -> (f64, f64, usize) {
+    let n = image.channels as usize;
+    let (mut err2, mut ref2, mut diff, mut sum, mut count) = (0.0, 0.0, 0.0, 0.0, 0);
+    for (i, (&r, &e)) in traced
+        .mean
+        .pixels
+        .iter()
+        .zip(&traced.std_error.pixels)
+        .enumerate()
+    {
+        let (x, r, e) = (image.pixels[n * i + c] as f64, r as f64, e as f64);
+        if counts(i, r) {
+            err2 += (x - r).powi(2) - e * e;
+            ref2 += r * r;
+            diff += x - r;
+            sum += r;
+            count += 1;
+        }
+    }
+    ((err2.max(0.0) / ref2).sqrt(), diff / sum, count)
+}

@@ -6,6 +6,7 @@ mod fixtures;
 mod architecture;
 mod bench_albedo;
 mod cli;
+mod emitters;
 mod environment;
 mod fuzz;
 mod interpolation;

@@ -477,6 +477,10 @@ fn golden_ordinates_decodes() {
         unreachable!()
     };
     assert_eq!(radiance[..4], ORDINATES_RADIANCE_2);
+    // An emitting channel stores its emitter pass (format 7).
+    let emitted = s.channels[2].emitted_fluence.as_ref().unwrap();
+    assert_eq!(emitted.len(), cells);
+    assert!(emitted.iter().all(|&v| v > 0.0));
 }
 
 #[test]
@@ -531,7 +535,7 @@ const SMALL_SIGMA_T: [f32; 4] = [0.66302073, 1.6, 1.6, 0.66302073];
 const SMALL_ALBEDO: [f32; 4] = [0.74503577, 0.95, 0.95, 0.74503577];
 const SMALL_IRRADIANCE: [f32; 4] = [0.6758711, 0.34533805, 0.27765468, 0.44522983];
 const SMALL_SOURCE: [f32; 4] = [0.035039145, 0.081582904, 0.06898902, 0.024120944];
-const ORDINATES_RADIANCE_2: [f32; 4] = [0.03274109, 0.07055286, 0.032206617, 0.08675802];
+const ORDINATES_RADIANCE_2: [f32; 4] = [0.008535981, 0.025233824, 0.008706395, 0.038777128];
 const TWO_PASS_INTERACTIONS: u64 = 42;
 const TWO_PASS_MAX_SOURCE: f64 = 0.09003358334302902;
 

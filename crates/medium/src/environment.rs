@@ -263,7 +263,7 @@ pub fn luminance(rgb: &[f64; 3]) -> f64 {
 }
 
 /// `n` directions spread evenly over the sphere (a Fibonacci lattice).
-fn fibonacci_directions(n: usize) -> impl Iterator<Item = DVec3> {
+pub(crate) fn fibonacci_directions(n: usize) -> impl Iterator<Item = DVec3> {
     let golden = PI * (3.0 - 5f64.sqrt());
     (0..n).map(move |i| {
         let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;

@@ -28,6 +28,7 @@
 
 pub mod atomic_file;
 pub mod blackbody;
+pub mod emitter_pass;
 pub mod environment;
 pub mod error;
 pub mod fma;

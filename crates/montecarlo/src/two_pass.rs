@@ -67,7 +67,8 @@ const GROUPS: usize = 4;
 /// How to run the energetization pass.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EnergetizeOptions {
-    /// Photons sent from each light.
+    /// Photons sent from each light (and as many from the environment, and from the medium's
+    /// emission, each counted as one more light).
     pub photons_per_light: u64,
     pub seed: u64,
     /// Optical voxels are `storage_factor³` density cells (1: one per cell).
@@ -189,6 +190,13 @@ enum Emitter<'a> {
         axis: DVec3,
         cos_max: f64,
     },
+    /// The channel's emitting cells: a cell chosen by its power `e V` (the cumulative sums
+    /// `cdf` over `cells`), a uniform point in it, a uniform direction.
+    Volume {
+        grid: Grid,
+        cells: &'a [u32],
+        cdf: &'a [f64],
+    },
     /// Uniform directions, each from a uniform point of the bounding sphere's disc across it.
     Environment {
         environment: &'a Environment,
@@ -259,6 +267,22 @@ impl Emitter<'_> {
     #[inline]
     fn ray<R: Rng + ?Sized>(&self, rng: &mut R) -> (Ray, f64) {
         match *self {
+            Emitter::Volume { grid, cells, cdf } => {
+                let total = cdf.last().copied().unwrap_or(0.0);
+                let u = rng.random::<f64>() * total;
+                let k = cdf.partition_point(|&c| c <= u).min(cells.len() - 1);
+                let corner = grid.cell_min(cells[k] as usize);
+                let offset = DVec3::new(rng.random(), rng.random(), rng.random());
+                let cos_theta = 1.0 - 2.0 * rng.random::<f64>();
+                let phi = 2.0 * PI * rng.random::<f64>();
+                (
+                    Ray {
+                        origin: corner + offset * grid.cell_size,
+                        direction: rotate_about(DVec3::Z, cos_theta, phi),
+                    },
+                    1.0,
+                )
+            }
             Emitter::Environment {
                 environment,
                 centre,
@@ -494,6 +518,28 @@ fn trace_photons(
             4.0 * PI * PI * radius * radius,
         ));
     }
+    // The medium's own emission: its first scattering is stored too (renders integrate the
+    // emission along view rays, but not its scattering).
+    let emitting: Vec<u32> = (0..grid.cell_count() as u32)
+        .filter(|&c| ch.emission.get(c as usize) > 0.0)
+        .collect();
+    let cdf: Vec<f64> = emitting
+        .iter()
+        .scan(0.0, |sum, &c| {
+            *sum += ch.emission.get(c as usize) as f64;
+            Some(*sum)
+        })
+        .collect();
+    if let Some(&total) = cdf.last() {
+        emitters.push((
+            Emitter::Volume {
+                grid: *grid,
+                cells: &emitting,
+                cdf: &cdf,
+            },
+            4.0 * PI * total * grid.cell_volume(),
+        ));
+    }
     let total_batches = batches_per_light * emitters.len() as u64;
     let total_photons = options.photons_per_light * emitters.len() as u64;
     let done = AtomicU64::new(0);
@@ -505,8 +551,11 @@ fn trace_photons(
         let first = local * BATCH;
         let count = BATCH.min(options.photons_per_light - first);
         let (emitter, power) = emitters[light_index];
-        let store_first =
-            options.include_first_bounce || matches!(emitter, Emitter::Environment { .. });
+        let store_first = options.include_first_bounce
+            || matches!(
+                emitter,
+                Emitter::Environment { .. } | Emitter::Volume { .. }
+            );
         let mut rng = rng::stream(options.seed, 1 + light_index as u64, local);
         for _ in 0..count {
             let (mut ray, radiance) = emitter.ray(&mut rng);
@@ -514,7 +563,9 @@ fn trace_photons(
             let w0 = power * radiance / options.photons_per_light as f64;
             tally.energy.emitted += w0;
             tally.energy.photons += 1;
-            if grid.clip(&ray, 0.0, f64::INFINITY).is_none() {
+            if !matches!(emitter, Emitter::Volume { .. })
+                && grid.clip(&ray, 0.0, f64::INFINITY).is_none()
+            {
                 continue;
             }
             tally.energy.entering += w0;

@@ -28,9 +28,10 @@ pub const MAGIC: &[u8; 8] = b"VOLRADSL";
 /// Bumped whenever the metadata or array layout changes (2: two-pass fields; 3: the metadata
 /// is the solution module's own record types, `super::records`, instead of serde derives of
 /// library types; 4: the render exposure may be automatic; 6: two-pass fields are arrays, not
-/// metadata). Bumping it means refreshing the golden files in
+/// metadata; 7: the emitters' uncollided fluence, and discrete ordinates' radiance without
+/// it). Bumping it means refreshing the golden files in
 /// `tests/data/solution-golden/` (`VOLRAD_BLESS=1 cargo test --test it solution_file`).
-pub const FORMAT_VERSION: u32 = 6;
+pub const FORMAT_VERSION: u32 = 7;
 const FIXED_HEADER: usize = 24;
 /// The largest metadata (records and array table, without the arrays) a solution file may
 /// hold. The reader decodes with this limit, so a length inside hostile metadata cannot make

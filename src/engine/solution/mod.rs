@@ -60,6 +60,10 @@ pub struct ChannelSolution {
     pub light_pass: LightPass,
     pub scattered: ScatteredField,
     pub report: Option<solver::SolveReport>,
+    /// The emitters' uncollided fluence at each cell centre (the emitter pass), when the
+    /// method solved with it as its first-collision source (zonal methods and discrete
+    /// ordinates in a channel that emits); `None` otherwise.
+    pub emitted_fluence: Option<Vec<f32>>,
     /// Built from the light pass on first render, shared by every later one; not stored.
     pub render_cache: RenderCache,
 }
@@ -256,9 +260,13 @@ impl Solution {
                     FieldKind::Binned
                 }
             };
+            if let Some(f) = &sol.emitted_fluence {
+                arrays.push((format!("emitted_fluence/{c}"), f.clone()));
+            }
             channels.push(ChannelRecord {
                 albedo,
                 emission,
+                has_emitted_fluence: sol.emitted_fluence.is_some(),
                 light_energy: sol
                     .light_pass
                     .fields
@@ -410,6 +418,11 @@ impl Solution {
                     .map(|r| r.into_library())
                     .transpose()
                     .map_err(|e| bad(format!("channel {ci}: {e}")))?,
+                emitted_fluence: if cm.has_emitted_fluence {
+                    Some(take(format!("emitted_fluence/{ci}"), cells)?)
+                } else {
+                    None
+                },
                 render_cache: RenderCache::default(),
             });
             medium_channels.push(ChannelMedium {

@@ -131,6 +131,8 @@ pub struct ChannelRecord {
     pub albedo: Option<f32>,
     /// A uniform emission, or `None` when the array `emission/{c}` holds one per cell.
     pub emission: Option<f32>,
+    /// Whether the array `emitted_fluence/{c}` (the emitter pass's fluence) is present.
+    pub has_emitted_fluence: bool,
     /// The light pass's power bookkeeping, one per light in the scene's order.
     pub light_energy: Vec<LightEnergyRecord>,
     pub field: FieldKind,

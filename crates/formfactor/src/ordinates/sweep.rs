@@ -1124,6 +1124,62 @@ impl OrdinatesOperator {
         Ok(density)
     }
 
+    /// Adds the first-collision density of uncollided light with scalar flux `fluence` and net
+    /// flux vector `current` per cell (an emitter pass) to the cell-major `density`. The
+    /// angular shape of that light is taken as an isotropic part `φ − |J|` plus a beam `|J|`
+    /// along `J`, which keeps both moments exactly (a single beam and an isotropic field are
+    /// exact); the beam scatters by `p(ω_l · Ĵ)` at bin centres, renormalised per cell as for
+    /// point lights. So `Σ_l density Ω_l` grows by `σs φ` per cell.
+    pub fn add_collision_density(
+        &self,
+        fluence: &[f64],
+        current: &[DVec3],
+        density: &mut [f64],
+    ) -> Result<(), OrdinatesError> {
+        let n = self.grid.cell_count();
+        let m = self.bins.len();
+        for (what, got) in [("fluence", fluence.len()), ("current", current.len())] {
+            if got != n {
+                return Err(OrdinatesError::Length {
+                    what,
+                    got,
+                    expected: n,
+                });
+            }
+        }
+        if density.len() != n * m {
+            return Err(OrdinatesError::Length {
+                what: "density",
+                got: density.len(),
+                expected: n * m,
+            });
+        }
+        let omega = self.bins.solid_angles();
+        let centres = self.bins.centres();
+        density.par_chunks_mut(m).enumerate().for_each(|(c, d)| {
+            let ss = self.sigma_s[c];
+            let phi = fluence[c];
+            if ss == 0.0 || phi <= 0.0 {
+                return;
+            }
+            let beam = current[c].length().min(phi);
+            let isotropic = ss * (phi - beam) / (4.0 * std::f64::consts::PI);
+            for dl in d.iter_mut() {
+                *dl += isotropic;
+            }
+            if beam > 0.0 {
+                let dir = current[c] / current[c].length();
+                let norm: f64 = (0..m)
+                    .map(|l| self.phase.eval(centres[l].dot(dir)) * omega[l])
+                    .sum();
+                for (l, dl) in d.iter_mut().enumerate() {
+                    *dl += ss * beam * self.phase.eval(centres[l].dot(dir)) / norm;
+                }
+            }
+        });
+        Ok(())
+    }
+
     /// Transports a cell-major density (`S[c·M + l]`, radiance per length) through the grid:
     /// `out[c·M + l]` = the cell- and bin-averaged radiance it produces. Returns the power
     /// bookkeeping.

@@ -1,0 +1,684 @@
+//! The emitter pass: the uncollided light of emitting cells, computed at every cell centre by
+//! ray tracing rather than carried by a discretisation, so that it has no ray effects. It is
+//! the first-collision source of the emitting medium: what the light pass is for lights.
+//!
+//! At a cell centre `x` the uncollided scalar flux (fluence) of the emission `e` (radiance per
+//! length, piecewise constant per cell) is `φ(x) = ∫ e(y) T(x, y) / |x − y|² dy`, and its net
+//! flux vector `J(x)` the same integral weighted by the unit vector from `y` to `x`. Both are
+//! split by distance:
+//! - **Near** (the 3×3×3 block of cells around `x`, the emitting cell itself included): rays
+//!   from `x` in `near_directions` directions of a Fibonacci lattice, each integrating
+//!   `∫ e T ds` exactly cell by cell (`e T_in (1 − e^{−σt ℓ}) / σt`) until it leaves the block.
+//!   The integrand's `1/r²` is absorbed by the spherical measure, so the singular part is exact.
+//! - **Far**: a k-d tree of the emitting cells (Barnes–Hut). A cluster whose box diagonal,
+//!   seen from `x`, is at most `opening_ratio` of its distance, and across whose box σt varies
+//!   by at most `cluster_optical_variation` (`(max σt − min σt) ×` diagonal), is one source of
+//!   its total power at its power-weighted centroid, with the exact transmittance along the ray
+//!   from there. Otherwise it is opened; single cells are cubes ([`emitting_cube`]), split into
+//!   3³ or 2³ when two or three cells away (each part then at most a sixth of its distance).
+//!
+//! A part of a source nearer to `x` by `u` (along the direction to `x`) is brighter by
+//! `e^{σ u}` and by `1/r²`: a point at the centroid would miss both. Each source therefore
+//! carries the spread of its power along that direction — the weighted covariance `C` of its
+//! cells (each with its own `h²/12`) — and is weighted by `e^{σ² ωᵀCω / 2} (1 + 2σ ωᵀCω / r)`
+//! (the cumulant expansion of `E[e^{σu}]` and the first-order distance term; exact in closed
+//! form for a single cube), with σ the box's mean σt. The remaining errors: the point's
+//! quadrupole term, about `(opening_ratio)² / 8` for an irregular cluster (zero for a cube),
+//! and σt's variation across the box. At the defaults the pass is within 1 % of the exact
+//! uncollided fluence (tests: a cube in a void and in an absorber). Cost: the near rays for
+//! every cell within one cell of an emitter, and one ray per source interaction per cell.
+
+use std::f64::consts::PI;
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use crate::environment::fibonacci_directions;
+use crate::traversal::Ray;
+use crate::{Grid, Medium, MediumError};
+
+/// The tolerances of [`EmitterPass::compute`] (see the module doc).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EmitterPassOptions {
+    /// Directions of the rays that integrate the 3×3×3 block around each cell.
+    pub near_directions: usize,
+    /// The largest ratio of a cluster's box diagonal to its distance for it to act as one
+    /// source.
+    pub opening_ratio: f64,
+    /// The largest variation of σt across a cluster's box, as an optical depth
+    /// (`(max σt − min σt) ×` diagonal), for it to act as one source.
+    pub cluster_optical_variation: f64,
+}
+
+impl Default for EmitterPassOptions {
+    fn default() -> Self {
+        EmitterPassOptions {
+            near_directions: 4096,
+            opening_ratio: 0.2,
+            cluster_optical_variation: 0.5,
+        }
+    }
+}
+
+/// What the pass did, for logs and `volrad info`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EmitterPassReport {
+    pub emitting_cells: usize,
+    /// Nodes of the k-d tree of emitting cells.
+    pub clusters: usize,
+    /// Point-source rays traced, over all cells (sub-cell points included).
+    pub far_rays: u64,
+    /// Cells whose 3×3×3 block holds an emitter (each traced `near_directions` rays).
+    pub near_cells: usize,
+    pub seconds: f64,
+}
+
+/// The uncollided light of one channel's emission at every cell centre.
+///
+/// # Invariants
+/// `fluence` and `current` have one entry per cell of the grid it was computed for;
+/// `fluence ≥ 0` and `|current| ≤ fluence` (up to rounding), all finite.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EmitterPass {
+    fluence: Vec<f64>,
+    current: Vec<DVec3>,
+    report: EmitterPassReport,
+}
+
+/// A node of the k-d tree over emitting cells: a tight box of cell coordinates `[lo, hi)`.
+struct Cluster {
+    lo: [usize; 3],
+    hi: [usize; 3],
+    /// Total emitted power per steradian: `Σ e_j V`.
+    weight: f64,
+    centroid: DVec3,
+    /// The box diagonal (world units).
+    diagonal: f64,
+    /// Mean σt over the box.
+    sigma: f64,
+    /// Power-weighted covariance of the emitters' positions (`xx, yy, zz, xy, xz, yz`).
+    covariance: [f64; 6],
+    /// Whether σt is uniform enough over the box, and the spread small enough for the
+    /// cumulant expansion, for the cluster to act as one source.
+    usable: bool,
+    /// Children, or `None` for a single cell (`cell`).
+    children: Option<[u32; 2]>,
+    cell: u32,
+}
+
+impl EmitterPass {
+    /// The uncollided fluence and flux vector of channel `c`'s emission (zero where nothing
+    /// emits). The medium's invariants hold, so only the channel index and the options are
+    /// checked.
+    pub fn compute(
+        medium: &Medium,
+        c: usize,
+        options: &EmitterPassOptions,
+    ) -> Result<EmitterPass, MediumError> {
+        let Some(channel) = medium.channels().get(c) else {
+            return Err(MediumError::invalid(
+                "emitter pass",
+                format!("channel {c} of a medium with {}", medium.channels().len()),
+            ));
+        };
+        if options.near_directions == 0
+            || !(options.opening_ratio > 0.0 && options.opening_ratio < 1.0)
+            || !(options.cluster_optical_variation > 0.0
+                && options.cluster_optical_variation.is_finite())
+        {
+            return Err(MediumError::invalid(
+                "emitter pass",
+                format!(
+                    "options {options:?}: near_directions ≥ 1, 0 < opening_ratio < 1 and a \
+                     positive cluster_optical_variation"
+                ),
+            ));
+        }
+        let start = std::time::Instant::now();
+        let grid = medium.grid();
+        let n = grid.cell_count();
+        let sigma_t = &channel.sigma_t;
+        let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
+        let mut emitting: Vec<u32> = (0..n as u32)
+            .filter(|&i| emission[i as usize] > 0.0)
+            .collect();
+        let mut report = EmitterPassReport {
+            emitting_cells: emitting.len(),
+            ..EmitterPassReport::default()
+        };
+        if emitting.is_empty() {
+            report.seconds = start.elapsed().as_secs_f64();
+            return Ok(EmitterPass {
+                fluence: vec![0.0; n],
+                current: vec![DVec3::ZERO; n],
+                report,
+            });
+        }
+        let mut tree = Vec::with_capacity(2 * emitting.len());
+        build_cluster(
+            grid,
+            sigma_t,
+            &emission,
+            &mut emitting,
+            options.cluster_optical_variation,
+            &mut tree,
+        );
+        report.clusters = tree.len();
+        let near = near_mask(grid, &emitting);
+        report.near_cells = near.iter().filter(|&&b| b).count();
+        let directions: Vec<DVec3> = fibonacci_directions(options.near_directions).collect();
+        let weight = 4.0 * PI / directions.len() as f64;
+        let results: Vec<(f64, DVec3, u64)> = (0..n)
+            .into_par_iter()
+            .map(|r| {
+                let x = grid.cell_center(r);
+                let rc = grid.coords(r);
+                let (mut phi, mut j, rays) =
+                    far_field(grid, sigma_t, &tree, x, rc, options.opening_ratio);
+                if near[r] {
+                    let (p, jn) = near_field(grid, sigma_t, &emission, x, rc, &directions, weight);
+                    phi += p;
+                    j += jn;
+                }
+                (phi, j, rays)
+            })
+            .collect();
+        let mut fluence = Vec::with_capacity(n);
+        let mut current = Vec::with_capacity(n);
+        for (phi, j, rays) in results {
+            fluence.push(phi);
+            // The quadratures are separate estimates; keep |J| ≤ φ as the exact field has.
+            let len = j.length();
+            current.push(if len > phi && len > 0.0 {
+                j * (phi / len)
+            } else {
+                j
+            });
+            report.far_rays += rays;
+        }
+        report.seconds = start.elapsed().as_secs_f64();
+        tracing::debug!(?report, "emitter pass");
+        Ok(EmitterPass {
+            fluence,
+            current,
+            report,
+        })
+    }
+
+    /// Uncollided scalar flux `∫ L dω` of the emission at each cell centre.
+    pub fn fluence(&self) -> &[f64] {
+        &self.fluence
+    }
+
+    /// Net flux vector `∫ L ω dω` (ω the direction light travels) at each cell centre.
+    pub fn current(&self) -> &[DVec3] {
+        &self.current
+    }
+
+    pub fn report(&self) -> &EmitterPassReport {
+        &self.report
+    }
+}
+
+/// Builds the k-d tree over `cells` (split at the median of the box's longest axis) and
+/// returns the root's index in `tree`.
+fn build_cluster(
+    grid: &Grid,
+    sigma_t: &[f32],
+    emission: &[f64],
+    cells: &mut [u32],
+    max_variation: f64,
+    tree: &mut Vec<Cluster>,
+) -> u32 {
+    let h = grid.cell_size;
+    let volume = grid.cell_volume();
+    let mut lo = [usize::MAX; 3];
+    let mut hi = [0usize; 3];
+    let mut weight = 0.0;
+    let mut moment = DVec3::ZERO;
+    for &cell in cells.iter() {
+        let ijk = grid.coords(cell as usize);
+        for a in 0..3 {
+            lo[a] = lo[a].min(ijk[a]);
+            hi[a] = hi[a].max(ijk[a] + 1);
+        }
+        let w = emission[cell as usize] * volume;
+        weight += w;
+        moment += grid.cell_center(cell as usize) * w;
+    }
+    let size = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+    let diagonal = DVec3::new(size[0] as f64, size[1] as f64, size[2] as f64).length() * h;
+    let (mut min_sigma, mut max_sigma, mut sum_sigma) = (f32::INFINITY, 0.0f32, 0.0f64);
+    for k in lo[2]..hi[2] {
+        for j in lo[1]..hi[1] {
+            for i in lo[0]..hi[0] {
+                let s = sigma_t[grid.index(i, j, k)];
+                min_sigma = min_sigma.min(s);
+                max_sigma = max_sigma.max(s);
+                sum_sigma += s as f64;
+            }
+        }
+    }
+    let sigma = sum_sigma / (size[0] * size[1] * size[2]) as f64;
+    let centroid = moment / weight;
+    let own = h * h / 12.0;
+    let mut covariance = [own, own, own, 0.0, 0.0, 0.0];
+    for &cell in cells.iter() {
+        let d = grid.cell_center(cell as usize) - centroid;
+        let w = emission[cell as usize] * volume / weight;
+        for (c, v) in covariance.iter_mut().zip([
+            d.x * d.x,
+            d.y * d.y,
+            d.z * d.z,
+            d.x * d.y,
+            d.x * d.z,
+            d.y * d.z,
+        ]) {
+            *c += w * v;
+        }
+    }
+    let spread = covariance[0] + covariance[1] + covariance[2];
+    let index = tree.len() as u32;
+    tree.push(Cluster {
+        lo,
+        hi,
+        weight,
+        centroid,
+        diagonal,
+        sigma,
+        covariance,
+        usable: (max_sigma - min_sigma) as f64 * diagonal <= max_variation
+            && sigma * sigma * spread <= 1.0,
+        children: None,
+        cell: cells[0],
+    });
+    if cells.len() > 1 {
+        let axis = (0..3).max_by_key(|&a| size[a]).unwrap_or(0);
+        let mid = cells.len() / 2;
+        cells.select_nth_unstable_by_key(mid, |&c| grid.coords(c as usize)[axis]);
+        let (left, right) = cells.split_at_mut(mid);
+        let a = build_cluster(grid, sigma_t, emission, left, max_variation, tree);
+        let b = build_cluster(grid, sigma_t, emission, right, max_variation, tree);
+        tree[index as usize].children = Some([a, b]);
+    }
+    index
+}
+
+/// Cells within one cell (Chebyshev) of an emitting cell.
+fn near_mask(grid: &Grid, emitting: &[u32]) -> Vec<bool> {
+    let [nx, ny, nz] = grid.dims;
+    let mut mask = vec![false; grid.cell_count()];
+    for &cell in emitting {
+        let [i, j, k] = grid.coords(cell as usize);
+        for kk in k.saturating_sub(1)..(k + 2).min(nz) {
+            for jj in j.saturating_sub(1)..(j + 2).min(ny) {
+                for ii in i.saturating_sub(1)..(i + 2).min(nx) {
+                    mask[grid.index(ii, jj, kk)] = true;
+                }
+            }
+        }
+    }
+    mask
+}
+
+/// Chebyshev distance in cells from cell `rc` to the box `[lo, hi)`.
+#[inline]
+fn box_distance(rc: [usize; 3], lo: [usize; 3], hi: [usize; 3]) -> usize {
+    (0..3)
+        .map(|a| {
+            if rc[a] < lo[a] {
+                lo[a] - rc[a]
+            } else if rc[a] >= hi[a] {
+                rc[a] + 1 - hi[a]
+            } else {
+                0
+            }
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+/// A cluster seen from `x` as one source at its centroid, weighted by the spread of its power
+/// along the direction to `x` (see the module doc): `(φ, J)`.
+#[inline]
+fn spread_source(grid: &Grid, sigma_t: &[f32], cluster: &Cluster, x: DVec3) -> (f64, DVec3) {
+    let v = x - cluster.centroid;
+    let r = v.length();
+    let dir = v / r;
+    let tau = grid.optical_depth(
+        sigma_t,
+        &Ray {
+            origin: cluster.centroid,
+            direction: dir,
+        },
+        0.0,
+        r,
+    );
+    let [xx, yy, zz, xy, xz, yz] = cluster.covariance;
+    let var = xx * dir.x * dir.x
+        + yy * dir.y * dir.y
+        + zz * dir.z * dir.z
+        + 2.0 * (xy * dir.x * dir.y + xz * dir.x * dir.z + yz * dir.y * dir.z);
+    let s = cluster.sigma;
+    let f = cluster.weight * (0.5 * s * s * var - tau).exp() * (1.0 + 2.0 * s * var / r) / (r * r);
+    (f, dir * f)
+}
+
+/// An emitting cube of side `side` centred at `p` (emission `e`, its own `sigma`), seen from
+/// `x` well outside it: `(φ, J)`. A point at the centre would give every part of the cube the
+/// centre's distance and transmittance. Along the direction ω to `x` a part at `u = (y − p)·ω`
+/// is closer by `u` and, where σt is locally uniform, less attenuated by `e^{σ u}`; `u` over a
+/// cube is the sum of three uniform variables of widths `side |ω_a|`, so its moment generating
+/// function is `M(σ) = Π sinh(k_a σ) / (k_a σ)`, `k_a = side |ω_a| / 2`, and the first-order
+/// distance term `(2/r) M'(σ)`. Exact for a cube in a uniform medium to first order in
+/// `side / r` (the second-order term vanishes by the cube's symmetry; in a void it is the
+/// point source again); for a dense cell with light surroundings it is exact along the axes.
+#[inline]
+fn emitting_cube(
+    grid: &Grid,
+    sigma_t: &[f32],
+    e: f64,
+    sigma: f64,
+    side: f64,
+    p: DVec3,
+    x: DVec3,
+) -> (f64, DVec3) {
+    let v = x - p;
+    let r = v.length();
+    if r == 0.0 {
+        return (0.0, DVec3::ZERO);
+    }
+    let dir = v / r;
+    let tau = grid.optical_depth(
+        sigma_t,
+        &Ray {
+            origin: p,
+            direction: dir,
+        },
+        0.0,
+        r,
+    );
+    // ln M(σ) and M'(σ)/M(σ), in logs so that dense cells do not overflow.
+    let (mut log_m, mut shift) = (0.0, 0.0);
+    for a in 0..3 {
+        let k = 0.5 * side * dir[a].abs();
+        let z = k * sigma;
+        if z > 1e-4 {
+            log_m += z + (-(-2.0 * z).exp_m1() / (2.0 * z)).ln();
+            shift += k * (1.0 / z.tanh() - 1.0 / z);
+        } else {
+            log_m += z * z / 6.0;
+            shift += k * z / 3.0;
+        }
+    }
+    let f = e * side.powi(3) * (log_m - tau).exp() * (1.0 + 2.0 * shift / r) / (r * r);
+    (f, dir * f)
+}
+
+/// The far field at `x` (cell `rc`): every emitting cell outside the 3×3×3 block, through the
+/// tree. Returns `(φ, J, rays)`.
+fn far_field(
+    grid: &Grid,
+    sigma_t: &[f32],
+    tree: &[Cluster],
+    x: DVec3,
+    rc: [usize; 3],
+    opening_ratio: f64,
+) -> (f64, DVec3, u64) {
+    let h = grid.cell_size;
+    let (mut phi, mut j, mut rays) = (0.0, DVec3::ZERO, 0u64);
+    let mut stack: Vec<u32> = Vec::with_capacity(64);
+    stack.push(0);
+    while let Some(node) = stack.pop() {
+        let node = &tree[node as usize];
+        let reach = box_distance(rc, node.lo, node.hi);
+        match node.children {
+            Some(children) => {
+                let d = (x - node.centroid).length();
+                if reach > 1 && node.usable && node.diagonal <= opening_ratio * d {
+                    let (p, jj) = spread_source(grid, sigma_t, node, x);
+                    phi += p;
+                    j += jj;
+                    rays += 1;
+                } else {
+                    stack.extend(children);
+                }
+            }
+            None if reach <= 1 => {} // the near field's
+            None => {
+                // A cell two or three cells away is split so that each part is at most a
+                // sixth of its distance across.
+                let m = match reach {
+                    2 => 3,
+                    3 => 2,
+                    _ => 1,
+                };
+                let cell = node.cell as usize;
+                let (e, sigma) = (node.weight / grid.cell_volume(), sigma_t[cell] as f64);
+                let corner = grid.cell_min(cell);
+                let side = h / m as f64;
+                for c in 0..m * m * m {
+                    let offset = DVec3::new(
+                        (c % m) as f64 + 0.5,
+                        ((c / m) % m) as f64 + 0.5,
+                        (c / (m * m)) as f64 + 0.5,
+                    ) * side;
+                    let (p, jj) = emitting_cube(grid, sigma_t, e, sigma, side, corner + offset, x);
+                    phi += p;
+                    j += jj;
+                }
+                rays += (m * m * m) as u64;
+            }
+        }
+    }
+    (phi, j, rays)
+}
+
+/// The near field at `x` (cell `rc`): rays in `directions`, each weighted `weight` sr,
+/// integrating the emission exactly cell by cell until they leave the 3×3×3 block.
+fn near_field(
+    grid: &Grid,
+    sigma_t: &[f32],
+    emission: &[f64],
+    x: DVec3,
+    rc: [usize; 3],
+    directions: &[DVec3],
+    weight: f64,
+) -> (f64, DVec3) {
+    let (mut phi, mut j) = (0.0, DVec3::ZERO);
+    // Any ray from the centre leaves the block within √3 · 1.5 cells.
+    let t_max = 2.6 * grid.cell_size;
+    for &d in directions {
+        let ray = Ray {
+            origin: x,
+            direction: d,
+        };
+        let mut tau = 0.0f64;
+        let mut radiance = 0.0f64;
+        for s in grid.traverse(&ray, 0.0, t_max) {
+            if box_distance(rc, s.coords, s.coords.map(|c| c + 1)) > 1 {
+                break;
+            }
+            let sigma = sigma_t[s.cell] as f64;
+            let l = s.length();
+            let e = emission[s.cell];
+            if e > 0.0 {
+                let optical = sigma * l;
+                // ∫_0^ℓ e^{−σ s} ds, with its series where σℓ is tiny.
+                let path = if optical > 1e-6 {
+                    -(-optical).exp_m1() / sigma
+                } else {
+                    l * (1.0 - 0.5 * optical)
+                };
+                radiance += e * (-tau).exp() * path;
+            }
+            tau += sigma * l;
+        }
+        phi += radiance * weight;
+        // Light arriving from direction d travels along −d.
+        j -= d * (radiance * weight);
+    }
+    (phi, j)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{CellValues, ChannelMedium, Interpolation, PhaseFunction};
+
+    /// A cube of `side` cells emitting `e` at the centre of an `n³` grid of uniform `sigma`.
+    fn emitting_cube(n: usize, side: usize, sigma: f32, e: f32) -> (Medium, [usize; 2]) {
+        let grid = Grid::new([n; 3], 1.0).unwrap();
+        let lo = (n - side) / 2;
+        let hi = lo + side;
+        let emission: Vec<f32> = (0..grid.cell_count())
+            .map(|c| {
+                let ijk = grid.coords(c);
+                if ijk.iter().all(|&v| v >= lo && v < hi) {
+                    e
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let medium = Medium::new(
+            grid,
+            vec![ChannelMedium {
+                sigma_t: vec![sigma; grid.cell_count()],
+                albedo: CellValues::Uniform(0.0),
+                emission: CellValues::PerCell(emission),
+            }],
+            PhaseFunction::Isotropic,
+            Interpolation::Nearest,
+            None,
+        )
+        .unwrap();
+        (medium, [lo, hi])
+    }
+
+    /// `∫ e T / r² dV` over the box `[lo, hi]³` at `x` in a uniform `sigma`, by chords along
+    /// a fine Fibonacci lattice: `e ∫ dω (e^{−σ t_in} − e^{−σ t_out}) / σ` (or the chord
+    /// length in vacuum). Chord lengths are continuous in ω, so this converges quickly.
+    fn reference_fluence(x: DVec3, lo: f64, hi: f64, sigma: f64, e: f64) -> f64 {
+        let n = 100_000;
+        let mut sum = 0.0;
+        for d in fibonacci_directions(n) {
+            let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+            for a in 0..3 {
+                if d[a] == 0.0 {
+                    if x[a] < lo || x[a] > hi {
+                        t1 = -1.0;
+                    }
+                    continue;
+                }
+                let (mut ta, mut tb) = ((lo - x[a]) / d[a], (hi - x[a]) / d[a]);
+                if ta > tb {
+                    std::mem::swap(&mut ta, &mut tb);
+                }
+                t0 = t0.max(ta);
+                t1 = t1.min(tb);
+            }
+            if t1 > t0 {
+                sum += if sigma > 0.0 {
+                    ((-sigma * t0).exp() - (-sigma * t1).exp()) / sigma
+                } else {
+                    t1 - t0
+                };
+            }
+        }
+        e * sum * 4.0 * PI / n as f64
+    }
+
+    #[test]
+    fn an_emitting_cube_in_vacuum_and_in_an_absorber_matches_the_integral_at_every_cell() {
+        for sigma in [0.0f32, 0.3] {
+            let (medium, [lo, hi]) = emitting_cube(16, 4, sigma, 2.0);
+            let pass = EmitterPass::compute(&medium, 0, &EmitterPassOptions::default()).unwrap();
+            let grid = medium.grid();
+            let mut worst = 0.0f64;
+            // Every cell of one octant (the cube is symmetric) plus a line through the cube.
+            for c in 0..grid.cell_count() {
+                let [i, j, k] = grid.coords(c);
+                let in_octant = i >= 8 && j >= 8 && k >= 8;
+                if !(in_octant || (j == 8 && k == 8)) {
+                    continue;
+                }
+                let x = grid.cell_center(c);
+                let want = reference_fluence(x, lo as f64, hi as f64, sigma as f64, 2.0);
+                let got = pass.fluence()[c];
+                let err = (got - want).abs() / want;
+                worst = worst.max(err);
+                assert!(
+                    err < 0.01,
+                    "σt = {sigma}, cell {:?}: {got} against {want} ({:.2} %)",
+                    [i, j, k],
+                    err * 100.0
+                );
+                assert!(pass.current()[c].length() <= got * (1.0 + 1e-12));
+            }
+            assert!(worst > 0.0);
+        }
+    }
+
+    /// Far from the source the tree's clusters act as single sources (fewer rays than cells ×
+    /// emitters), still within 1 % in an absorber, along an axis and a diagonal.
+    #[test]
+    fn clusters_far_from_a_source_keep_the_fluence_within_one_percent() {
+        let (n, sigma) = (40, 0.2f32);
+        let (medium, [lo, hi]) = emitting_cube(n, 6, sigma, 2.0);
+        let pass = EmitterPass::compute(&medium, 0, &EmitterPassOptions::default()).unwrap();
+        let grid = medium.grid();
+        let report = pass.report();
+        assert!(report.far_rays < (report.emitting_cells * grid.cell_count() / 2) as u64);
+        for i in 0..n {
+            for c in [grid.index(i, n / 2, n / 2), grid.index(i, i, i)] {
+                let want =
+                    reference_fluence(grid.cell_center(c), lo as f64, hi as f64, sigma as f64, 2.0);
+                let err = (pass.fluence()[c] / want - 1.0).abs();
+                assert!(
+                    err < 0.01,
+                    "cell {:?}: {:.2} %",
+                    grid.coords(c),
+                    err * 100.0
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_flux_vector_points_away_from_the_source() {
+        let (medium, [_, hi]) = emitting_cube(16, 2, 0.1, 1.0);
+        let pass = EmitterPass::compute(&medium, 0, &EmitterPassOptions::default()).unwrap();
+        let grid = medium.grid();
+        for i in hi + 1..16 {
+            let c = grid.index(i, 7, 7);
+            let j = pass.current()[c];
+            // Far from a small source the field is a beam: |J| ≈ φ, along +x here.
+            assert!(
+                j.x > 0.0 && j.x > 0.9 * pass.fluence()[c],
+                "cell {i}: {j:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn no_emission_gives_zero_and_a_bad_channel_is_refused() {
+        let medium = Medium::homogeneous(
+            Grid::new([4; 3], 1.0).unwrap(),
+            1.0,
+            0.5,
+            0.0,
+            PhaseFunction::Isotropic,
+        )
+        .unwrap();
+        let pass = EmitterPass::compute(&medium, 0, &EmitterPassOptions::default()).unwrap();
+        assert!(pass.fluence().iter().all(|&f| f == 0.0));
+        assert_eq!(pass.report().emitting_cells, 0);
+        assert!(EmitterPass::compute(&medium, 1, &EmitterPassOptions::default()).is_err());
+        let bad = EmitterPassOptions {
+            opening_ratio: 1.5,
+            ..EmitterPassOptions::default()
+        };
+        assert!(EmitterPass::compute(&medium, 0, &bad).is_err());
+    }
+}
