@@ -7,7 +7,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use glam::DVec3;
 use medium::generators::cloud;
 use medium::light_pass::{LightPass, LightPassOptions};
-use medium::{CellValues, ChannelMedium, Grid, Light};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 // Benchmarks run with the product's allocator, which the volrad crate sets.
 use volrad as _;
 
@@ -21,6 +21,14 @@ fn bench_light_pass(c: &mut Criterion) {
         albedo: CellValues::Uniform(0.99),
         emission: CellValues::Uniform(0.0),
     };
+    let medium = Medium::new(
+        grid,
+        vec![channel],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
     let oblique = [Light::Directional {
         direction: DVec3::new(0.5, -1.0, 0.35),
         irradiance: 1.0,
@@ -32,17 +40,17 @@ fn bench_light_pass(c: &mut Criterion) {
     let mut group = c.benchmark_group("light_pass");
     group.sample_size(20);
     group.bench_function("cloud64x64x48_directional_oblique", |b| {
-        b.iter(|| LightPass::compute(&grid, &channel, &oblique).unwrap())
+        b.iter(|| LightPass::compute(&medium, 0, &oblique).unwrap())
     });
     let coarse = LightPassOptions {
         rays_per_cell: 2,
         ..Default::default()
     };
     group.bench_function("cloud64x64x48_directional_oblique_2x2rays", |b| {
-        b.iter(|| LightPass::compute_with(&grid, &channel, &oblique, &coarse).unwrap())
+        b.iter(|| LightPass::compute_with(&medium, 0, &oblique, &coarse).unwrap())
     });
     group.bench_function("cloud64x64x48_directional_axis", |b| {
-        b.iter(|| LightPass::compute(&grid, &channel, &axis).unwrap())
+        b.iter(|| LightPass::compute(&medium, 0, &axis).unwrap())
     });
     group.finish();
 }

@@ -60,7 +60,7 @@ fn case(dims: [usize; 3]) -> Case {
         direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
         irradiance: 1.0,
     }];
-    let pass = LightPass::compute(&grid, &medium.channels()[0], &lights).unwrap();
+    let pass = LightPass::compute(&medium, 0, &lights).unwrap();
     let external = op.external_density_from_pass(&pass).unwrap();
     eprintln!(
         "{dims:?}: operator + light pass + first-bounce density built in {:.2} s",

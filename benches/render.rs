@@ -76,7 +76,7 @@ fn bench_scattering_render(c: &mut Criterion) {
         .medium
         .clone()
         .with_interpolation(Interpolation::Nearest);
-    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &scene.lights).unwrap();
+    let pass = LightPass::compute(medium, 0, &scene.lights).unwrap();
     let spec = scene.camera("front").unwrap();
     let cam = Camera::from_spec(spec).unwrap();
     let opts = RenderOptions {
@@ -87,7 +87,8 @@ fn bench_scattering_render(c: &mut Criterion) {
     };
     let first = SingleScatter::new(medium, 0, &pass, SingleScatterOptions::default()).unwrap();
     let higher: Vec<f32> = pass
-        .zonal_source(&medium.channels()[0])
+        .zonal_source(medium, 0)
+        .unwrap()
         .iter()
         .map(|&v| v as f32)
         .collect();
@@ -140,10 +141,11 @@ fn bench_service_render(c: &mut Criterion) {
         direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
         irradiance: 1.0,
     }];
-    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &lights).unwrap();
+    let pass = LightPass::compute(&medium, 0, &lights).unwrap();
     let depth = LightDepthModel::build(&pass, LightDepth::Auto).unwrap();
     let higher: Vec<f32> = pass
-        .zonal_source(&medium.channels()[0])
+        .zonal_source(&medium, 0)
+        .unwrap()
         .iter()
         .map(|&v| v as f32)
         .collect();

@@ -202,7 +202,6 @@ struct Family {
 }
 
 fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
-    let grid = scene.medium.grid();
     let mut channel = scene.medium.channels()[0].clone();
     channel.albedo = CellValues::Uniform(1.0);
     if sigma_scale != 1.0 {
@@ -219,7 +218,7 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
         .with_context(|| format!("σ-scale {sigma_scale}: the scaled medium"))?;
     let channel = &medium.channels()[0];
     let light_pass =
-        LightPass::compute(grid, channel, &scene.lights).context("computing the light pass")?;
+        LightPass::compute(&medium, 0, &scene.lights).context("computing the light pass")?;
     match scene.solve.method {
         SolveMethod::DiscreteOrdinates => {
             let bins = DirectionBins::with_count(scene.solve.bins)?;
@@ -246,7 +245,9 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
             })
         }
         SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
-            let full = light_pass.zonal_source(channel);
+            let full = light_pass
+                .zonal_source(&medium, 0)
+                .context("the zonal source")?;
             let emission_part: Vec<f64> = (0..full.len())
                 .map(|i| channel.emission.get(i) as f64)
                 .collect();

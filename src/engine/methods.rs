@@ -170,7 +170,9 @@ pub fn solve_zonal(
     let channel = &scene.medium.channels()[c];
     // The lights' first bounce is the render's exact single scattering; the environment's is
     // smooth in direction and stays in the solved source (`higher_order` keeps it).
-    let light_source = light_pass.zonal_source(channel);
+    let light_source = light_pass
+        .zonal_source(&scene.medium, c)
+        .with_context(|| format!("zonal source of channel {c}"))?;
     if channel.albedo.max() == 0.0 {
         // Nothing scatters: the source is the answer (g = E), whatever the iteration — the
         // symmetrised methods' weights (σt/σs) do not even exist here.

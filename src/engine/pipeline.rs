@@ -67,13 +67,13 @@ pub fn solve_scene(
     crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let medium = &scene.medium;
     let mut channels = Vec::with_capacity(medium.channels().len());
-    for (c, channel) in medium.channels().iter().enumerate() {
+    for c in 0..medium.channels().len() {
         let span = tracing::info_span!("channel", c);
         let _enter = span.enter();
         hooks
             .control
             .phase(&channel_phase("light pass", c, medium.channels().len()));
-        let light_pass = LightPass::compute(medium.grid(), channel, &scene.lights)
+        let light_pass = LightPass::compute(medium, c, &scene.lights)
             .with_context(|| format!("light pass of channel {c}"))?;
         let emitters = crate::engine::methods::emitter_pass(scene, c, settings, hooks)?;
         let (scattered, report) = match settings.method {

@@ -59,7 +59,7 @@ fn main() {
             })
     };
     if std::env::var("ORDINATES_SOLVE").is_ok() {
-        solve(&grid, &medium.channels()[0], &op);
+        solve(&medium, &op);
         return;
     }
     if std::env::var("ORDINATES_ONLY_GS").is_ok() {
@@ -88,13 +88,14 @@ fn main() {
 
 /// The Gauss–Seidel solve of `benches/ordinates.rs`: one oblique directional light, from
 /// `g = E` until `‖Δg‖ / ‖E‖ < 1e-5`.
-fn solve(grid: &Grid, channel: &ChannelMedium, op: &OrdinatesOperator) {
+fn solve(medium: &Medium, op: &OrdinatesOperator) {
+    let grid = medium.grid();
     let t0 = Instant::now();
     let lights = [Light::Directional {
         direction: DVec3::new(0.5, -1.0, 0.35).normalize(),
         irradiance: 1.0,
     }];
-    let pass = LightPass::compute(grid, channel, &lights).unwrap();
+    let pass = LightPass::compute(medium, 0, &lights).unwrap();
     let external = op.external_density_from_pass(&pass).unwrap();
     let mut e = vec![0.0; op.len()];
     op.transport(&external, &mut e);

@@ -54,7 +54,7 @@ impl InScattering for Constant {
 }
 
 fn breakdown(name: &str, medium: &Medium, lights: &[Light], camera: &Camera, renders: usize) {
-    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], lights).unwrap();
+    let pass = LightPass::compute(medium, 0, lights).unwrap();
     let depth = LightDepthModel::build(&pass, LightDepth::Auto).unwrap();
     let first =
         SingleScatter::with_depth_model(medium, 0, &pass, SingleScatterOptions::default(), &depth)

@@ -651,7 +651,7 @@ mod tests {
             direction: DVec3::new(0.4, -0.7, -0.6).normalize(),
             irradiance: 1.0,
         };
-        let pass = LightPass::compute(&grid, &medium.channels()[0], &[light]).unwrap();
+        let pass = LightPass::compute(&medium, 0, &[light]).unwrap();
         let lattice = DepthLattice::build(&pass, 0, 2).unwrap();
         let mut segments = 0;
         for n in 0..600 {

@@ -4,17 +4,25 @@
 use glam::DVec3;
 use medium::generators::cloud;
 use medium::light_pass::{LightPass, LightPassOptions};
-use medium::{CellValues, ChannelMedium, Grid, Light};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 
 fn main() {
     let scale: f32 = std::env::args().nth(1).map_or(0.6, |s| s.parse().unwrap());
     let dims = [64, 64, 48];
     let grid = Grid::new(dims, 1.0).unwrap();
-    let channel = ChannelMedium {
-        sigma_t: cloud(dims, 7).iter().map(|d| d * scale).collect(),
-        albedo: CellValues::Uniform(0.99),
-        emission: CellValues::Uniform(0.0),
-    };
+    let medium = Medium::new(
+        grid,
+        vec![ChannelMedium {
+            sigma_t: cloud(dims, 7).iter().map(|d| d * scale).collect(),
+            albedo: CellValues::Uniform(0.99),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let channel = &medium.channels()[0];
     let light = [Light::Directional {
         direction: DVec3::new(0.5, -1.0, 0.35),
         irradiance: 1.0,
@@ -24,7 +32,7 @@ fn main() {
             rays_per_cell: m,
             ..Default::default()
         };
-        LightPass::compute_with(&grid, &channel, &light, &opts).unwrap()
+        LightPass::compute_with(&medium, 0, &light, &opts).unwrap()
     };
     let reference = pass(16);
     for m in [1, 2, 3, 4, 8] {

@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::fma::mul_add;
 use crate::traversal::Ray;
-use crate::{ChannelMedium, Grid, Light, MediumError};
+use crate::{ChannelMedium, Grid, Light, Medium, MediumError};
 
 /// Most lights one light pass takes: each costs a sweep through the grid and its own
 /// stored fields (a scene's `[[light]]` count is bounded by it).
@@ -948,44 +948,43 @@ fn corner_optical_depth(grid: &Grid, sigma_t: &[f32], light: &Light) -> Vec<f32>
     out
 }
 
+/// Channel `c` of `medium`, or an error naming the channels there are.
+fn channel_of(medium: &Medium, c: usize) -> Result<&ChannelMedium, MediumError> {
+    medium.channels().get(c).ok_or_else(|| {
+        MediumError::invalid(
+            "light pass",
+            format!(
+                "channel {c} of a {}-channel medium",
+                medium.channels().len()
+            ),
+        )
+    })
+}
+
 impl LightPass {
-    /// The light pass with default options (see [`LightPassOptions`]).
-    pub fn compute(
-        grid: &Grid,
-        channel: &ChannelMedium,
-        lights: &[Light],
-    ) -> Result<LightPass, MediumError> {
-        Self::compute_with(grid, channel, lights, &LightPassOptions::default())
+    /// The light pass of channel `c` of `medium` with default options (see
+    /// [`LightPassOptions`]).
+    pub fn compute(medium: &Medium, c: usize, lights: &[Light]) -> Result<LightPass, MediumError> {
+        Self::compute_with(medium, c, lights, &LightPassOptions::default())
     }
 
-    /// The light pass for every light of one colour channel.
+    /// The light pass for every light of colour channel `c` of `medium`, on the medium's grid.
+    ///
+    /// The medium is not checked again: a [`Medium`] is valid by construction (its σt has one
+    /// finite value ≥ 0 per cell). What is checked here is what the medium does not vouch
+    /// for: the channel index (an error, not a panic, when out of range), the lights (at most
+    /// [`MAX_LIGHTS`], each valid) and `options.rays_per_cell ≥ 1`.
     pub fn compute_with(
-        grid: &Grid,
-        channel: &ChannelMedium,
+        medium: &Medium,
+        c: usize,
         lights: &[Light],
         options: &LightPassOptions,
     ) -> Result<LightPass, MediumError> {
+        let channel = channel_of(medium, c)?;
         if lights.len() > MAX_LIGHTS {
             return Err(MediumError::invalid(
                 "light pass",
                 format!("{} lights: at most {MAX_LIGHTS}", lights.len()),
-            ));
-        }
-        let cells = grid.cell_count();
-        if channel.sigma_t.len() != cells {
-            return Err(MediumError::invalid(
-                "light pass",
-                format!("{} σt values for {cells} cells", channel.sigma_t.len()),
-            ));
-        }
-        if let Some(i) = channel
-            .sigma_t
-            .iter()
-            .position(|s| !(s.is_finite() && *s >= 0.0))
-        {
-            return Err(MediumError::invalid(
-                "light pass",
-                format!("cell {i} has σt = {}", channel.sigma_t[i]),
             ));
         }
         if options.rays_per_cell == 0 {
@@ -994,6 +993,7 @@ impl LightPass {
                 "rays_per_cell must be ≥ 1",
             ));
         }
+        let grid = medium.grid();
         let sigma_t = &channel.sigma_t;
         let volume = grid.cell_volume();
         let mut fields = Vec::with_capacity(lights.len());
@@ -1082,17 +1082,27 @@ impl LightPass {
     }
 
     /// The zonal source of physics.md, `E_i = e_i + a_i σt_i Σ_l cell_irradiance_{l,i} / 4π`
-    /// (first bounce folded into the emission, isotropic scattering). `channel` must be the
-    /// one this pass was computed for.
-    pub fn zonal_source(&self, channel: &ChannelMedium) -> Vec<f64> {
-        self.total_cell_irradiance()
+    /// (first bounce folded into the emission, isotropic scattering), from channel `c` of
+    /// `medium`, which must be the channel this pass was computed for. The channel's arrays
+    /// match its grid by the [`Medium`]'s invariants; an out-of-range `c` or a medium on
+    /// another grid than this pass's is an error.
+    pub fn zonal_source(&self, medium: &Medium, c: usize) -> Result<Vec<f64>, MediumError> {
+        let channel = channel_of(medium, c)?;
+        if *medium.grid() != self.grid {
+            return Err(MediumError::invalid(
+                "light pass",
+                "the medium's grid is not the one this light pass was computed on",
+            ));
+        }
+        Ok(self
+            .total_cell_irradiance()
             .into_iter()
             .enumerate()
             .map(|(i, e)| {
                 channel.emission.get(i) as f64
                     + channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * e / (4.0 * PI)
             })
-            .collect()
+            .collect())
     }
 
     /// The light's transmittance `T_L(x)` for `x` inside `cell`: the corner field on the

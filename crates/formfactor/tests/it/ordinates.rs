@@ -530,7 +530,8 @@ fn the_external_density_is_the_first_bounce_plus_the_channels_emission() {
             intensity: 3.0,
         },
     ];
-    let pass = LightPass::compute(&grid, &ch, &lights).unwrap();
+    let pass =
+        LightPass::compute(&medium(grid, &ch, PhaseFunction::Isotropic), 0, &lights).unwrap();
     let all = op.external_density_from_pass(&pass).unwrap();
     let first = op.first_bounce_density_from_pass(&pass).unwrap();
     assert!(first.iter().any(|&v| v > 0.0));
@@ -575,12 +576,22 @@ fn refuses_mismatched_inputs() {
         irradiance: 1.0,
     }];
     let other = Grid::new([2, 2, 3], 1.0).unwrap();
-    let foreign = LightPass::compute(&other, &blob_channel(&other, 1.0, 0.5), &light).unwrap();
+    let foreign = LightPass::compute(
+        &medium(
+            other,
+            &blob_channel(&other, 1.0, 0.5),
+            PhaseFunction::Isotropic,
+        ),
+        0,
+        &light,
+    )
+    .unwrap();
     assert_eq!(
         op.external_density_from_pass(&foreign),
         Err(OrdinatesError::ForeignLightPass)
     );
-    let mut short = LightPass::compute(&grid, &ch, &light).unwrap();
+    let mut short =
+        LightPass::compute(&medium(grid, &ch, PhaseFunction::Isotropic), 0, &light).unwrap();
     assert!(op.external_density_from_pass(&short).is_ok());
     short.fields[0].cell_irradiance.pop();
     assert!(matches!(

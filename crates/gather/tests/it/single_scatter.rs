@@ -39,7 +39,7 @@ fn options() -> RenderOptions {
 
 /// Radiance of the slab seen along view flow direction `flow` through the point `target`.
 fn radiance(medium: &Medium, light: Light, shadows: bool, target: DVec3, flow: DVec3) -> f64 {
-    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &[light]).unwrap();
+    let pass = LightPass::compute(medium, 0, &[light]).unwrap();
     let ss = SingleScatter::new(
         medium,
         0,
@@ -156,7 +156,7 @@ fn segment_quadrature_matches_brute_force_in_thick_cells() {
             intensity: 30.0,
         },
     ];
-    let pass = LightPass::compute(&grid, &medium.channels()[0], &lights).unwrap();
+    let pass = LightPass::compute(&medium, 0, &lights).unwrap();
     let ss = SingleScatter::new(
         &medium,
         0,
@@ -219,16 +219,23 @@ fn lattice_segments_match_brute_force_and_carry_exactly() {
     let sigma_t: Vec<f32> = (0..grid.cell_count())
         .map(|_| (6.0 * rng.random::<f64>()) as f32)
         .collect();
-    let channel = ChannelMedium {
-        sigma_t: sigma_t.clone(),
-        albedo: CellValues::Uniform(0.9),
-        emission: CellValues::Uniform(0.0),
-    };
+    let medium = Medium::new(
+        grid,
+        vec![ChannelMedium {
+            sigma_t: sigma_t.clone(),
+            albedo: CellValues::Uniform(0.9),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
     let lights = [Light::Directional {
         direction: DVec3::new(0.3, -0.4, -0.87).normalize(),
         irradiance: 1.0,
     }];
-    let pass = LightPass::compute(&grid, &channel, &lights).unwrap();
+    let pass = LightPass::compute(&medium, 0, &lights).unwrap();
     let rays: Vec<Ray> = (0..40)
         .map(|_| {
             let origin = DVec3::new(-1.0, rng.random::<f64>() * 5.0, rng.random::<f64>() * 4.0);
@@ -310,7 +317,7 @@ fn gradient_shading_follows_the_data_gradient() {
             direction,
             irradiance: 2.0,
         };
-        let pass = LightPass::compute(&grid, &medium.channels()[0], &[light]).unwrap();
+        let pass = LightPass::compute(&medium, 0, &[light]).unwrap();
         let ss = SingleScatter::new(
             &medium,
             0,
@@ -330,7 +337,7 @@ fn gradient_shading_follows_the_data_gradient() {
     }
     // Without data, gradient shading is refused.
     let plain = Medium::homogeneous(grid, 1.0, 0.5, 0.0, PhaseFunction::Isotropic).unwrap();
-    let pass = LightPass::compute(&grid, &plain.channels()[0], &[]).unwrap();
+    let pass = LightPass::compute(&plain, 0, &[]).unwrap();
     let opts = SingleScatterOptions {
         gradient_strength: Some(1.0),
         ..Default::default()
@@ -446,7 +453,7 @@ fn auto_light_depth_is_within_one_and_a_half_percent_of_exact_shadow_rays() {
     };
     let check = |dims: [usize; 3], peak: f32| -> LightDepth {
         let medium = cloud(dims, peak);
-        let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &lights).unwrap();
+        let pass = LightPass::compute(&medium, 0, &lights).unwrap();
         let reference = {
             let centre = medium.grid().extent() * 0.5;
             let size = medium.grid().extent().length();
@@ -537,7 +544,7 @@ fn lattice_models_handle_one_cell_grids_axis_lights_and_point_lights() {
             None,
         )
         .unwrap();
-        let pass = LightPass::compute(&grid, &medium.channels()[0], lights).unwrap();
+        let pass = LightPass::compute(&medium, 0, lights).unwrap();
         let centre = grid.extent() * 0.5;
         let camera = Camera::perspective(
             centre + DVec3::new(-1.0, -2.0, 1.5) * grid.extent().length(),
@@ -624,7 +631,7 @@ fn trilinear_first_bounce_is_continuous_across_cell_faces() {
         direction,
         irradiance: 1.0,
     }];
-    let pass = LightPass::compute(medium.grid(), &medium.channels()[0], &lights).unwrap();
+    let pass = LightPass::compute(&medium, 0, &lights).unwrap();
     let ss = SingleScatter::new(&medium, 0, &pass, SingleScatterOptions::default()).unwrap();
     let grid = *medium.grid();
     let w = DVec3::new(0.0, 0.0, -1.0);

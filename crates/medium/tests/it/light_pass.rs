@@ -5,16 +5,24 @@
 use glam::DVec3;
 use medium::light_pass::{LightEnergy, LightField, LightPass, LightPassOptions};
 use medium::traversal::Ray;
-use medium::{CellValues, ChannelMedium, Grid, Light};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-fn channel(sigma_t: Vec<f32>) -> ChannelMedium {
-    ChannelMedium {
-        sigma_t,
-        albedo: CellValues::Uniform(0.9),
-        emission: CellValues::Uniform(0.0),
-    }
+/// The one-channel medium of σt `sigma_t` on `grid` (albedo 0.9, no emission).
+fn medium(grid: &Grid, sigma_t: Vec<f32>) -> Medium {
+    Medium::new(
+        *grid,
+        vec![ChannelMedium {
+            sigma_t,
+            albedo: CellValues::Uniform(0.9),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap()
 }
 
 fn random_cloud(grid: &Grid, seed: u64) -> Vec<f32> {
@@ -64,7 +72,7 @@ fn energy_is_conserved_in_a_random_cloud() {
             intensity: 10.0,
         },
     ];
-    let pass = LightPass::compute(&grid, &channel(sigma.clone()), &lights).unwrap();
+    let pass = LightPass::compute(&medium(&grid, sigma.clone()), 0, &lights).unwrap();
     let v = grid.cell_volume();
     for (l, field) in pass.fields.iter().enumerate() {
         let en = field.energy;
@@ -111,7 +119,7 @@ fn axis_aligned_slab_matches_closed_form() {
         direction: DVec3::new(0.0, 0.0, -1.0),
         irradiance: e0,
     };
-    let pass = LightPass::compute(&grid, &channel(vec![s; grid.cell_count()]), &[light]).unwrap();
+    let pass = LightPass::compute(&medium(&grid, vec![s; grid.cell_count()]), 0, &[light]).unwrap();
     let f = &pass.fields[0];
     let tau = s as f64 * h;
     for idx in 0..grid.cell_count() {
@@ -152,8 +160,8 @@ fn oblique_slab_matches_layer_average() {
         ..Default::default()
     };
     let pass = LightPass::compute_with(
-        &grid,
-        &channel(vec![s as f32; grid.cell_count()]),
+        &medium(&grid, vec![s as f32; grid.cell_count()]),
+        0,
         &[light],
         &options,
     )
@@ -198,7 +206,7 @@ fn oblique_cell_averages_converge_with_rays_per_cell() {
             rays_per_cell: m,
             ..Default::default()
         };
-        LightPass::compute_with(&grid, &channel(sigma.clone()), &[light], &o)
+        LightPass::compute_with(&medium(&grid, sigma.clone()), 0, &[light], &o)
             .unwrap()
             .fields[0]
             .cell_irradiance
@@ -245,8 +253,8 @@ fn opaque_block_shadows_exactly_the_cells_behind_it() {
             direction,
             irradiance: 1.0,
         }];
-        let open = LightPass::compute(&grid, &channel(thin(&grid)), &light).unwrap();
-        let shaded = LightPass::compute(&grid, &channel(blocked.clone()), &light).unwrap();
+        let open = LightPass::compute(&medium(&grid, thin(&grid)), 0, &light).unwrap();
+        let shaded = LightPass::compute(&medium(&grid, blocked.clone()), 0, &light).unwrap();
         // Point x is in the block's shadow when its ray toward the light crosses the block.
         let (lo, hi) = (
             DVec3::new(bx.0 as f64, 0.0, bz.0 as f64),
@@ -322,7 +330,8 @@ fn point_light_in_vacuum_falls_as_inverse_square() {
         position: pos,
         intensity,
     };
-    let pass = LightPass::compute(&grid, &channel(vec![0.0; grid.cell_count()]), &[light]).unwrap();
+    let pass =
+        LightPass::compute(&medium(&grid, vec![0.0; grid.cell_count()]), 0, &[light]).unwrap();
     let f = &pass.fields[0];
     assert!(f.corner_optical_depth.iter().all(|&t| t == 0.0));
     let mut rng = Pcg64Mcg::seed_from_u64(5);
@@ -380,7 +389,7 @@ fn spot_light_respects_its_cone() {
             intensity: 4.0,
         },
     ];
-    let pass = LightPass::compute(&grid, &channel(sigma), &lights).unwrap();
+    let pass = LightPass::compute(&medium(&grid, sigma), 0, &lights).unwrap();
     let (spot, point) = (&pass.fields[0], &pass.fields[1]);
     let (mut inside, mut outside) = (0, 0);
     for c in 0..grid.cell_count() {
@@ -425,7 +434,7 @@ fn corner_and_interior_transmittance() {
             intensity: 1.0,
         },
     ];
-    let pass = LightPass::compute(&grid, &channel(sigma.clone()), &lights).unwrap();
+    let pass = LightPass::compute(&medium(&grid, sigma.clone()), 0, &lights).unwrap();
     let [nx, ny, nz] = grid.dims;
     for (l, light) in lights.iter().enumerate() {
         for k in 0..=nz {
@@ -454,8 +463,12 @@ fn corner_and_interior_transmittance() {
         direction: dir,
         irradiance: 1.0,
     };
-    let pass =
-        LightPass::compute(&grid, &channel(vec![s as f32; grid.cell_count()]), &[light]).unwrap();
+    let pass = LightPass::compute(
+        &medium(&grid, vec![s as f32; grid.cell_count()]),
+        0,
+        &[light],
+    )
+    .unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(9);
     let (mut top, mut side) = (0, 0);
     for _ in 0..400 {
@@ -489,18 +502,29 @@ fn refuses_bad_input() {
         direction: DVec3::Z,
         irradiance: 1.0,
     }];
-    assert!(LightPass::compute(&grid, &channel(vec![1.0; 7]), &light).is_err());
-    assert!(LightPass::compute(&grid, &channel(vec![f32::NAN; 8]), &light).is_err());
+    // σt is the medium's to check (`optical::medium_new_refuses_bad_sigma_t`); a channel it
+    // does not have is the light pass's.
+    let grey = medium(&grid, vec![1.0; 8]);
+    assert!(LightPass::compute(&grey, 0, &light).is_ok());
+    assert!(LightPass::compute(&grey, 1, &light).is_err());
+    let pass = LightPass::compute(&grey, 0, &light).unwrap();
+    assert!(pass.zonal_source(&grey, 0).is_ok());
+    assert!(pass.zonal_source(&grey, 1).is_err());
+    // A medium on another grid than the pass's.
+    let other = Grid::new([2, 2, 3], 1.0).unwrap();
+    assert!(pass
+        .zonal_source(&medium(&other, vec![1.0; 12]), 0)
+        .is_err());
     let bad = [Light::Directional {
         direction: DVec3::ZERO,
         irradiance: 1.0,
     }];
-    assert!(LightPass::compute(&grid, &channel(vec![1.0; 8]), &bad).is_err());
+    assert!(LightPass::compute(&grey, 0, &bad).is_err());
     let zero_m = LightPassOptions {
         rays_per_cell: 0,
         ..Default::default()
     };
-    assert!(LightPass::compute_with(&grid, &channel(vec![1.0; 8]), &light, &zero_m).is_err());
+    assert!(LightPass::compute_with(&grey, 0, &light, &zero_m).is_err());
 }
 
 /// `E_i = e_i + a_i σt_i Σ_lights cell_irradiance_i / 4π`, summed over the lights; an empty
@@ -528,7 +552,15 @@ fn zonal_source_adds_emission_and_scattered_light_of_every_light() {
         sigma_t: ch.sigma_t.clone(),
         fields: vec![field(vec![half, 0.5]), field(vec![half, 0.5])],
     };
-    let e = pass.zonal_source(&ch);
+    let medium = Medium::new(
+        grid,
+        vec![ch],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let e = pass.zonal_source(&medium, 0).unwrap();
     assert!((e[0] - (0.1 + 0.5 * 2.0)).abs() < 1e-7, "{e:?}");
     assert!((e[1] - 0.2).abs() < 1e-7, "{e:?}");
 }

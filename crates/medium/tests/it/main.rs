@@ -2,6 +2,7 @@
 
 mod light_pass;
 mod nifti;
+mod optical;
 mod vdb;
 mod volume_generators;
 mod volume_io;
