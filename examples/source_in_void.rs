@@ -120,7 +120,7 @@ fn main() -> Result<()> {
     let h = SIDE_CM / dims as f64;
     let text = format!(
         "[volume]\ngenerator = {{ kind = \"cloud\", seed = 1 }}\ndims = [{dims}, {dims}, {dims}]\n\
-         cell_size = {h}\ninterpolation = \"nearest\"\n[medium]\nemission = 1.0\n\
+         cell_size = {h}\ninterpolation = \"nearest\"\n[medium]\nalbedo = {albedo}\nemission = 1.0\n\
          [solve]\nmethod = \"{method}\"\n"
     );
     let mut scene = Scene::from_toml_str(&text, Path::new("."), Path::new("kobayashi-1.toml"))?;
