@@ -159,6 +159,11 @@ fn an_emitting_cube_in_vacuum_and_in_an_absorber_has_the_exact_fluence_in_every_
                     worst = (err, [i, j, k]);
                 }
             }
+            eprintln!(
+                "emitting cube, σt = {sigma}, {method}: worst cell {:.2} % at {:?}",
+                worst.0 * 100.0,
+                worst.1
+            );
             assert!(
                 worst.0 < 0.01,
                 "{method}, σt = {sigma}: fluence off by {:.2} % at cell {:?}",
@@ -210,6 +215,11 @@ fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
             let image = render_view(&solution, &scene.cameras[0], Some(16)).unwrap();
             let (rms, mean, count) = masked_error(&image, 0, &traced, |_, r| r > 1e-3 * peak);
             assert!(count > 200);
+            eprintln!(
+                "emitting cube in a cloud, {phase}, {method}: RMS {:.2} %, mean {:+.2} %",
+                rms * 100.0,
+                mean * 100.0
+            );
             assert!(
                 rms < 0.055 && mean.abs() < 0.02,
                 "{phase}, {method}: RMS {:.2} %, image mean {:+.2} % against the path tracer",
