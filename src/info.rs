@@ -2,7 +2,7 @@
 
 use std::fmt;
 
-use crate::engine::budget;
+use crate::engine::{budget, methods};
 use formfactor::ordinates::{forward_truncation_fraction, DirectionBins};
 use scene::Scene;
 use scene::{SceneOrigin, SolveMethod};
@@ -109,8 +109,20 @@ fn emission_info(scene: &Scene) -> Option<String> {
     }
     let how = match scene.solve.method {
         SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates => {
-            "uncollided light traced to every cell centre (emitter pass), its first collision \
-             the solve's source"
+            let cost = medium::emitter_pass::EmitterPass::estimated_rays_per_cell(
+                m,
+                0,
+                &medium::emitter_pass::EmitterPassOptions::default(),
+                methods::EMITTER_COST_SAMPLES,
+            )
+            .unwrap_or(f64::INFINITY);
+            if methods::emitter_pass_pays(cost, m.grid().cell_count()) {
+                "uncollided light traced to every cell centre (emitter pass), its first \
+                 collision the solve's source"
+            } else {
+                "an extended source, carried by the operator (an emitter pass would trace \
+                 too many rays per cell)"
+            }
         }
         SolveMethod::TwoPass => "photons sent from the emitting cells as from a light",
         SolveMethod::None | SolveMethod::SingleScatter => {

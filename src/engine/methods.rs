@@ -120,9 +120,29 @@ fn run_solver(
     Ok((g, report))
 }
 
+/// The emitter pass's largest expected cost, in rays per cell, for a solve to run it. A compact
+/// source (Kobayashi's 6³ source cells in 60³: about 100) is where the bins' ray effects are
+/// and the pass pays; a cloud that emits throughout (data/fire-scattering.toml: over 1,000,
+/// 17× the solve) is a smooth source the operator carries well.
+pub const MAX_EMITTER_RAYS_PER_CELL: f64 = 256.0;
+
+/// Cells at which the emitter pass's cost is sampled before it runs.
+pub const EMITTER_COST_SAMPLES: usize = 64;
+
+/// Rays an emitter pass may trace in all whatever its cost per cell (a small grid's pass is
+/// cheap even where every cell emits): about 2–5 s on 2 cores.
+pub const MAX_EMITTER_RAYS: f64 = 2e7;
+
+/// Whether an emitter pass of `rays_per_cell` (estimated) over `cells` cells is worth running.
+pub fn emitter_pass_pays(rays_per_cell: f64, cells: usize) -> bool {
+    rays_per_cell <= MAX_EMITTER_RAYS_PER_CELL || rays_per_cell * cells as f64 <= MAX_EMITTER_RAYS
+}
+
 /// The emitter pass of channel `c` (the emitters' uncollided light, traced to every cell
 /// centre) when the solve method takes it as its first-collision source — the zonal methods
-/// and discrete ordinates — and the channel emits; `None` otherwise.
+/// and discrete ordinates —, the channel emits, and the pass's estimated cost is at most
+/// [`MAX_EMITTER_RAYS_PER_CELL`]; `None` otherwise (the emission then goes through the
+/// operator, as its source term).
 pub fn emitter_pass(
     scene: &Scene,
     c: usize,
@@ -136,13 +156,26 @@ pub fn emitter_pass(
     if !uses_it || scene.medium.channels()[c].emission.is_zero() {
         return Ok(None);
     }
+    let options = EmitterPassOptions::default();
+    let cost =
+        EmitterPass::estimated_rays_per_cell(&scene.medium, c, &options, EMITTER_COST_SAMPLES)
+            .context("the emitter pass")?;
+    if !emitter_pass_pays(cost, scene.medium.grid().cell_count()) {
+        // An extended emitting region (a fire in its smoke): a smooth source, which the
+        // operator carries without ray effects, and whose pass would cost far more than the
+        // solve.
+        tracing::info!(
+            rays_per_cell = cost,
+            "emitter pass skipped: the emission is carried by the operator"
+        );
+        return Ok(None);
+    }
     hooks.control.phase(&channel_phase(
         "tracing the emitters' uncollided light",
         c,
         scene.medium.channels().len(),
     ));
-    let pass = EmitterPass::compute(&scene.medium, c, &EmitterPassOptions::default())
-        .context("the emitter pass")?;
+    let pass = EmitterPass::compute(&scene.medium, c, &options).context("the emitter pass")?;
     let report = pass.report();
     tracing::info!(
         emitting_cells = report.emitting_cells,
@@ -636,6 +669,10 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let unscattered = ch.light_pass.total_cell_irradiance();
     let emitted: Vec<f64> = match &ch.emitted_fluence {
         Some(f) => f.iter().map(|&v| v as f64).collect(),
+        // Discrete ordinates solved without the pass carry the emission in their bins.
+        None if matches!(ch.scattered, ScatteredField::Binned { .. }) => {
+            vec![0.0; unscattered.len()]
+        }
         None if !m.emission.is_zero() => {
             EmitterPass::compute(&solution.medium, c, &EmitterPassOptions::default())
                 .context("the emitter pass")?

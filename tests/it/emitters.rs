@@ -229,3 +229,43 @@ fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
         }
     }
 }
+
+/// A cloud that emits throughout (the fire sample) is an extended, smooth source: its pass
+/// would trace thousands of rays per cell (17× the solve), so the solve carries the emission
+/// through its operator and says so in `volrad info`; discrete ordinates' exported fluence then
+/// counts the emission once, from the bins: without scattering it is the uncollided fluence
+/// (the pass's, computed here) to within the bins' angular error, not twice it.
+#[test]
+fn an_extended_emitting_region_is_carried_by_the_operator() {
+    let path = crate::fixtures::root().join("data/fire-scattering.toml");
+    let o = crate::fixtures::volrad(&["info", crate::fixtures::s(&path)]);
+    assert!(o.status.success());
+    let info = String::from_utf8_lossy(&o.stdout);
+    assert!(info.contains("carried by the operator"), "{info}");
+
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("albedo = 0.6", "albedo = 0.0")
+        .replace(
+            "method = \"zonal-hierarchical\"",
+            "method = \"discrete-ordinates\"",
+        );
+    let scene = Scene::from_toml_str(&text, &crate::fixtures::root().join("data"), &path).unwrap();
+    let solution = solve_scene(&scene, &scene.solve, &SolveHooks::default()).unwrap();
+    assert!(solution
+        .channels
+        .iter()
+        .all(|c| c.emitted_fluence.is_none()));
+    let phi = fluence(&solution, 0).unwrap();
+    let exact = medium::emitter_pass::EmitterPass::compute(
+        &scene.medium,
+        0,
+        &medium::emitter_pass::EmitterPassOptions::default(),
+    )
+    .unwrap();
+    let (sum, sum_exact): (f64, f64) = (phi.iter().sum(), exact.fluence().iter().sum());
+    assert!(
+        (sum / sum_exact - 1.0).abs() < 0.05,
+        "total fluence {sum} (ordinates) against {sum_exact} (the emitter pass)"
+    );
+}

@@ -59,7 +59,7 @@ pub struct EmitterPassOptions {
 impl Default for EmitterPassOptions {
     fn default() -> Self {
         EmitterPassOptions {
-            near_directions: 4096,
+            near_directions: 1024,
             opening_ratio: 0.2,
             cluster_optical_size: 1.0,
         }
@@ -208,6 +208,65 @@ impl EmitterPass {
             current,
             report,
         })
+    }
+
+    /// The pass's expected cost in rays per cell (far-field source interactions plus the near
+    /// field's rays), from the full computation at up to `samples` cells spread evenly over the
+    /// grid: cheap next to the pass, and what decides whether it is worth running (a compact
+    /// source costs tens of rays per cell; a whole emitting cloud whose cells are too thick to
+    /// group, thousands).
+    pub fn estimated_rays_per_cell(
+        medium: &Medium,
+        c: usize,
+        options: &EmitterPassOptions,
+        samples: usize,
+    ) -> Result<f64, MediumError> {
+        let Some(channel) = medium.channels().get(c) else {
+            return Err(MediumError::invalid(
+                "emitter pass",
+                format!("channel {c} of a medium with {}", medium.channels().len()),
+            ));
+        };
+        let grid = medium.grid();
+        let n = grid.cell_count();
+        let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
+        let mut emitting: Vec<u32> = (0..n as u32)
+            .filter(|&i| emission[i as usize] > 0.0)
+            .collect();
+        if emitting.is_empty() || samples == 0 {
+            return Ok(0.0);
+        }
+        let mut tree = Vec::with_capacity(2 * emitting.len());
+        build_cluster(
+            grid,
+            &channel.sigma_t,
+            &emission,
+            &mut emitting,
+            options.cluster_optical_size,
+            &mut tree,
+        );
+        let near = near_mask(grid, &emitting);
+        let step = n.div_ceil(samples.min(n));
+        let picked: Vec<usize> = (0..n).step_by(step).collect();
+        let rays: u64 = picked
+            .par_iter()
+            .map(|&r| {
+                let (_, _, far) = far_field(
+                    grid,
+                    &channel.sigma_t,
+                    &tree,
+                    grid.cell_center(r),
+                    grid.coords(r),
+                    options.opening_ratio,
+                );
+                far + if near[r] {
+                    options.near_directions as u64
+                } else {
+                    0
+                }
+            })
+            .sum();
+        Ok(rays as f64 / picked.len() as f64)
     }
 
     /// Uncollided scalar flux `∫ L dω` of the emission at each cell centre.
