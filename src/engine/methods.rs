@@ -659,10 +659,10 @@ pub fn export_field(
 }
 
 /// `∫ I dω` per cell of channel `c`: the lights' unscattered light, the emitters'
-/// uncollided light and the scattered light. (Methods that solve without an emitter pass —
-/// two-pass, single scatter, none — get the emitters' light from one now; their scattered
-/// light is not counted: two-pass stores it per optical voxel as a directional source, the
-/// others do not solve it.)
+/// uncollided light and the scattered light. (Two-pass, single scatter and none get the
+/// emitters' light from an emitter pass now; their scattered light is not counted: two-pass
+/// stores it per optical voxel as a directional source, the others do not solve it. An
+/// environment's uncollided light is counted where cells scatter.)
 pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let ch = &solution.channels[c];
     let m = &solution.medium.channels()[c];
@@ -682,18 +682,32 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
         None => vec![0.0; unscattered.len()],
     };
     Ok(match (&ch.scattered, &solution.bins) {
-        (ScatteredField::Isotropic { source, .. }, _) => (0..unscattered.len())
-            .map(|i| {
-                // g = e + σs φ / 4π for isotropic scattering; where σs = 0 the scattered part
-                // cannot be recovered from g, so only the uncollided light is counted there.
-                let ss = m.sigma_s(i) as f64;
-                if ss > 0.0 {
-                    4.0 * PI * (source[i] as f64 - m.emission.get(i) as f64) / ss
-                } else {
-                    unscattered[i] + emitted[i]
-                }
-            })
-            .collect(),
+        (ScatteredField::Isotropic { source, .. }, _) => {
+            // g = e + σs φ / 4π for isotropic scattering, so φ = 4π (g − e) / σs. Where σs = 0
+            // (empty space around a cloud, absorbing cells) g does not say φ: there the light
+            // of every cell's source g — emitted and scattered — is traced to the cell (an
+            // emitter pass of g), with the lights' unscattered light.
+            let inside = |i: usize| m.sigma_s(i) > 0.0;
+            let outside: Vec<f64> = if (0..unscattered.len()).all(inside) {
+                Vec::new()
+            } else {
+                let g: Vec<f64> = source.iter().map(|&v| (v as f64).max(0.0)).collect();
+                EmitterPass::from_sources(&solution.medium, c, &g, &EmitterPassOptions::default())
+                    .context("the fluence outside the scattering cells")?
+                    .fluence()
+                    .to_vec()
+            };
+            (0..unscattered.len())
+                .map(|i| {
+                    if inside(i) {
+                        4.0 * PI * (source[i] as f64 - m.emission.get(i) as f64)
+                            / m.sigma_s(i) as f64
+                    } else {
+                        unscattered[i] + outside[i]
+                    }
+                })
+                .collect()
+        }
         (ScatteredField::Binned { radiance, .. }, Some(bins)) => radiance
             .chunks(bins.solid_angles.len())
             .zip(unscattered.iter().zip(&emitted))

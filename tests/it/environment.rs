@@ -4,13 +4,13 @@
 use std::path::Path;
 
 use gather::Camera;
-use montecarlo::path_trace::{path_trace, path_trace_with_error, PathTraceOptions, Surroundings};
+use montecarlo::path_trace::{path_trace, PathTraceOptions, Surroundings};
 use scene::Scene;
 use volrad::engine::pipeline::{render_view, solve_scene};
 use volrad::engine::solution::Solution;
 use volrad::engine::SolveHooks;
 
-use crate::fixtures::masked_error;
+use crate::fixtures::{masked_error, path_traced};
 
 /// A 12×12×10 generated cloud (optical depth through the middle about 10) under a uniform
 /// environment of radiance 0.5, seen from one side.
@@ -67,27 +67,6 @@ fn parse(text: &str) -> Scene {
 
 fn solve(scene: &Scene) -> Solution {
     solve_scene(scene, &scene.solve, &SolveHooks::default()).unwrap()
-}
-
-/// The path tracer's view of channel `c` of `scene` through its first camera (256 paths per
-/// pixel), with its per-pixel standard error.
-fn path_traced(scene: &Scene, c: usize) -> montecarlo::path_trace::PathTraced {
-    let camera = Camera::from_spec(&scene.cameras[0]).unwrap();
-    path_trace_with_error(
-        &scene.medium,
-        c,
-        &scene.lights,
-        Surroundings {
-            background: scene.background,
-            environment: scene.environment,
-        },
-        &camera,
-        &PathTraceOptions {
-            spp: 256,
-            ..PathTraceOptions::default()
-        },
-    )
-    .unwrap()
 }
 
 const ISOTROPIC: &str = r#"{ kind = "isotropic" }"#;
@@ -153,7 +132,7 @@ fn an_absorbing_cloud_in_a_uniform_environment_matches_the_path_tracer() {
     ] {
         let scene = parse(&scene_text_at([24, 24, 20], 0.5, 0.7, phase, method, ""));
         let image = render_view(&solve(&scene), &scene.cameras[0], Some(16)).unwrap();
-        let traced = path_traced(&scene, 0);
+        let traced = path_traced(&scene, 0, 256);
         let darkest = image.pixels.iter().copied().fold(f32::INFINITY, f32::min);
         assert!(
             darkest < 0.4,
@@ -186,7 +165,7 @@ fn the_environment_error_shrinks_with_the_cells() {
             "",
         ));
         let image = render_view(&solve(&scene), &scene.cameras[0], Some(16)).unwrap();
-        let traced = path_traced(&scene, 0);
+        let traced = path_traced(&scene, 0, 256);
         let (rms, mean, count) = masked_error(&image, 0, &traced, |_, r| r < 0.95 * 0.5);
         println!("zonal-hierarchical on {dims:?} cells of {cell}: {count} cloud pixels, relative RMS {rms:.4}, mean {mean:+.4}");
         rms
@@ -309,7 +288,7 @@ fn sky_matches_the_path_tracer(method: &str, phase: &str) {
         "the ground {bottom:?} is not greyer than the sky {top:?}"
     );
     for c in 0..3 {
-        let traced = path_traced(&scene, c);
+        let traced = path_traced(&scene, c, 256);
         // Over the cloud: where the path tracer's pixel differs by 5 % from the bare sky or
         // ground of the render's edge column on the same row.
         let bare = |i: usize| {

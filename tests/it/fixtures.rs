@@ -53,3 +53,25 @@ pub fn masked_error(
     }
     ((err2.max(0.0) / ref2).sqrt(), diff / sum, count)
 }
+
+/// The path tracer's view of channel `c` of `scene` through its first camera (`spp` paths per
+/// pixel), with its per-pixel standard error.
+pub fn path_traced(scene: &scene::Scene, c: usize, spp: u32) -> montecarlo::path_trace::PathTraced {
+    use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions, Surroundings};
+    let camera = gather::Camera::from_spec(&scene.cameras[0]).unwrap();
+    path_trace_with_error(
+        &scene.medium,
+        c,
+        &scene.lights,
+        Surroundings {
+            background: scene.background,
+            environment: scene.environment,
+        },
+        &camera,
+        &PathTraceOptions {
+            spp,
+            ..PathTraceOptions::default()
+        },
+    )
+    .unwrap()
+}
