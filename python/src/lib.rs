@@ -454,8 +454,8 @@ impl PySolution {
 
     /// A per-cell field as a float32 array `(nz, ny, nx)` for one channel, or `(nz, ny, nx,
     /// C)` for all channels of an RGB solution when `channel` is `None`. Fields are those of
-    /// `volrad export`: `fluence` (∫ I dω, unscattered light included), `source` (the solved
-    /// source, radiance per length) and `sigma-t` (extinction).
+    /// `volrad export`: `fluence` (∫ I dω: unscattered, emitted and scattered light),
+    /// `source` (the solved source, radiance per length) and `sigma-t` (extinction).
     #[pyo3(signature = (name, channel = None))]
     fn field<'py>(
         &self,
