@@ -133,6 +133,10 @@ pub const EMITTER_COST_SAMPLES: usize = 64;
 /// cheap even where every cell emits): about 2–5 s on 2 cores.
 pub const MAX_EMITTER_RAYS: f64 = 2e7;
 
+/// Rays an export may trace to give the zonal methods' fluence where cells do not scatter
+/// (about 15 s on 2 cores; the fire sample's 24³ cells take 4.4 × 10⁷ per channel).
+pub const MAX_EXPORT_RAYS: f64 = 1e8;
+
 /// Whether an emitter pass of `rays_per_cell` (estimated) over `cells` cells is worth running.
 pub fn emitter_pass_pays(rays_per_cell: f64, cells: usize) -> bool {
     rays_per_cell <= MAX_EMITTER_RAYS_PER_CELL || rays_per_cell * cells as f64 <= MAX_EMITTER_RAYS
@@ -667,19 +671,23 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let ch = &solution.channels[c];
     let m = &solution.medium.channels()[c];
     let unscattered = ch.light_pass.total_cell_irradiance();
-    let emitted: Vec<f64> = match &ch.emitted_fluence {
-        Some(f) => f.iter().map(|&v| v as f64).collect(),
-        // Discrete ordinates solved without the pass carry the emission in their bins.
-        None if matches!(ch.scattered, ScatteredField::Binned { .. }) => {
-            vec![0.0; unscattered.len()]
-        }
-        None if !m.emission.is_zero() => {
-            EmitterPass::compute(&solution.medium, c, &EmitterPassOptions::default())
-                .context("the emitter pass")?
-                .fluence()
-                .to_vec()
-        }
-        None => vec![0.0; unscattered.len()],
+    // The emitters' uncollided fluence, computed only where a branch below needs it (a pass of
+    // a whole emitting cloud takes seconds).
+    let emitted = || -> Result<Vec<f64>> {
+        Ok(match &ch.emitted_fluence {
+            Some(f) => f.iter().map(|&v| v as f64).collect(),
+            // Discrete ordinates solved without the pass carry the emission in their bins.
+            None if matches!(ch.scattered, ScatteredField::Binned { .. }) => {
+                vec![0.0; unscattered.len()]
+            }
+            None if !m.emission.is_zero() => {
+                EmitterPass::compute(&solution.medium, c, &EmitterPassOptions::default())
+                    .context("the emitter pass")?
+                    .fluence()
+                    .to_vec()
+            }
+            None => vec![0.0; unscattered.len()],
+        })
     };
     Ok(match (&ch.scattered, &solution.bins) {
         (ScatteredField::Isotropic { source, .. }, _) => {
@@ -692,10 +700,29 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
                 Vec::new()
             } else {
                 let g: Vec<f64> = source.iter().map(|&v| (v as f64).max(0.0)).collect();
-                EmitterPass::from_sources(&solution.medium, c, &g, &EmitterPassOptions::default())
-                    .context("the fluence outside the scattering cells")?
-                    .fluence()
-                    .to_vec()
+                let options = EmitterPassOptions::default();
+                let cost = EmitterPass::estimated_rays_per_cell_of(
+                    &solution.medium,
+                    c,
+                    &g,
+                    &options,
+                    EMITTER_COST_SAMPLES,
+                )?;
+                if cost * unscattered.len() as f64 <= MAX_EXPORT_RAYS {
+                    EmitterPass::from_sources(&solution.medium, c, &g, &options)
+                        .context("the fluence outside the scattering cells")?
+                        .fluence()
+                        .to_vec()
+                } else {
+                    // A large cloud's source traced to every empty cell would take minutes
+                    // (data/cloud.toml: over 5); there only the uncollided light is counted.
+                    tracing::warn!(
+                        rays_per_cell = cost,
+                        "fluence where cells do not scatter: the uncollided light only (tracing \
+                         the scattered light there would cost too much)"
+                    );
+                    emitted()?
+                }
             };
             (0..unscattered.len())
                 .map(|i| {
@@ -710,7 +737,7 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
         }
         (ScatteredField::Binned { radiance, .. }, Some(bins)) => radiance
             .chunks(bins.solid_angles.len())
-            .zip(unscattered.iter().zip(&emitted))
+            .zip(unscattered.iter().zip(&emitted()?))
             .map(|(r, (u, e))| {
                 u + e
                     + r.iter()
@@ -721,7 +748,7 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
             .collect(),
         _ => unscattered
             .iter()
-            .zip(&emitted)
+            .zip(&emitted()?)
             .map(|(u, e)| u + e)
             .collect(),
     })

@@ -121,12 +121,7 @@ impl EmitterPass {
         c: usize,
         options: &EmitterPassOptions,
     ) -> Result<EmitterPass, MediumError> {
-        let Some(channel) = medium.channels().get(c) else {
-            return Err(MediumError::invalid(
-                "emitter pass",
-                format!("channel {c} of a medium with {}", medium.channels().len()),
-            ));
-        };
+        let channel = channel_of(medium, c)?;
         let n = medium.grid().cell_count();
         let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
         Self::of_sources(medium, c, emission, options)
@@ -163,12 +158,7 @@ impl EmitterPass {
         emission: Vec<f64>,
         options: &EmitterPassOptions,
     ) -> Result<EmitterPass, MediumError> {
-        let Some(channel) = medium.channels().get(c) else {
-            return Err(MediumError::invalid(
-                "emitter pass",
-                format!("channel {c} of a medium with {}", medium.channels().len()),
-            ));
-        };
+        let channel = channel_of(medium, c)?;
         if options.near_directions == 0
             || !(options.opening_ratio > 0.0 && options.opening_ratio < 1.0)
             || !(options.cluster_optical_size > 0.0 && options.cluster_optical_size.is_finite())
@@ -262,15 +252,30 @@ impl EmitterPass {
         options: &EmitterPassOptions,
         samples: usize,
     ) -> Result<f64, MediumError> {
-        let Some(channel) = medium.channels().get(c) else {
-            return Err(MediumError::invalid(
-                "emitter pass",
-                format!("channel {c} of a medium with {}", medium.channels().len()),
-            ));
-        };
+        let channel = channel_of(medium, c)?;
+        let n = medium.grid().cell_count();
+        let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
+        Self::estimated_rays_per_cell_of(medium, c, &emission, options, samples)
+    }
+
+    /// [`estimated_rays_per_cell`](Self::estimated_rays_per_cell) for any isotropic source
+    /// per cell (as [`from_sources`](Self::from_sources) takes; one value per cell).
+    pub fn estimated_rays_per_cell_of(
+        medium: &Medium,
+        c: usize,
+        emission: &[f64],
+        options: &EmitterPassOptions,
+        samples: usize,
+    ) -> Result<f64, MediumError> {
+        let channel = channel_of(medium, c)?;
         let grid = medium.grid();
         let n = grid.cell_count();
-        let emission: Vec<f64> = (0..n).map(|i| channel.emission.get(i) as f64).collect();
+        if emission.len() != n {
+            return Err(MediumError::invalid(
+                "emitter pass",
+                format!("{} source values for {n} cells", emission.len()),
+            ));
+        }
         let mut emitting: Vec<u32> = (0..n as u32)
             .filter(|&i| emission[i as usize] > 0.0)
             .collect();
@@ -281,7 +286,7 @@ impl EmitterPass {
         build_cluster(
             grid,
             &channel.sigma_t,
-            &emission,
+            emission,
             &mut emitting,
             options.cluster_optical_size,
             &mut tree,
@@ -323,6 +328,16 @@ impl EmitterPass {
     pub fn report(&self) -> &EmitterPassReport {
         &self.report
     }
+}
+
+/// Channel `c` of `medium`, or an error naming how many it has.
+fn channel_of(medium: &Medium, c: usize) -> Result<&crate::ChannelMedium, MediumError> {
+    medium.channels().get(c).ok_or_else(|| {
+        MediumError::invalid(
+            "emitter pass",
+            format!("channel {c} of a medium with {}", medium.channels().len()),
+        )
+    })
 }
 
 /// Builds the k-d tree over `cells` (split at the median of the box's longest axis) and
