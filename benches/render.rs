@@ -96,7 +96,7 @@ fn bench_scattering_render(c: &mut Criterion) {
         SingleScatter::new(medium, 0, &pass, SingleScatterOptions::default()).unwrap(),
         volrad::engine::sources::CellSource::new(
             &higher,
-            volrad::engine::sources::CellLattice::of(medium, 0),
+            volrad::engine::sources::CellLattice::of_medium(medium, 0),
         ),
     );
     let mut group = c.benchmark_group("render");
@@ -156,7 +156,7 @@ fn bench_service_render(c: &mut Criterion) {
         first,
         volrad::engine::sources::CellSource::new(
             &higher,
-            volrad::engine::sources::CellLattice::of(&medium, 0),
+            volrad::engine::sources::CellLattice::of_medium(&medium, 0),
         ),
     );
     let centre = medium.grid().extent() * 0.5;

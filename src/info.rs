@@ -42,6 +42,9 @@ pub struct SceneInfo {
     pub memory_parts: Vec<budget::MemoryPart>,
     /// Largest optical depth of one cell (σt · cell size).
     pub max_cell_optical_depth: f64,
+    /// The transport grid multiple scattering is solved on, when it is coarser than the
+    /// data grid.
+    pub transport: Option<TransportInfo>,
     /// What the discrete-ordinates solve will use (discrete ordinates only).
     pub ordinates: Option<OrdinatesInfo>,
     /// For an OpenVDB volume: the grid read, its active box and transform.
@@ -54,6 +57,17 @@ pub struct OpenVdbInfo {
     #[serde(flatten)]
     pub placement: medium::vdb::VdbPlacement,
     pub world_corner: [f64; 3],
+}
+
+/// A transport grid coarser than the data grid (`[solve] transport_scale`).
+#[derive(Debug, Serialize)]
+pub struct TransportInfo {
+    /// Data cells per side of a transport cell.
+    pub scale: usize,
+    pub dims: [usize; 3],
+    pub cells: usize,
+    /// Whether volrad chose the scale (`transport_scale = "auto"`).
+    pub chosen_by_volrad: bool,
 }
 
 /// The discrete-ordinates settings a solve uses, with what volrad chose and the error class
@@ -143,10 +157,21 @@ impl SceneInfo {
                 hi = hi.max(s as f64);
             }
         }
-        let occupied = budget::occupied_cells(m);
-        let peak = budget::solve_peak(scene, &scene.solve, occupied);
+        let occupancy = budget::Occupancy::of(m);
+        let occupied = occupancy.at(1);
+        let peak = budget::solve_peak(scene, &scene.solve, &occupancy);
         let h = m.grid().cell_size;
         let max_cell_optical_depth = hi * h;
+        let scale = budget::transport_scale(scene, &scene.solve);
+        let transport = (scale > 1).then(|| {
+            let dims = m.grid().dims.map(|d| d.div_ceil(scale));
+            TransportInfo {
+                scale,
+                dims,
+                cells: dims.iter().product(),
+                chosen_by_volrad: scene.solve.transport_scale == scene::TransportScale::Auto,
+            }
+        });
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
             let phase = m.phase();
             let options = DirectionBins::with_count(scene.solve.bins)
@@ -162,7 +187,8 @@ impl SceneInfo {
                     (0..c.sigma_t.len()).map(|i| c.sigma_t[i] - fraction as f32 * c.sigma_s(i))
                 })
                 .fold(0.0f32, f32::max) as f64
-                * h;
+                * h
+                * scale as f64;
             OrdinatesInfo {
                 bins: scene.solve.bins,
                 forward_peak_cone_degrees: cone,
@@ -219,6 +245,7 @@ impl SceneInfo {
             peak_memory_bytes: peak.total(),
             memory_parts: peak.parts().to_vec(),
             max_cell_optical_depth,
+            transport,
             ordinates,
             openvdb: scene.volume_placement().map(|p| OpenVdbInfo {
                 placement: p.clone(),
@@ -273,6 +300,23 @@ impl fmt::Display for SceneInfo {
         }
         writeln!(f, "solve method     {}", self.method)?;
         writeln!(f, "iteration        {}", self.iteration)?;
+        if let Some(t) = &self.transport {
+            writeln!(
+                f,
+                "transport grid   {}×{}×{} = {} cells of {}³ data cells{} (the first bounce \
+                 stays at full resolution)",
+                t.dims[0],
+                t.dims[1],
+                t.dims[2],
+                t.cells,
+                t.scale,
+                if t.chosen_by_volrad {
+                    ", chosen by volrad"
+                } else {
+                    ""
+                }
+            )?;
+        }
         if let Some(o) = &self.ordinates {
             if o.forward_peak_cone_degrees > 0.0 {
                 writeln!(

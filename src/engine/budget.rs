@@ -13,7 +13,8 @@
 use std::fmt;
 
 use anyhow::{bail, Result};
-use scene::{Scene, SolveMethod, SolveSettings};
+use medium::coarsening::{Coarsening, MAX_TRANSPORT_SCALE};
+use scene::{Scene, SolveMethod, SolveSettings, TransportScale};
 
 /// One term of a prediction.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -94,34 +95,104 @@ fn work_vectors(iteration: &solver::Method, max_iterations: usize) -> u64 {
 
 /// What the solve's size depends on, read once from the scene.
 struct Sizes {
+    /// The data grid's cells (the light pass, the render's first bounce).
     cells: u64,
-    occupied: u64,
+    /// The transport grid's cells and non-empty cells (what the solve's state grows with).
+    transport_cells: u64,
+    transport_occupied: u64,
+    /// Data cells per side of a transport cell.
+    scale: usize,
     channels: u64,
 }
 
 impl Sizes {
-    fn of(scene: &Scene, occupied: usize) -> Sizes {
+    fn of(scene: &Scene, occupancy: &Occupancy, scale: usize) -> Sizes {
         let medium = &scene.medium;
         Sizes {
             cells: medium.grid().cell_count() as u64,
-            occupied: occupied as u64,
+            transport_cells: Coarsening::cell_count_of(medium.grid(), scale) as u64,
+            transport_occupied: occupancy.at(scale) as u64,
+            scale,
             channels: medium.channels().len() as u64,
         }
     }
 }
 
-/// Cells with σt > 0 in any channel: what the zonal operators and the two-pass tallies grow
-/// with.
-pub fn occupied_cells(medium: &medium::Medium) -> usize {
-    (0..medium.grid().cell_count())
-        .filter(|&i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
-        .count()
+/// Where a medium is non-empty (σt > 0 in any channel), to count its non-empty cells on the
+/// data grid and on any transport grid: what the zonal operators and the two-pass tallies
+/// grow with.
+pub struct Occupancy {
+    grid: medium::Grid,
+    occupied: Vec<bool>,
 }
 
-/// The predicted peak resident memory of solving `scene` with `settings`; `occupied` is
-/// [`occupied_cells`] of its medium (a caller that has counted them passes its count).
-pub fn solve_peak(scene: &Scene, settings: &SolveSettings, occupied: usize) -> MemoryEstimate {
-    peak_of(&Sizes::of(scene, occupied), scene, settings)
+impl Occupancy {
+    pub fn of(medium: &medium::Medium) -> Occupancy {
+        Occupancy {
+            grid: *medium.grid(),
+            occupied: (0..medium.grid().cell_count())
+                .map(|i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
+                .collect(),
+        }
+    }
+
+    /// Non-empty cells of the transport grid at `scale` (1: the data grid's).
+    pub fn at(&self, scale: usize) -> usize {
+        let Ok(k) = Coarsening::new(&self.grid, scale) else {
+            return 0;
+        };
+        if scale == 1 {
+            return self.occupied.iter().filter(|&&o| o).count();
+        }
+        let mut block = vec![false; k.coarse().cell_count()];
+        for (i, _) in self.occupied.iter().enumerate().filter(|(_, &o)| o) {
+            block[k.coarse_cell_of(i)] = true;
+        }
+        block.iter().filter(|&&o| o).count()
+    }
+}
+
+/// Transport grids up to this many cells (64³) are solved at the data's resolution by
+/// `transport_scale = "auto"`; beyond, auto takes the smallest scale that brings the transport
+/// grid within it (the size class whose solves take seconds to a minute and about 1–2 GB).
+pub const AUTO_TRANSPORT_CELLS: usize = 1 << 18;
+
+/// Whether `method` solves on a transport grid (the others have nothing to coarsen, or their
+/// own optical voxels).
+pub fn uses_transport_grid(method: SolveMethod) -> bool {
+    matches!(
+        method,
+        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
+    )
+}
+
+/// The transport scale a solve of `scene` with `settings` uses: the scene's, or for `auto`
+/// the smallest that keeps the transport grid within [`AUTO_TRANSPORT_CELLS`]; 1 for methods
+/// without a transport grid.
+pub fn transport_scale(scene: &Scene, settings: &SolveSettings) -> usize {
+    if !uses_transport_grid(settings.method) {
+        return 1;
+    }
+    match settings.transport_scale {
+        TransportScale::Fixed(s) => s,
+        TransportScale::Auto => {
+            let grid = scene.medium.grid();
+            (1..=MAX_TRANSPORT_SCALE)
+                .find(|&s| Coarsening::cell_count_of(grid, s) <= AUTO_TRANSPORT_CELLS)
+                .unwrap_or(MAX_TRANSPORT_SCALE)
+        }
+    }
+}
+
+/// The predicted peak resident memory of solving `scene` with `settings`; `occupancy` is
+/// [`Occupancy::of`] its medium (a caller that has it passes it).
+pub fn solve_peak(
+    scene: &Scene,
+    settings: &SolveSettings,
+    occupancy: &Occupancy,
+) -> MemoryEstimate {
+    let scale = transport_scale(scene, settings);
+    peak_of(&Sizes::of(scene, occupancy, scale), scene, settings)
 }
 
 fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate {
@@ -142,6 +213,15 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                 .saturating_mul(LIGHT_PASS_BYTES_PER_CELL),
         },
     ];
+    if s.scale > 1 {
+        parts.push(MemoryPart {
+            what: "the transport grid's medium and light pass",
+            bytes: s
+                .transport_cells
+                .saturating_mul(s.channels)
+                .saturating_mul(LIGHT_PASS_BYTES_PER_CELL),
+        });
+    }
     // Channels are solved one after the other; each keeps its solved field.
     let per_channel = |bytes: u64, stored: u64| {
         bytes.saturating_add(stored.saturating_mul(s.channels.saturating_sub(1)))
@@ -151,16 +231,16 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
     let zonal_vectors = MemoryPart {
         what: "the iteration's vectors",
         bytes: per_channel(
-            s.cells
+            s.transport_cells
                 .saturating_mul(8)
                 .saturating_mul(2 + work_vectors(&settings.iteration, settings.max_iterations)),
-            s.cells.saturating_mul(8),
+            s.transport_cells.saturating_mul(8),
         ),
     };
     match settings.method {
         SolveMethod::None | SolveMethod::SingleScatter => {}
         SolveMethod::Zonal => {
-            let pairs = s.occupied.saturating_mul(s.occupied);
+            let pairs = s.transport_occupied.saturating_mul(s.transport_occupied);
             parts.push(MemoryPart {
                 what: "the zonal form-factor matrix (non-empty cells squared)",
                 bytes: pairs.saturating_mul(ZONAL_BYTES_PER_PAIR),
@@ -171,20 +251,23 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
             parts.push(MemoryPart {
                 what: "the hierarchical operator (links per non-empty cell)",
                 bytes: s
-                    .occupied
+                    .transport_occupied
                     .saturating_mul(HIERARCHICAL_BYTES_PER_OCCUPIED_CELL)
-                    .saturating_add(s.cells.saturating_mul(HIERARCHICAL_BYTES_PER_CELL)),
+                    .saturating_add(
+                        s.transport_cells
+                            .saturating_mul(HIERARCHICAL_BYTES_PER_CELL),
+                    ),
             });
             parts.push(zonal_vectors);
         }
         SolveMethod::DiscreteOrdinates => {
-            let unknowns = s.cells.saturating_mul(settings.bins as u64);
+            let unknowns = s.transport_cells.saturating_mul(settings.bins as u64);
             parts.push(MemoryPart {
                 what: "the discrete-ordinates state (cells × direction bins)",
                 bytes: per_channel(
                     unknowns
                         .saturating_mul(ORDINATES_BYTES_PER_CELL_BIN)
-                        .saturating_add(s.cells.saturating_mul(ORDINATES_BYTES_PER_CELL)),
+                        .saturating_add(s.transport_cells.saturating_mul(ORDINATES_BYTES_PER_CELL)),
                     unknowns.saturating_mul(STORED_BYTES_PER_CELL_BIN),
                 ),
             });
@@ -203,8 +286,8 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
         SolveMethod::TwoPass => {
             let bins = crate::engine::methods::two_pass_bins(&scene.medium.phase());
             let bins = (bins.n_theta * bins.n_phi) as u64;
-            let tallies = s.cells.saturating_mul(bins);
-            let occupied = s.occupied.saturating_mul(bins);
+            let tallies = s.transport_cells.saturating_mul(bins);
+            let occupied = s.transport_occupied.saturating_mul(bins);
             parts.push(MemoryPart {
                 what: "the two-pass tallies (cells × direction bins)",
                 bytes: per_channel(
@@ -276,13 +359,13 @@ pub fn check_solve(
     let Some(limit) = limit else {
         return Ok(());
     };
-    let sizes = Sizes::of(scene, occupied_cells(&scene.medium));
-    let estimate = peak_of(&sizes, scene, settings);
+    let occupancy = Occupancy::of(&scene.medium);
+    let estimate = solve_peak(scene, settings, &occupancy);
     if estimate.total() <= limit.bytes {
         return Ok(());
     }
     let largest = estimate.largest();
-    let fits = alternatives(&sizes, scene, settings, limit.bytes);
+    let fits = alternatives(&occupancy, scene, settings, limit.bytes);
     let advice = if fits.is_empty() {
         "nothing fits on this grid: use a coarser grid (fewer cells)".to_string()
     } else {
@@ -299,14 +382,31 @@ pub fn check_solve(
 
 /// Settings close to `settings` whose predicted peak fits under `limit`, spelled as a user
 /// would change them.
-fn alternatives(s: &Sizes, scene: &Scene, settings: &SolveSettings, limit: u64) -> Vec<String> {
+fn alternatives(
+    occupancy: &Occupancy,
+    scene: &Scene,
+    settings: &SolveSettings,
+    limit: u64,
+) -> Vec<String> {
     let mut out = Vec::new();
     let with = |f: &dyn Fn(&mut SolveSettings)| {
         let mut other = settings.clone();
         f(&mut other);
-        let bytes = peak_of(s, scene, &other).total();
+        let bytes = solve_peak(scene, &other, occupancy).total();
         (bytes <= limit).then_some(bytes)
     };
+    if uses_transport_grid(settings.method) {
+        let scale = transport_scale(scene, settings);
+        let coarser = (scale + 1..=MAX_TRANSPORT_SCALE).find_map(|k| {
+            with(&|o| o.transport_scale = TransportScale::Fixed(k)).map(|bytes| (k, bytes))
+        });
+        if let Some((k, bytes)) = coarser {
+            out.push(format!(
+                "transport_scale = {k} (about {}; the first bounce stays at full resolution)",
+                human_bytes(bytes)
+            ));
+        }
+    }
     if settings.method == SolveMethod::DiscreteOrdinates {
         if !matches!(
             settings.iteration,
@@ -345,7 +445,7 @@ fn alternatives(s: &Sizes, scene: &Scene, settings: &SolveSettings, limit: u64) 
         if method == SolveMethod::DiscreteOrdinates {
             other.bins = SolveSettings::default_for(&scene.medium.phase()).bins;
         }
-        let bytes = peak_of(s, scene, &other).total();
+        let bytes = solve_peak(scene, &other, occupancy).total();
         if bytes <= limit {
             out.push(format!(
                 "method = \"{}\" (about {})",
@@ -450,7 +550,7 @@ mod tests {
             Scene::from_toml_str(&text, std::path::Path::new("."), std::path::Path::new("t"))
                 .unwrap()
         };
-        let peak = |s: &Scene| solve_peak(s, &s.solve, occupied_cells(&s.medium)).total();
+        let peak = |s: &Scene| solve_peak(s, &s.solve, &Occupancy::of(&s.medium)).total();
         let small = scene("discrete-ordinates", 24, 16);
         let more_bins = scene("discrete-ordinates", 384, 16);
         let more_cells = scene("discrete-ordinates", 24, 32);

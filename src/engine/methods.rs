@@ -13,12 +13,13 @@ use formfactor::{ExactOptions, FormFactorMatrix, HierarchicalOperator, Hierarchi
 use glam::DVec3;
 use medium::emitter_pass::{EmitterPass, EmitterPassOptions};
 use medium::light_pass::LightPass;
-use medium::{Environment, PhaseFunction};
+use medium::{Environment, Medium, PhaseFunction};
+use rayon::prelude::*;
 use scene::{Scene, SolveMethod, SolveSettings};
 use serde::Serialize;
 use solver::{Method, SolveOptions, SolveReport, TransportOperator};
 
-use crate::engine::solution::{ScatteredField, Solution, StoredBins};
+use crate::engine::solution::{ChannelSolution, ScatteredField, Solution, StoredBins};
 use crate::engine::SolveHooks;
 
 /// Direction bins of a sky's uncollided fluence in the zonal methods (one transmittance pass
@@ -638,7 +639,9 @@ pub fn export_field(
     Ok(match field {
         ExportField::SigmaT => (medium.sigma_t.clone(), "1/length"),
         ExportField::Source => match &ch.scattered {
-            ScatteredField::Isotropic { source, .. } => (source.clone(), "radiance/length"),
+            ScatteredField::Isotropic { source, .. } if solution.transport.scale() == 1 => {
+                (source.clone(), "radiance/length")
+            }
             _ => {
                 // Angular mean of the source: emission + σs (fluence / 4π).
                 let fluence = fluence(solution, channel)?;
@@ -667,10 +670,53 @@ pub fn export_field(
 /// emitters' light from an emitter pass now; their scattered light is not counted: two-pass
 /// stores it per optical voxel as a directional source, the others do not solve it. An
 /// environment's uncollided light is counted where cells scatter.)
+///
+/// A solution on a coarser transport grid gives the lights' unscattered light per data cell
+/// and the rest (scattered, and emitted) interpolated trilinearly from the transport cells.
 pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let ch = &solution.channels[c];
-    let m = &solution.medium.channels()[c];
     let unscattered = ch.light_pass.total_cell_irradiance();
+    let transport = &solution.transport;
+    if transport.scale() == 1 {
+        return fluence_on(&solution.medium, c, ch, unscattered, &solution.bins);
+    }
+    let cache = ch.render_cache.transport(&solution.medium, transport, c)?;
+    let coarse_pass = transport
+        .light_pass(&solution.medium, c, &ch.light_pass, &cache.medium)
+        .context("the light pass on the transport grid")?;
+    let coarse_unscattered = coarse_pass.total_cell_irradiance();
+    let collided: Vec<f64> = fluence_on(
+        &cache.medium,
+        c,
+        ch,
+        coarse_unscattered.clone(),
+        &solution.bins,
+    )?
+    .iter()
+    .zip(&coarse_unscattered)
+    .map(|(f, u)| f - u)
+    .collect();
+    let grid = solution.medium.grid();
+    Ok(unscattered
+        .par_iter()
+        .enumerate()
+        .map(|(i, u)| {
+            u + gather::Trilinear::new(transport.coarse(), grid.cell_center(i))
+                .sample(|o| collided[o])
+        })
+        .collect())
+}
+
+/// [`fluence`] on the grid the channel's fields live on: `medium` is on it, `unscattered` the
+/// lights' unscattered fluence per cell of it.
+fn fluence_on(
+    medium: &Medium,
+    c: usize,
+    ch: &ChannelSolution,
+    unscattered: Vec<f64>,
+    bins: &Option<StoredBins>,
+) -> Result<Vec<f64>> {
+    let m = &medium.channels()[c];
     // The emitters' uncollided fluence, computed only where a branch below needs it (a pass of
     // a whole emitting cloud takes seconds).
     let emitted = || -> Result<Vec<f64>> {
@@ -681,7 +727,7 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
                 vec![0.0; unscattered.len()]
             }
             None if !m.emission.is_zero() => {
-                EmitterPass::compute(&solution.medium, c, &EmitterPassOptions::default())
+                EmitterPass::compute(medium, c, &EmitterPassOptions::default())
                     .context("the emitter pass")?
                     .fluence()
                     .to_vec()
@@ -689,7 +735,7 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
             None => vec![0.0; unscattered.len()],
         })
     };
-    Ok(match (&ch.scattered, &solution.bins) {
+    Ok(match (&ch.scattered, bins) {
         (ScatteredField::Isotropic { source, .. }, _) => {
             // g = e + σs φ / 4π for isotropic scattering, so φ = 4π (g − e) / σs. Where σs = 0
             // (empty space around a cloud, absorbing cells) g does not say φ: there the light
@@ -702,14 +748,14 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
                 let g: Vec<f64> = source.iter().map(|&v| (v as f64).max(0.0)).collect();
                 let options = EmitterPassOptions::default();
                 let cost = EmitterPass::estimated_rays_per_cell_of(
-                    &solution.medium,
+                    medium,
                     c,
                     &g,
                     &options,
                     EMITTER_COST_SAMPLES,
                 )?;
                 if cost * unscattered.len() as f64 <= MAX_EXPORT_RAYS {
-                    EmitterPass::from_sources(&solution.medium, c, &g, &options)
+                    EmitterPass::from_sources(medium, c, &g, &options)
                         .context("the fluence outside the scattering cells")?
                         .fluence()
                         .to_vec()

@@ -5,6 +5,7 @@ use std::borrow::Cow;
 
 use anyhow::{Context, Result};
 use gather::{Camera, Image, InScattering, RenderOptions};
+use medium::coarsening::Coarsening;
 use medium::light_pass::LightPass;
 use medium::Medium;
 use scene::{CameraSpec, Scene, SceneOrigin, SolveMethod, SolveSettings};
@@ -32,14 +33,15 @@ pub fn scene_hash(scene: &Scene) -> String {
     feed(
         format!(
             "method={} bins={} iteration={} tolerance={:e} max_iterations={} \
-             transport_refinement={} photons={}",
+             transport_refinement={} photons={} transport_scale={}",
             solve.method,
             solve.bins,
             solve.iteration,
             solve.tolerance,
             solve.max_iterations,
             solve.transport_refinement,
-            solve.photons
+            solve.photons,
+            solve.transport_scale
         )
         .into_bytes(),
     );
@@ -66,6 +68,23 @@ pub fn solve_scene(
     crate::engine::methods::check_environment(scene, settings)?;
     crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let medium = &scene.medium;
+    // Multiple scattering is solved on the transport grid (the data grid itself at scale 1);
+    // the light pass stays on the data grid for the render's exact first bounce.
+    let transport = Coarsening::new(
+        medium.grid(),
+        crate::engine::budget::transport_scale(scene, settings),
+    )?;
+    let coarse_scene = if transport.scale() > 1 {
+        tracing::info!(
+            scale = transport.scale(),
+            dims = ?transport.coarse().dims,
+            "solving multiple scattering on a coarser transport grid"
+        );
+        Some(on_medium(scene, transport.medium(medium)?))
+    } else {
+        None
+    };
+    let transport_scene = coarse_scene.as_ref().unwrap_or(scene);
     let mut channels = Vec::with_capacity(medium.channels().len());
     for c in 0..medium.channels().len() {
         let span = tracing::info_span!("channel", c);
@@ -75,23 +94,28 @@ pub fn solve_scene(
             .phase(&channel_phase("light pass", c, medium.channels().len()));
         let light_pass = LightPass::compute(medium, c, &scene.lights)
             .with_context(|| format!("light pass of channel {c}"))?;
-        let emitters = crate::engine::methods::emitter_pass(scene, c, settings, hooks)?;
+        let coarse_pass = match &coarse_scene {
+            Some(coarse) => Some(transport.light_pass(medium, c, &light_pass, &coarse.medium)?),
+            None => None,
+        };
+        let transport_pass = coarse_pass.as_ref().unwrap_or(&light_pass);
+        let emitters = crate::engine::methods::emitter_pass(transport_scene, c, settings, hooks)?;
         let (scattered, report) = match settings.method {
             SolveMethod::None | SolveMethod::SingleScatter => (ScatteredField::None, None),
             SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
                 crate::engine::methods::solve_zonal(
-                    scene,
+                    transport_scene,
                     c,
-                    &light_pass,
+                    transport_pass,
                     emitters.as_ref(),
                     settings,
                     hooks,
                 )?
             }
             SolveMethod::DiscreteOrdinates => crate::engine::methods::solve_ordinates(
-                scene,
+                transport_scene,
                 c,
-                &light_pass,
+                transport_pass,
                 emitters.as_ref(),
                 settings,
                 hooks,
@@ -119,8 +143,25 @@ pub fn solve_scene(
         render: scene.render.clone(),
         cameras: scene.cameras.clone(),
         bins: crate::engine::methods::stored_bins(settings),
+        transport,
         channels,
     })
+}
+
+/// `scene` with `medium` in place of its own (the transport grid's), for the solvers.
+fn on_medium(scene: &Scene, medium: Medium) -> Scene {
+    Scene {
+        medium,
+        lights: scene.lights.clone(),
+        environment: scene.environment,
+        background: scene.background,
+        solve: scene.solve.clone(),
+        render: scene.render.clone(),
+        cameras: scene.cameras.clone(),
+        origin: scene.origin.clone(),
+        source: scene.source.clone(),
+        placement: scene.placement.clone(),
+    }
 }
 
 /// `what` of channel `c`, naming the channel only when there are several.

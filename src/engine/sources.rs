@@ -8,7 +8,7 @@ use formfactor::ordinates::bins::{face_bilinear, interpolate_with};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
 use gather::{InScattering, OpticalModel, RayCarry, Trilinear, ViewSegment};
 use glam::DVec3;
-use medium::{Grid, Interpolation, Medium};
+use medium::{ChannelMedium, Grid, Interpolation, Medium};
 
 use crate::engine::solution::{ChannelSolution, ScatteredField, Solution};
 
@@ -16,27 +16,97 @@ use crate::engine::solution::{ChannelSolution, ScatteredField, Solution};
 /// `at`) reconstruct the source function `Q/σt` trilinearly over the cells with σt > 0 and
 /// multiply by the reconstructed σt ([`Trilinear::source`]), so a solved field looks as
 /// smooth as the medium; `nearest` renders keep it constant per cell (`segment`).
+///
+/// A source solved on a coarser transport grid is drawn as the data grid's σs times the
+/// in-scattered radiance `Q/σs` of the transport cells, interpolated trilinearly between
+/// their centres (over those that scatter): smooth light over the data's own detail.
 #[derive(Clone, Copy)]
 pub struct CellLattice<'a> {
     grid: Grid,
     sigma_t: &'a [f32],
     /// The medium is `trilinear` (else `at` is the cell's own value, as `segment`'s).
     trilinear: bool,
+    /// The transport grid, when the source lives on one coarser than `grid`.
+    transport: Option<TransportLattice<'a>>,
+}
+
+#[derive(Clone, Copy)]
+struct TransportLattice<'a> {
+    coarse: Grid,
+    /// The data grid's channel (its σs).
+    channel: &'a ChannelMedium,
+    /// `1/σs` per transport cell, 0 where it does not scatter.
+    inverse_sigma_s: &'a [f32],
+    max_sigma_s: f64,
+}
+
+impl TransportLattice<'_> {
+    /// `σs · Q/σs` at `x`: `sigma_s` is the data grid's σs there, `value` the transport
+    /// cells' source.
+    #[inline]
+    fn at(&self, x: DVec3, sigma_s: f64, value: impl Fn(usize) -> f64) -> f64 {
+        if sigma_s <= 0.0 {
+            return 0.0;
+        }
+        let (mut sum, mut weight) = (0.0, 0.0);
+        Trilinear::new(&self.coarse, x).for_each(|o, w| {
+            let inv = self.inverse_sigma_s[o] as f64;
+            if inv > 0.0 {
+                sum += w * value(o) * inv;
+                weight += w;
+            }
+        });
+        if weight > 0.0 {
+            sigma_s * sum / weight
+        } else {
+            0.0
+        }
+    }
 }
 
 impl<'a> CellLattice<'a> {
-    /// Channel `c` of `medium` (the solved one).
-    pub fn of(medium: &'a Medium, c: usize) -> Self {
+    /// Channel `c` of `medium`, for a source on its own grid.
+    pub fn of_medium(medium: &'a Medium, c: usize) -> Self {
         CellLattice {
             grid: *medium.grid(),
             sigma_t: &medium.channels()[c].sigma_t,
             trilinear: medium.interpolation() == Interpolation::Trilinear,
+            transport: None,
         }
+    }
+
+    /// Channel `c` of `solution` (the solved one); `ch` is its solution.
+    pub fn of(solution: &'a Solution, c: usize, ch: &'a ChannelSolution) -> Result<Self> {
+        let medium = &solution.medium;
+        if solution.transport.scale() == 1 {
+            return Ok(Self::of_medium(medium, c));
+        }
+        let transport = {
+            let cache = ch.render_cache.transport(medium, &solution.transport, c)?;
+            Some(TransportLattice {
+                coarse: *solution.transport.coarse(),
+                channel: &medium.channels()[c],
+                inverse_sigma_s: &cache.inverse_sigma_s,
+                max_sigma_s: cache.max_sigma_s,
+            })
+        };
+        Ok(CellLattice {
+            transport,
+            ..Self::of_medium(medium, c)
+        })
     }
 
     /// `Q` at `x` in `cell` from the per-cell `value` (see the type's doc).
     #[inline]
     fn at(&self, x: DVec3, cell: usize, value: impl Fn(usize) -> f64) -> f64 {
+        if let Some(t) = &self.transport {
+            let sigma_s = if self.trilinear {
+                Trilinear::new(&self.grid, x).sample(|i| t.channel.sigma_s(i) as f64)
+            } else {
+                t.channel.sigma_s(cell) as f64
+            };
+            return t.at(x, sigma_s, value);
+        }
         if self.trilinear {
             Trilinear::new(&self.grid, x).source(self.sigma_t, value)
         } else {
@@ -46,11 +116,49 @@ impl<'a> CellLattice<'a> {
 
     /// [`at`](Self::at) with the neighbours the renderer found.
     #[inline]
-    fn at_corners(&self, corners: &Trilinear, value: impl Fn(usize) -> f64) -> f64 {
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, value: impl Fn(usize) -> f64) -> f64 {
+        if let Some(t) = &self.transport {
+            let sigma_s = if self.trilinear {
+                corners.sample(|i| t.channel.sigma_s(i) as f64)
+            } else {
+                t.channel.sigma_s(corners.cell()) as f64
+            };
+            return t.at(x, sigma_s, value);
+        }
         if self.trilinear {
             corners.source(self.sigma_t, value)
         } else {
             value(corners.cell())
+        }
+    }
+
+    /// `Q` of a `nearest` render's segment: the cell's own value, or on a transport grid the
+    /// cell's σs times the in-scattered radiance at the segment's middle.
+    #[inline]
+    fn segment(&self, seg: &ViewSegment, value: impl Fn(usize) -> f64) -> f64 {
+        match &self.transport {
+            None => value(seg.cell),
+            Some(t) => t.at(
+                seg.ray.at(0.5 * (seg.t0 + seg.t1)),
+                t.channel.sigma_s(seg.cell) as f64,
+                value,
+            ),
+        }
+    }
+
+    /// An upper bound on `Q` anywhere from `values` (`per_cell` values per cell of the grid
+    /// they live on).
+    fn bound(&self, values: &[f32], per_cell: usize) -> f64 {
+        match &self.transport {
+            None => values.iter().copied().fold(0.0f32, f32::max) as f64,
+            Some(t) => {
+                let ratio = values
+                    .chunks(per_cell.max(1))
+                    .zip(t.inverse_sigma_s)
+                    .map(|(v, &inv)| v.iter().copied().fold(0.0f32, f32::max) as f64 * inv as f64)
+                    .fold(0.0, f64::max);
+                t.max_sigma_s * ratio
+            }
         }
     }
 }
@@ -65,7 +173,7 @@ pub struct CellSource<'a> {
 
 impl<'a> CellSource<'a> {
     pub fn new(values: &'a [f32], lattice: CellLattice<'a>) -> Self {
-        let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
+        let max = lattice.bound(values, 1);
         CellSource {
             values,
             lattice,
@@ -77,15 +185,16 @@ impl<'a> CellSource<'a> {
 impl InScattering for CellSource<'_> {
     #[inline]
     fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
-        self.values[seg.cell] as f64 * seg.weight
+        self.lattice.segment(seg, |c| self.values[c] as f64) * seg.weight
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, _w: DVec3) -> f64 {
         self.lattice.at(x, cell, |c| self.values[c] as f64)
     }
     #[inline]
-    fn at_corners(&self, _x: DVec3, corners: &Trilinear, _w: DVec3) -> f64 {
-        self.lattice.at_corners(corners, |c| self.values[c] as f64)
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, _w: DVec3) -> f64 {
+        self.lattice
+            .at_corners(x, corners, |c| self.values[c] as f64)
     }
     fn max_source(&self) -> f64 {
         self.max
@@ -113,7 +222,7 @@ impl<'a> BinnedSource<'a> {
     /// [`RenderCache::log_source`]: crate::engine::solution::RenderCache::log_source
     pub fn new(values: &'a [f32], logs: &'a [f32], n: usize, lattice: CellLattice<'a>) -> Self {
         debug_assert_eq!(values.len(), logs.len());
-        let max = values.iter().copied().fold(0.0f32, f32::max) as f64;
+        let max = lattice.bound(values, 6 * n * n);
         BinnedSource {
             values,
             logs,
@@ -121,11 +230,6 @@ impl<'a> BinnedSource<'a> {
             lattice,
             max,
         }
-    }
-
-    #[inline]
-    fn lookup(&self, cell: usize, w: DVec3) -> f64 {
-        self.lookup_with(cell, &face_bilinear(self.n, w))
     }
 
     /// The source of `cell` in the direction whose bin weights are `weights`.
@@ -143,7 +247,8 @@ impl<'a> BinnedSource<'a> {
 impl InScattering for BinnedSource<'_> {
     #[inline]
     fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
-        self.lookup(seg.cell, -seg.ray.direction) * seg.weight
+        let weights = face_bilinear(self.n, -seg.ray.direction);
+        self.lattice.segment(seg, |c| self.lookup_with(c, &weights)) * seg.weight
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
@@ -152,10 +257,10 @@ impl InScattering for BinnedSource<'_> {
         self.lattice.at(x, cell, |c| self.lookup_with(c, &weights))
     }
     #[inline]
-    fn at_corners(&self, _x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
         let weights = face_bilinear(self.n, w);
         self.lattice
-            .at_corners(corners, |c| self.lookup_with(c, &weights))
+            .at_corners(x, corners, |c| self.lookup_with(c, &weights))
     }
     fn max_source(&self) -> f64 {
         self.max
@@ -191,7 +296,7 @@ pub fn channel_scattering<'a>(
     Ok(match (&ch.scattered, &solution.bins) {
         (ScatteredField::Isotropic { higher_order, .. }, _) => Box::new((
             first,
-            CellSource::new(higher_order, CellLattice::of(&solution.medium, c)),
+            CellSource::new(higher_order, CellLattice::of(solution, c, ch)?),
         )),
         (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
             let logs = ch.render_cache.log_source(higher_order);
@@ -201,7 +306,7 @@ pub fn channel_scattering<'a>(
                     higher_order,
                     logs,
                     bins.face_resolution,
-                    CellLattice::of(&solution.medium, c),
+                    CellLattice::of(solution, c, ch)?,
                 ),
             ))
         }
@@ -220,6 +325,7 @@ mod tests {
             grid: Grid::new([1, 1, 1], 1.0).unwrap(),
             sigma_t: &[1.0],
             trilinear: true,
+            transport: None,
         }
     }
 
@@ -235,6 +341,7 @@ mod tests {
             grid,
             sigma_t: &sigma_t,
             trilinear: true,
+            transport: None,
         };
         let source = CellSource::new(&values, lattice);
         let at = |x: f64| source.at(DVec3::new(x, 0.5, 0.5), (x as usize).min(2), DVec3::X);

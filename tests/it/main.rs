@@ -15,4 +15,5 @@ mod reference_cloud24;
 mod service;
 mod service_faults;
 mod solution_file;
+mod transport_grid;
 mod validate;

@@ -10,6 +10,9 @@
 //!   the grid (the first pass of Kajiya & Von Herzen), which is the source term `E` of
 //!   every multiple-scattering solve. [`Environment`]: light from every direction at
 //!   infinity (a uniform sky), with its uncollided radiance inside the grid.
+//! - [`coarsening`]: a coarser transport grid over the data grid ([`coarsening::Coarsening`]:
+//!   the medium and light pass carried to blocks of `s³` cells), where large volumes solve
+//!   their multiple scattering.
 //! - [`traversal`]: exact 3D-DDA traversal of a ray through the grid (Amanatides & Woo),
 //!   the basis of every per-cell analytic integral in volrad.
 //! - [`atomic_file`]: the one atomic file writer (temp file beside the target, sync, rename)
@@ -28,6 +31,7 @@
 
 pub mod atomic_file;
 pub mod blackbody;
+pub mod coarsening;
 pub mod emitter_pass;
 pub mod environment;
 pub mod error;

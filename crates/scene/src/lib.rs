@@ -58,7 +58,9 @@ use medium::{Environment, Light, Medium};
 
 use crate::check::Ctx;
 use crate::raw::RawScene;
-pub use crate::settings::{phase_spelling, SolveMethod, SolveSettings, UnknownSolveMethod};
+pub use crate::settings::{
+    phase_spelling, SolveMethod, SolveSettings, TransportScale, UnknownSolveMethod,
+};
 
 /// A validated scene: the medium, its lighting, how to solve it and how to look at it.
 #[derive(Clone, Debug)]

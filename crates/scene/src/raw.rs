@@ -56,6 +56,7 @@ pub(crate) struct RawSolve {
     pub(crate) transport_refinement: Option<toml::Value>,
     pub(crate) forward_peak_cone: Option<toml::Value>,
     pub(crate) photons: Option<toml::Value>,
+    pub(crate) transport_scale: Option<toml::Value>,
 }
 
 #[derive(Deserialize)]

@@ -4,6 +4,7 @@
 use formfactor::ordinates::{forward_truncation_fraction, MAX_TRANSPORT_REFINEMENT, VALID_BINS};
 use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
 use medium::blackbody::RgbTable;
+use medium::coarsening::MAX_TRANSPORT_SCALE;
 use medium::generators::Generator;
 use medium::light_pass::MAX_LIGHTS;
 use medium::transfer::{PiecewiseLinear, SigmaTransfer, Transfer};
@@ -19,7 +20,7 @@ use solver::ParseMethodError;
 
 use crate::check::{broadcast, join, Channels, Ctx, SceneLight};
 use crate::raw::{RawBackground, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
-use crate::settings::UnknownSolveMethod;
+use crate::settings::{TransportScale, UnknownSolveMethod};
 use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
 use glam::DVec3;
 
@@ -759,9 +760,33 @@ impl Ctx<'_> {
                     }
                     out.photons = n;
                 }
+                if let Some(v) = &s.transport_scale {
+                    out.transport_scale = self.transport_scale(v)?;
+                }
                 out
             }
         })
+    }
+
+    /// `[solve] transport_scale`: `"auto"` or a whole number of data cells per side.
+    fn transport_scale(&self, v: &toml::Value) -> Result<TransportScale, SceneError> {
+        let key = "solve.transport_scale";
+        let expected = format!(
+            "expected \"auto\" or a whole number from 1 to {MAX_TRANSPORT_SCALE} (data cells \
+             per side of a transport cell)"
+        );
+        if let toml::Value::String(text) = v {
+            return if text == "auto" {
+                Ok(TransportScale::Auto)
+            } else {
+                Err(self.err(key, format!("\"{text}\": {expected}")))
+            };
+        }
+        let s = self.integer(v, key, 1)?;
+        if s > MAX_TRANSPORT_SCALE as i64 {
+            return Err(self.err(key, format!("{s}: {expected}")));
+        }
+        Ok(TransportScale::Fixed(s as usize))
     }
 
     fn render(

@@ -138,6 +138,30 @@ pub struct SolveSettings {
     /// Two-pass only: photons per light of the energetization pass (its noise falls like
     /// `1/√photons`; bounds [`PHOTON_RANGE`](montecarlo::two_pass::PHOTON_RANGE)).
     pub photons: u64,
+    /// Zonal and discrete-ordinates methods: the multiple scattering is solved on blocks of
+    /// `s³` data cells ([`medium::coarsening::Coarsening`]); the first bounce stays exact at
+    /// the data's resolution.
+    pub transport_scale: TransportScale,
+}
+
+/// `[solve] transport_scale`: how many data cells per side one transport cell spans.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TransportScale {
+    /// Chosen by the solve: 1 (the data grid itself) up to a size class of transport grid,
+    /// coarser beyond it or where memory is short.
+    #[default]
+    Auto,
+    /// `s` data cells per side, 1..=[`MAX_TRANSPORT_SCALE`](medium::coarsening::MAX_TRANSPORT_SCALE).
+    Fixed(usize),
+}
+
+impl std::fmt::Display for TransportScale {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TransportScale::Auto => f.write_str("auto"),
+            TransportScale::Fixed(s) => write!(f, "{s}"),
+        }
+    }
 }
 
 impl SolveSettings {
@@ -154,6 +178,7 @@ impl SolveSettings {
             transport_refinement: 1,
             forward_peak_cone: None,
             photons: montecarlo::two_pass::DEFAULT_PHOTONS,
+            transport_scale: TransportScale::Auto,
         }
     }
 }

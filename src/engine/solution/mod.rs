@@ -12,6 +12,7 @@ use std::path::Path;
 
 use gather::light_depth::{LightDepth, LightDepthModel};
 use gather::RenderIndex;
+use medium::coarsening::Coarsening;
 use medium::light_pass::{LightField, LightPass};
 use medium::{CellValues, ChannelMedium, Environment, Light, Medium};
 use rayon::prelude::*;
@@ -82,6 +83,21 @@ pub struct RenderCache {
     /// `ln` of a binned higher-order source (−∞ where it is 0), for interpolating between bin
     /// centres geometrically.
     log_source: std::sync::OnceLock<Vec<f32>>,
+    /// The transport grid's medium and what renders need of it, when it is coarser than the
+    /// data grid.
+    transport: std::sync::OnceLock<Result<TransportCache, String>>,
+}
+
+/// The medium on a solution's transport grid and what a render of channel `c` reads from it.
+#[derive(Clone)]
+pub struct TransportCache {
+    /// [`Coarsening::medium`] of the solution's medium.
+    pub medium: Medium,
+    /// `1/σs` of channel `c` per transport cell (0 where nothing scatters): a stored source
+    /// divided by it is the in-scattered radiance the render spreads over the data cells.
+    pub inverse_sigma_s: Vec<f32>,
+    /// An upper bound on channel `c`'s σs on the data grid.
+    pub max_sigma_s: f64,
 }
 
 impl RenderCache {
@@ -94,6 +110,43 @@ impl RenderCache {
             })
             .as_ref()
             .map_err(|e| anyhow::anyhow!("first-bounce light-depth model: {e}"))
+    }
+
+    /// The transport grid's medium of `medium` under `transport` and channel `c`'s render
+    /// data ([`TransportCache`]; the same arguments on every call).
+    pub fn transport(
+        &self,
+        medium: &Medium,
+        transport: &Coarsening,
+        c: usize,
+    ) -> anyhow::Result<&TransportCache> {
+        self.transport
+            .get_or_init(|| {
+                let coarse = transport.medium(medium).map_err(|e| e.to_string())?;
+                let ch = coarse
+                    .channels()
+                    .get(c)
+                    .ok_or_else(|| format!("channel {c} does not exist"))?;
+                let inverse_sigma_s = (0..coarse.grid().cell_count())
+                    .map(|o| {
+                        let s = ch.sigma_s(o);
+                        if s > 0.0 {
+                            1.0 / s
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
+                let fine = &medium.channels()[c];
+                let max_sigma_s = fine.max_sigma_t() as f64 * fine.albedo.max() as f64;
+                Ok(TransportCache {
+                    medium: coarse,
+                    inverse_sigma_s,
+                    max_sigma_s,
+                })
+            })
+            .as_ref()
+            .map_err(|e| anyhow::anyhow!("transport grid: {e}"))
     }
 
     /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
@@ -177,6 +230,10 @@ pub struct Solution {
     pub render: RenderSettings,
     pub cameras: Vec<CameraSpec>,
     pub bins: Option<StoredBins>,
+    /// The transport grid the scattered fields and the emitters' fluence live on (blocks of
+    /// `scale³` cells of the medium's grid; scale 1 is the grid itself); the light pass is on
+    /// the medium's grid.
+    pub transport: Coarsening,
     pub channels: Vec<ChannelSolution>,
 }
 
@@ -297,6 +354,7 @@ impl Solution {
                 render: (&self.render).into(),
                 cameras: self.cameras.iter().map(Into::into).collect(),
                 bins: self.bins.as_ref().map(Into::into),
+                transport_scale: self.transport.scale() as u64,
                 channels,
             },
             arrays,
@@ -328,6 +386,11 @@ impl Solution {
             .transpose()
             .map_err(bad)?;
         let cells = grid.cell_count();
+        let transport = usize::try_from(meta.transport_scale)
+            .map_err(|e| e.to_string())
+            .and_then(|s| Coarsening::new(&grid, s).map_err(|e| e.to_string()))
+            .map_err(bad)?;
+        let transport_cells = transport.coarse().cell_count();
         let mut take = |name: String, len: usize| -> Result<Vec<f32>, SolutionError> {
             let pos = c
                 .arrays
@@ -378,8 +441,8 @@ impl Solution {
             let scattered = match cm.field {
                 FieldKind::None => ScatteredField::None,
                 FieldKind::Isotropic => ScatteredField::Isotropic {
-                    source: take(format!("source/{ci}"), cells)?,
-                    higher_order: take(format!("higher_order/{ci}"), cells)?,
+                    source: take(format!("source/{ci}"), transport_cells)?,
+                    higher_order: take(format!("higher_order/{ci}"), transport_cells)?,
                 },
                 FieldKind::TwoPass => {
                     let mut record = cm
@@ -401,8 +464,11 @@ impl Solution {
                         return Err(bad("binned radiance without direction bins".into()));
                     }
                     ScatteredField::Binned {
-                        radiance: take(format!("radiance/{ci}"), cells * bin_count)?,
-                        higher_order: take(format!("higher_order/{ci}"), cells * bin_count)?,
+                        radiance: take(format!("radiance/{ci}"), transport_cells * bin_count)?,
+                        higher_order: take(
+                            format!("higher_order/{ci}"),
+                            transport_cells * bin_count,
+                        )?,
                     }
                 }
             };
@@ -419,7 +485,7 @@ impl Solution {
                     .transpose()
                     .map_err(|e| bad(format!("channel {ci}: {e}")))?,
                 emitted_fluence: if cm.has_emitted_fluence {
-                    Some(take(format!("emitted_fluence/{ci}"), cells)?)
+                    Some(take(format!("emitted_fluence/{ci}"), transport_cells)?)
                 } else {
                     None
                 },
@@ -459,6 +525,7 @@ impl Solution {
             render,
             cameras,
             bins,
+            transport,
             channels,
         })
     }

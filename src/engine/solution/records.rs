@@ -59,6 +59,9 @@ pub struct MetaRecord {
     pub render: RenderRecord,
     pub cameras: Vec<CameraRecord>,
     pub bins: Option<BinsRecord>,
+    /// Data cells per side of a transport cell: the scattered fields and the emitters'
+    /// fluence are stored on the transport grid (1: the data grid).
+    pub transport_scale: u64,
     pub channels: Vec<ChannelRecord>,
 }
 
