@@ -39,6 +39,10 @@ CASES = [
     ("discrete-ordinates", (32, 32, 32), "uniform", "", False),
     ("discrete-ordinates", (32, 32, 24), "cloud-rgb", "", False),
     ("discrete-ordinates", (32, 32, 24), "cloud", 'iteration = "gmres:8"\ntolerance = 1e-12', False),
+    # Large grids: multiple scattering on the transport grid `auto` chooses (64³-class).
+    ("discrete-ordinates", (192, 192, 144), "cloud", 'transport_scale = "auto"', False),
+    ("zonal-hierarchical", (192, 192, 144), "cloud", 'transport_scale = "auto"', False),
+    ("discrete-ordinates", (384, 384, 288), "cloud", 'transport_scale = "auto"', False),
     ("two-pass", (16, 16, 12), "cloud", "", True),
     ("two-pass", (48, 48, 36), "cloud", "", False),
     ("two-pass", (32, 32, 24), "cloud", "photons = 100000", False),

@@ -220,6 +220,10 @@ pub struct SolveArgs {
     /// Override `[solve] max_iterations`.
     #[arg(long)]
     pub max_iterations: Option<usize>,
+    /// Override `[solve] transport_scale`: solve the multiple scattering on blocks of N³ data
+    /// cells (1..=16), or `auto` (the data grid up to 64³ cells, coarser beyond).
+    #[arg(long, value_name = "auto|N")]
+    pub transport_scale: Option<scene::TransportScale>,
 }
 
 #[derive(Debug, Args)]

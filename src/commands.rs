@@ -58,6 +58,7 @@ pub struct SolveOverrides {
     pub iteration: Option<solver::Method>,
     pub tolerance: Option<f64>,
     pub max_iterations: Option<usize>,
+    pub transport_scale: Option<scene::TransportScale>,
 }
 
 impl SolveOverrides {
@@ -80,6 +81,9 @@ impl SolveOverrides {
         }
         if let Some(n) = self.max_iterations {
             settings.max_iterations = n;
+        }
+        if let Some(scale) = self.transport_scale {
+            settings.transport_scale = scale;
         }
         Ok(settings)
     }
@@ -370,6 +374,7 @@ pub fn solve(args: &SolveArgs, quiet: bool, max_memory: Option<u64>) -> Result<(
         iteration: args.iteration,
         tolerance: args.tolerance,
         max_iterations: args.max_iterations,
+        transport_scale: args.transport_scale,
     }
     .apply(&scene.solve)?;
     // Refused before the solve, not after it: a folder as output, or a folder that cannot be made.

@@ -213,8 +213,9 @@ impl PyScene {
     /// Ctrl-C (KeyboardInterrupt) cancels it. `progress` shows the command line's spinner.
     /// `max_memory` (bytes, or a size such as `"4G"`) is `--max-memory`: a solve predicted to
     /// need more — by default, more than the machine has available — is refused before it
-    /// starts, saying what would fit.
-    #[pyo3(signature = (method = None, *, iteration = None, tolerance = None, max_iterations = None, progress = false, max_memory = None))]
+    /// starts, saying what would fit. `transport_scale` (`"auto"` or 1..=16) overrides
+    /// `[solve] transport_scale`: multiple scattering on blocks of N³ data cells.
+    #[pyo3(signature = (method = None, *, iteration = None, tolerance = None, max_iterations = None, progress = false, max_memory = None, transport_scale = None))]
     #[allow(clippy::too_many_arguments)]
     fn solve(
         &self,
@@ -225,7 +226,20 @@ impl PyScene {
         max_iterations: Option<usize>,
         progress: bool,
         max_memory: Option<&Bound<'_, PyAny>>,
+        transport_scale: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PySolution> {
+        let transport_scale = transport_scale
+            .map(|t| {
+                let text = match t.extract::<usize>() {
+                    Ok(n) => n.to_string(),
+                    Err(_) => t.extract::<String>().map_err(|_| {
+                        VolradError::new_err("transport_scale: expected \"auto\" or a whole number")
+                    })?,
+                };
+                text.parse::<scene::TransportScale>()
+                    .map_err(|e| VolradError::new_err(format!("transport_scale: {e}")))
+            })
+            .transpose()?;
         let max_memory = match max_memory {
             None => None,
             Some(m) if m.is_instance_of::<PyString>() => Some(
@@ -249,6 +263,7 @@ impl PyScene {
                 .map_err(|e| VolradError::new_err(format!("iteration: {e}")))?,
             tolerance,
             max_iterations,
+            transport_scale,
         };
         let settings = overrides.apply(&self.scene.solve).map_err(refuse)?;
         let started = Instant::now();

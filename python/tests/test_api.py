@@ -276,3 +276,21 @@ def test_an_image_too_large_for_memory_is_refused_before_rendering(cloud_scene, 
     with pytest.raises(volrad.VolradError, match="smaller image"):
         solution.render("front", width=1_000_000, height=1_000_000)
     assert time.monotonic() - started < 5
+
+
+def test_transport_scale_solves_on_blocks_of_cells_and_refuses_bad_values():
+    # A ball of 16³ cells: its multiple scattering on 8³ blocks of 2³ cells.
+    z, y, x = np.mgrid[0:16, 0:16, 0:16]
+    ball = ((x - 7.5) ** 2 + (y - 7.5) ** 2 + (z - 7.5) ** 2 < 49).astype(np.float32) * 0.4
+    scene = volrad.Scene(ball, albedo=0.9, lights=[LIGHT], method="zonal-hierarchical")
+    fine = scene.solve()
+    coarse = scene.solve(transport_scale=2)
+    f, c = fine.field("fluence"), coarse.field("fluence")
+    assert c.shape == f.shape == (16, 16, 16)
+    inside = ball > 0
+    # The lights' unscattered light per data cell is the same; the scattered light is close.
+    assert abs(c[inside].mean() / f[inside].mean() - 1) < 0.08
+    np.testing.assert_array_equal(scene.solve(transport_scale="auto").field("fluence"), f)
+    for bad in (0, 17, "coarse", 1.5):
+        with pytest.raises(volrad.VolradError, match="transport_scale"):
+            scene.solve(transport_scale=bad)

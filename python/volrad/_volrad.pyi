@@ -61,6 +61,7 @@ class Scene:
         max_iterations: Optional[int] = None,
         progress: bool = False,
         max_memory: Union[None, int, str] = None,
+        transport_scale: Union[None, int, str] = None,
     ) -> "Solution": ...
 
 class Solution:

@@ -53,6 +53,11 @@ const PROCESS_BYTES: u64 = 22 << 20;
 /// Per cell and channel, every method: the light pass's fields and σt copy, the solution's
 /// copy of the medium and its first-bounce data (measured with method `none`).
 const LIGHT_PASS_BYTES_PER_CELL: u64 = 80;
+/// Per data cell and channel, what a solve on a coarser transport grid keeps of the light
+/// pass and the solution while the transport grid is solved (measured: 24–35 bytes beside the
+/// medium's 8 on 192 × 192 × 144 and 384 × 384 × 288 clouds); the light pass's working
+/// buffers (`LIGHT_PASS_BYTES_PER_CELL`) come and go before.
+const LIGHT_PASS_KEPT_BYTES_PER_CELL: u64 = 24;
 /// Exact zonal: per pair of non-empty cells — the CSR matrix (value and column index) and the
 /// rows it is assembled from.
 const ZONAL_BYTES_PER_PAIR: u64 = 32;
@@ -210,7 +215,11 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
             bytes: s
                 .cells
                 .saturating_mul(s.channels)
-                .saturating_mul(LIGHT_PASS_BYTES_PER_CELL),
+                .saturating_mul(if s.scale > 1 {
+                    LIGHT_PASS_KEPT_BYTES_PER_CELL
+                } else {
+                    LIGHT_PASS_BYTES_PER_CELL
+                }),
         },
     ];
     if s.scale > 1 {
@@ -298,6 +307,23 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                         ),
                     tallies.saturating_mul(STORED_BYTES_PER_CELL_BIN),
                 ),
+            });
+        }
+    }
+    if s.scale > 1 {
+        // The light pass's own peak on the data grid comes before the transport solve's.
+        let total: u64 = parts.iter().map(|p| p.bytes).sum();
+        let light_pass_peak = PROCESS_BYTES
+            .saturating_add(scene.medium.memory_bytes() as u64)
+            .saturating_add(
+                s.cells
+                    .saturating_mul(s.channels)
+                    .saturating_mul(LIGHT_PASS_BYTES_PER_CELL),
+            );
+        if light_pass_peak > total {
+            parts.push(MemoryPart {
+                what: "the light pass's working buffers on the data grid",
+                bytes: light_pass_peak - total,
             });
         }
     }

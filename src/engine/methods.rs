@@ -193,6 +193,12 @@ pub fn emitter_pass(
     Ok(Some(pass))
 }
 
+/// `64×64×48 cells`, for progress messages.
+pub fn grid_text(grid: &medium::Grid) -> String {
+    let [x, y, z] = grid.dims;
+    format!("{x}×{y}×{z} cells")
+}
+
 /// Zonal multiple scattering (exact or hierarchical form factors) for channel `c`. With an
 /// emitter pass, the emission's uncollided light is the pass's (traced exactly) and the
 /// operator carries only scattered light: `g = e + g_s` with
@@ -229,7 +235,10 @@ pub fn solve_zonal(
     let op: Box<dyn TransportOperator> = match settings.method {
         SolveMethod::Zonal => {
             hooks.control.phase(&channel_phase(
-                "building the exact form factors",
+                &format!(
+                    "building the exact form factors ({})",
+                    grid_text(scene.medium.grid())
+                ),
                 c,
                 channels,
             ));
@@ -244,7 +253,10 @@ pub fn solve_zonal(
         }
         _ => {
             hooks.control.phase(&channel_phase(
-                "building the hierarchical form factors",
+                &format!(
+                    "building the hierarchical form factors ({})",
+                    grid_text(scene.medium.grid())
+                ),
                 c,
                 channels,
             ));
@@ -367,7 +379,11 @@ pub fn solve_ordinates(
     let options = ordinates_options(settings, &bins, &scene.medium.phase());
     let channels = scene.medium.channels().len();
     hooks.control.phase(&channel_phase(
-        "preparing the transport sweeps",
+        &format!(
+            "preparing the transport sweeps ({} × {} bins)",
+            grid_text(scene.medium.grid()),
+            bins.len()
+        ),
         c,
         channels,
     ));
@@ -833,20 +849,23 @@ mod tests {
             (
                 SolveMethod::ZonalHierarchical,
                 vec![
-                    "light pass",
-                    "building the hierarchical form factors",
+                    "light pass (24×24×18 cells)",
+                    "building the hierarchical form factors (24×24×18 cells)",
                     "iterating (dsa-cg)",
                 ],
             ),
             (
                 SolveMethod::DiscreteOrdinates,
                 vec![
-                    "light pass",
-                    "preparing the transport sweeps",
+                    "light pass (24×24×18 cells)",
+                    "preparing the transport sweeps (24×24×18 cells × 96 bins)",
                     "iterating (gauss-seidel)",
                 ],
             ),
-            (SolveMethod::TwoPass, vec!["light pass", "tracing photons"]),
+            (
+                SolveMethod::TwoPass,
+                vec!["light pass (24×24×18 cells)", "tracing photons"],
+            ),
         ] {
             let mut settings = scene.solve.clone();
             settings.method = method;

@@ -89,9 +89,14 @@ pub fn solve_scene(
     for c in 0..medium.channels().len() {
         let span = tracing::info_span!("channel", c);
         let _enter = span.enter();
-        hooks
-            .control
-            .phase(&channel_phase("light pass", c, medium.channels().len()));
+        hooks.control.phase(&channel_phase(
+            &format!(
+                "light pass ({})",
+                crate::engine::methods::grid_text(medium.grid())
+            ),
+            c,
+            medium.channels().len(),
+        ));
         let light_pass = LightPass::compute(medium, c, &scene.lights)
             .with_context(|| format!("light pass of channel {c}"))?;
         let coarse_pass = match &coarse_scene {

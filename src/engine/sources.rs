@@ -44,7 +44,7 @@ impl TransportLattice<'_> {
     /// `σs · Q/σs` at `x`: `sigma_s` is the data grid's σs there, `value` the transport
     /// cells' source.
     #[inline]
-    fn at(&self, x: DVec3, sigma_s: f64, value: impl Fn(usize) -> f64) -> f64 {
+    fn at(&self, x: DVec3, sigma_s: f64, mut value: impl FnMut(usize) -> f64) -> f64 {
         if sigma_s <= 0.0 {
             return 0.0;
         }
@@ -98,7 +98,7 @@ impl<'a> CellLattice<'a> {
 
     /// `Q` at `x` in `cell` from the per-cell `value` (see the type's doc).
     #[inline]
-    fn at(&self, x: DVec3, cell: usize, value: impl Fn(usize) -> f64) -> f64 {
+    fn at(&self, x: DVec3, cell: usize, mut value: impl FnMut(usize) -> f64) -> f64 {
         if let Some(t) = &self.transport {
             let sigma_s = if self.trilinear {
                 Trilinear::new(&self.grid, x).sample(|i| t.channel.sigma_s(i) as f64)
@@ -116,7 +116,12 @@ impl<'a> CellLattice<'a> {
 
     /// [`at`](Self::at) with the neighbours the renderer found.
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, value: impl Fn(usize) -> f64) -> f64 {
+    fn at_corners(
+        &self,
+        x: DVec3,
+        corners: &Trilinear,
+        mut value: impl FnMut(usize) -> f64,
+    ) -> f64 {
         if let Some(t) = &self.transport {
             let sigma_s = if self.trilinear {
                 corners.sample(|i| t.channel.sigma_s(i) as f64)
@@ -214,7 +219,12 @@ pub struct BinnedSource<'a> {
     n: usize,
     lattice: CellLattice<'a>,
     max: f64,
+    /// Unique per source made in this process: what [`LookupCache`] entries are tagged with.
+    id: u64,
 }
+
+/// The next [`BinnedSource`]'s id.
+static NEXT_SOURCE_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 impl<'a> BinnedSource<'a> {
     /// `logs` is `ln` of `values`, element by element ([`RenderCache::log_source`]).
@@ -229,6 +239,7 @@ impl<'a> BinnedSource<'a> {
             n,
             lattice,
             max,
+            id: NEXT_SOURCE_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         }
     }
 
@@ -244,6 +255,67 @@ impl<'a> BinnedSource<'a> {
     }
 }
 
+/// Slots of [`LookupCache`] (a power of two).
+const LOOKUP_SLOTS: usize = 256;
+
+/// The binned sources' values of the cells a ray's last steps read, in the ray's direction.
+/// A `trilinear` render reads the same 8 neighbours for several steps (4 per data cell, more
+/// on a transport grid), and each read interpolates 4 bins geometrically, so the values are
+/// kept per thread until the direction changes (a new ray). Direct-mapped by a hash of the
+/// cell; an entry also names its source, so the channels of one ray share it, and the
+/// direction it was made for (a generation count, so a new ray empties nothing).
+struct LookupCache {
+    /// The direction and bin count of the current generation.
+    key: Option<([u64; 3], usize)>,
+    generation: u64,
+    weights: [(usize, f64); 4],
+    /// `(generation, source, cell)` per slot (`source`: the [`BinnedSource`]'s id).
+    tags: [(u64, u64, usize); LOOKUP_SLOTS],
+    values: [f64; LOOKUP_SLOTS],
+}
+
+impl LookupCache {
+    /// The bin weights of direction `w` for `n²` bins per face; a direction other than the
+    /// last call's starts a new generation.
+    #[inline]
+    fn direction(&mut self, n: usize, w: DVec3) -> [(usize, f64); 4] {
+        let key = (w.to_array().map(f64::to_bits), n);
+        if self.key != Some(key) {
+            self.key = Some(key);
+            self.generation += 1;
+            self.weights = face_bilinear(n, w);
+        }
+        self.weights
+    }
+
+    #[inline]
+    fn get(&mut self, source: u64, cell: usize, value: impl FnOnce() -> f64) -> f64 {
+        let tag = (self.generation, source, cell);
+        // Fibonacci hashing: neighbours a row or a layer apart land in different slots.
+        let hash = (cell as u64 ^ source.rotate_left(29)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let slot = (hash >> (64 - LOOKUP_SLOTS.trailing_zeros())) as usize;
+        if self.tags[slot] == tag {
+            return self.values[slot];
+        }
+        let v = value();
+        self.tags[slot] = tag;
+        self.values[slot] = v;
+        v
+    }
+}
+
+thread_local! {
+    static LOOKUPS: std::cell::RefCell<LookupCache> = const {
+        std::cell::RefCell::new(LookupCache {
+            key: None,
+            generation: 0,
+            weights: [(0, 0.0); 4],
+            tags: [(0, 0, 0); LOOKUP_SLOTS],
+            values: [0.0; LOOKUP_SLOTS],
+        })
+    };
+}
+
 impl InScattering for BinnedSource<'_> {
     #[inline]
     fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
@@ -252,15 +324,21 @@ impl InScattering for BinnedSource<'_> {
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
-        // One direction for every neighbour cell: its bin weights once.
-        let weights = face_bilinear(self.n, w);
-        self.lattice.at(x, cell, |c| self.lookup_with(c, &weights))
+        LOOKUPS.with_borrow_mut(|cache| {
+            let weights = cache.direction(self.n, w);
+            self.lattice.at(x, cell, |c| {
+                cache.get(self.id, c, || self.lookup_with(c, &weights))
+            })
+        })
     }
     #[inline]
     fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
-        let weights = face_bilinear(self.n, w);
-        self.lattice
-            .at_corners(x, corners, |c| self.lookup_with(c, &weights))
+        LOOKUPS.with_borrow_mut(|cache| {
+            let weights = cache.direction(self.n, w);
+            self.lattice.at_corners(x, corners, |c| {
+                cache.get(self.id, c, || self.lookup_with(c, &weights))
+            })
+        })
     }
     fn max_source(&self) -> f64 {
         self.max
@@ -387,6 +465,32 @@ mod tests {
         assert_eq!(source.at(DVec3::splat(0.5), 0, corner), 0.0);
         let centre = DVec3::new(1.0, -0.5, 0.5).normalize();
         assert!((source.at(DVec3::splat(0.5), 0, centre) - 1.0).abs() < 1e-12);
+    }
+
+    /// Two sources read alternately in one direction at the same cells (the channels of one
+    /// ray) each give their own values through the per-thread lookup cache, and a new
+    /// direction gives that direction's values, not the cached ones.
+    #[test]
+    fn the_lookup_cache_keeps_sources_and_directions_apart() {
+        let n = 2;
+        let a: Vec<f32> = (0..6 * n * n).map(|l| 1.0 + l as f32).collect();
+        let b: Vec<f32> = a.iter().map(|v| 100.0 * v).collect();
+        let logs = |v: &[f32]| v.iter().map(|x| x.ln()).collect::<Vec<f32>>();
+        let (la, lb) = (logs(&a), logs(&b));
+        let (sa, sb) = (
+            BinnedSource::new(&a, &la, n, one_cell()),
+            BinnedSource::new(&b, &lb, n, one_cell()),
+        );
+        let x = DVec3::splat(0.5);
+        let d1 = DVec3::new(1.0, 0.2, -0.3).normalize();
+        let d2 = DVec3::new(-0.2, 1.0, 0.4).normalize();
+        let direct = |s: &BinnedSource, d: DVec3| s.lookup_with(0, &face_bilinear(n, d));
+        for d in [d1, d1, d2, d1] {
+            for s in [&sa, &sb, &sa] {
+                assert_eq!(s.at(x, 0, d), direct(s, d));
+            }
+        }
+        assert!((sb.at(x, 0, d2) / sa.at(x, 0, d2) - 100.0).abs() < 1e-3);
     }
 
     /// Half way between two positive centres the source is their geometric mean (exact for

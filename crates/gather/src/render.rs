@@ -530,7 +530,7 @@ impl Trilinear {
     /// cell's `Q`. This is how a solved per-cell source is drawn smoothly: a `trilinear`
     /// medium's σt times a trilinear source function.
     #[inline]
-    pub fn source(&self, sigma_t: &[f32], value: impl Fn(usize) -> f64) -> f64 {
+    pub fn source(&self, sigma_t: &[f32], mut value: impl FnMut(usize) -> f64) -> f64 {
         let (mut sigma, mut weighted, mut weight) = (0.0, 0.0, 0.0);
         self.for_each(|c, w| {
             let s = sigma_t[c] as f64;
@@ -582,7 +582,7 @@ impl Trilinear {
 
     /// The trilinear interpolation of the per-cell `value`.
     #[inline]
-    pub fn sample(&self, value: impl Fn(usize) -> f64) -> f64 {
+    pub fn sample(&self, mut value: impl FnMut(usize) -> f64) -> f64 {
         let mut sum = 0.0;
         self.for_each(|c, w| sum += w * value(c));
         sum

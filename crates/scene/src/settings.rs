@@ -155,6 +155,25 @@ pub enum TransportScale {
     Fixed(usize),
 }
 
+impl std::str::FromStr for TransportScale {
+    type Err = String;
+
+    /// `auto` or a whole number 1..=[`MAX_TRANSPORT_SCALE`](medium::coarsening::MAX_TRANSPORT_SCALE).
+    fn from_str(text: &str) -> Result<Self, String> {
+        let max = medium::coarsening::MAX_TRANSPORT_SCALE;
+        if text == "auto" {
+            return Ok(TransportScale::Auto);
+        }
+        match text.parse::<usize>() {
+            Ok(s) if (1..=max).contains(&s) => Ok(TransportScale::Fixed(s)),
+            _ => Err(format!(
+                "`{text}`: expected auto or a whole number from 1 to {max} (data cells per side \
+                 of a transport cell)"
+            )),
+        }
+    }
+}
+
 impl std::fmt::Display for TransportScale {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {

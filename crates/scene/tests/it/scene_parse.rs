@@ -940,7 +940,8 @@ fn builtin_default_is_the_sky_lit_cloud_sample_and_its_camera_sees_all_of_it() {
     assert_eq!(s.medium, sample.medium);
     assert_eq!(s.solve, sample.solve);
     assert_eq!(s.cameras, sample.cameras);
-    assert_eq!(s.medium.grid().dims, [32, 32, 24]);
+    assert_eq!(s.medium.grid().dims, [128, 128, 96]);
+    assert_eq!(s.solve.transport_scale, scene::TransportScale::Fixed(4));
     assert_eq!(s.medium.channels().len(), 3, "the sky is coloured");
     assert!(
         s.environment.is_some() && s.lights.len() == 1,
