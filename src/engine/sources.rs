@@ -304,16 +304,29 @@ impl LookupCache {
     }
 }
 
-thread_local! {
-    static LOOKUPS: std::cell::RefCell<LookupCache> = const {
-        std::cell::RefCell::new(LookupCache {
+impl LookupCache {
+    fn new() -> Box<LookupCache> {
+        Box::new(LookupCache {
             key: None,
             generation: 0,
             weights: [(0, 0.0); 4],
             tags: [(0, 0, 0); LOOKUP_SLOTS],
             values: [0.0; LOOKUP_SLOTS],
         })
-    };
+    }
+
+    /// Runs `f` with this thread's cache. The cache lives on the heap: thread-local storage
+    /// itself stays a pointer, as a library loaded at run time (the Python module) has only a
+    /// little static TLS to give.
+    #[inline]
+    fn with<R>(f: impl FnOnce(&mut LookupCache) -> R) -> R {
+        LOOKUPS.with_borrow_mut(|cache| f(cache.get_or_insert_with(LookupCache::new)))
+    }
+}
+
+thread_local! {
+    static LOOKUPS: std::cell::RefCell<Option<Box<LookupCache>>> =
+        const { std::cell::RefCell::new(None) };
 }
 
 impl InScattering for BinnedSource<'_> {
@@ -324,7 +337,7 @@ impl InScattering for BinnedSource<'_> {
     }
     #[inline]
     fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
-        LOOKUPS.with_borrow_mut(|cache| {
+        LookupCache::with(|cache| {
             let weights = cache.direction(self.n, w);
             self.lattice.at(x, cell, |c| {
                 cache.get(self.id, c, || self.lookup_with(c, &weights))
@@ -333,7 +346,7 @@ impl InScattering for BinnedSource<'_> {
     }
     #[inline]
     fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
-        LOOKUPS.with_borrow_mut(|cache| {
+        LookupCache::with(|cache| {
             let weights = cache.direction(self.n, w);
             self.lattice.at_corners(x, corners, |c| {
                 cache.get(self.id, c, || self.lookup_with(c, &weights))
