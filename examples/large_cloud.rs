@@ -20,10 +20,10 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use glam::DVec3;
 use montecarlo::compare::compare_images;
-use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions, Surroundings};
 use scene::{CameraSpec, Projection, Scene};
 use volrad::engine::pipeline::{render_view, solve_scene};
 use volrad::engine::SolveHooks;
+use volrad::validate::path_traced;
 
 struct Args {
     dims: usize,
@@ -154,22 +154,8 @@ transport_scale = {scale}
     for v in 0..a.views {
         let camera = orbit_view(v as f64 * std::f64::consts::TAU / a.views as f64, a.width);
         let image = render_view(&solution, &camera, None)?;
-        let traced = path_trace_with_error(
-            &scene.medium,
-            0,
-            &scene.lights,
-            Surroundings {
-                background: scene.background,
-                environment: scene.environment,
-            },
-            &gather::Camera::from_spec(&camera)?,
-            &PathTraceOptions {
-                spp: a.spp,
-                ..PathTraceOptions::default()
-            },
-        )?;
-        let as_image = |c: gather::ImageChannel| gather::Image::new(c.width, c.height, 1, c.pixels);
-        let (mean, std_error) = (as_image(traced.mean)?, as_image(traced.std_error)?);
+        let (mean, std_error) =
+            path_traced(&scene, &gather::Camera::from_spec(&camera)?, a.spp, 0)?;
         let c = compare_images(&image, None, &mean, Some(&std_error), 0.01, 1)
             .map_err(anyhow::Error::msg)?;
         let (rms, mean) = (c.relative_rms_error, c.relative_mean_difference);

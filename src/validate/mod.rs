@@ -641,7 +641,7 @@ fn validate_scene(
 }
 
 /// A path-traced image and its per-pixel standard error (channel 0).
-fn path_traced(
+pub fn path_traced(
     scene: &Scene,
     camera: &gather::Camera,
     spp: u32,
