@@ -21,7 +21,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Export(args)) => crate::commands::export(&args),
         Some(Command::Serve(args)) => crate::service::run_cli(&args, cli.quiet, cli.max_memory),
         Some(Command::Bench(crate::cli::BenchCommand::Albedo(args))) => {
-            crate::bench_albedo::run(&args, cli.quiet)
+            crate::bench_albedo::run(&args, cli.quiet, cli.max_memory)
         }
         Some(Command::Validate(args)) => crate::commands::validate(&args, cli.quiet),
     }

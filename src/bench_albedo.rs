@@ -216,9 +216,19 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
         .clone()
         .with_channel(0, channel)
         .with_context(|| format!("σ-scale {sigma_scale}: the scaled medium"))?;
-    let channel = &medium.channels()[0];
     let light_pass =
         LightPass::compute(&medium, 0, &scene.lights).context("computing the light pass")?;
+    // The operator a solve of this scene iterates: on its transport grid when that is coarser.
+    let scale = crate::engine::budget::transport_scale(scene, &scene.solve);
+    let (medium, light_pass) = if scale > 1 {
+        let transport = medium::coarsening::Coarsening::new(medium.grid(), scale)?;
+        let coarse = transport.medium(&medium)?;
+        let pass = transport.light_pass(&medium, 0, &light_pass, &coarse)?;
+        (coarse, pass)
+    } else {
+        (medium, light_pass)
+    };
+    let channel = &medium.channels()[0];
     match scene.solve.method {
         SolveMethod::DiscreteOrdinates => {
             let bins = DirectionBins::with_count(scene.solve.bins)?;
@@ -747,10 +757,16 @@ pub fn write_outputs(
     Ok(())
 }
 
-/// `volrad bench albedo`.
-pub fn run(args: &BenchAlbedoArgs, quiet: bool) -> Result<()> {
+/// `volrad bench albedo`. `max_memory` is `--max-memory`: an operator predicted not to fit
+/// (by default, in the memory the machine has available) is refused before it is built.
+pub fn run(args: &BenchAlbedoArgs, quiet: bool, max_memory: Option<u64>) -> Result<()> {
     let scene = Scene::from_file(&args.scene)
         .with_context(|| format!("reading {}", args.scene.display()))?;
+    crate::engine::budget::check_solve(
+        &scene,
+        &scene.solve,
+        crate::engine::budget::MemoryLimit::given_or_available(max_memory),
+    )?;
     let options = AlbedoBenchOptions {
         albedos: args.albedo.clone(),
         iterations: args.iteration.clone(),

@@ -302,3 +302,47 @@ fn per_cell_albedo_and_bad_albedos_are_refused() {
         .to_string();
     assert!(err.contains("per-cell albedo"), "{err}");
 }
+
+/// The bench iterates the operator a solve iterates: on the scene's transport grid when it
+/// is coarser (`transport_scale = 2`: the Jacobi solve of the scene and the bench's run at the
+/// scene's albedo take the same iterations), and a scene whose solve would not fit in memory
+/// is refused before any operator is built.
+#[test]
+fn the_bench_iterates_the_solves_operator_and_checks_memory_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = scene_file(dir.path(), "zonal", 2.0);
+    let text = std::fs::read_to_string(&path).unwrap().replace(
+        "bins = 24",
+        "bins = 24\ntransport_scale = 2\niteration = \"jacobi\"",
+    );
+    std::fs::write(&path, text).unwrap();
+    let scene = Scene::from_file(&path).unwrap();
+    let runs = run_albedo_bench(&scene, &options(&[0.9], &["jacobi"], &[1.0]), &mut quiet).unwrap();
+    let solution = volrad::engine::pipeline::solve_scene(
+        &scene,
+        &scene.solve,
+        &volrad::engine::SolveHooks::default(),
+    )
+    .unwrap();
+    assert_eq!(solution.transport.coarse().dims, [5, 5, 4]);
+    let report = solution.channels[0].report.as_ref().unwrap();
+    assert_eq!(runs[0].iterations, report.iterations);
+
+    let out = crate::fixtures::volrad(&[
+        "--max-memory",
+        "1M",
+        "bench",
+        "albedo",
+        crate::fixtures::s(&path),
+        "--albedo",
+        "0.9",
+        "-o",
+        crate::fixtures::s(&dir.path().join("out")),
+    ]);
+    let err = crate::fixtures::stderr(&out);
+    assert!(
+        !out.status.success() && err.contains("needs about"),
+        "{err}"
+    );
+    assert!(!dir.path().join("out").exists(), "nothing written");
+}
