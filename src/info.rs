@@ -4,6 +4,7 @@ use std::fmt;
 
 use crate::engine::{budget, methods};
 use formfactor::ordinates::{forward_truncation_fraction, DirectionBins};
+use medium::coarsening::Coarsening;
 use scene::Scene;
 use scene::{SceneOrigin, SolveMethod};
 use serde::Serialize;
@@ -123,14 +124,18 @@ fn emission_info(scene: &Scene) -> Option<String> {
     }
     let how = match scene.solve.method {
         SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates => {
-            let cost = medium::emitter_pass::EmitterPass::estimated_rays_per_cell(
-                m,
-                0,
-                &medium::emitter_pass::EmitterPassOptions::default(),
-                methods::EMITTER_COST_SAMPLES,
-            )
-            .unwrap_or(f64::INFINITY);
-            if methods::emitter_pass_pays(cost, m.grid().cell_count()) {
+            // The solve decides on the grid it solves on.
+            let scale = budget::transport_scale(scene, &scene.solve);
+            let coarse = (scale > 1)
+                .then(|| {
+                    Coarsening::new(m.grid(), scale)
+                        .and_then(|k| k.medium(m))
+                        .ok()
+                })
+                .flatten();
+            let runs = methods::emitter_pass_decision(coarse.as_ref().unwrap_or(m), 0)
+                .is_ok_and(|(_, pays)| pays);
+            if runs {
                 "uncollided light traced to every cell centre (emitter pass), its first \
                  collision the solve's source"
             } else {
@@ -163,15 +168,15 @@ impl SceneInfo {
         let h = m.grid().cell_size;
         let max_cell_optical_depth = hi * h;
         let scale = budget::transport_scale(scene, &scene.solve);
-        let transport = (scale > 1).then(|| {
-            let dims = m.grid().dims.map(|d| d.div_ceil(scale));
-            TransportInfo {
+        let transport = Coarsening::new(m.grid(), scale)
+            .ok()
+            .filter(|k| k.scale() > 1)
+            .map(|k| TransportInfo {
                 scale,
-                dims,
-                cells: dims.iter().product(),
+                dims: k.coarse().dims,
+                cells: k.coarse().cell_count(),
                 chosen_by_volrad: scene.solve.transport_scale == scene::TransportScale::Auto,
-            }
-        });
+            });
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
             let phase = m.phase();
             let options = DirectionBins::with_count(scene.solve.bins)

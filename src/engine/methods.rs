@@ -143,13 +143,27 @@ pub fn emitter_pass_pays(rays_per_cell: f64, cells: usize) -> bool {
     rays_per_cell <= MAX_EMITTER_RAYS_PER_CELL || rays_per_cell * cells as f64 <= MAX_EMITTER_RAYS
 }
 
+/// The emitter pass's estimated rays per cell for channel `c` of `medium` (the grid the solve
+/// runs on), and whether a solve runs the pass at that cost: what [`emitter_pass`] decides and
+/// `volrad info` reports.
+pub fn emitter_pass_decision(medium: &Medium, c: usize) -> Result<(f64, bool)> {
+    let cost = EmitterPass::estimated_rays_per_cell(
+        medium,
+        c,
+        &EmitterPassOptions::default(),
+        EMITTER_COST_SAMPLES,
+    )
+    .context("the emitter pass")?;
+    Ok((cost, emitter_pass_pays(cost, medium.grid().cell_count())))
+}
+
 /// The emitter pass of channel `c` (the emitters' uncollided light, traced to every cell
 /// centre) when the solve method takes it as its first-collision source — the zonal methods
 /// and discrete ordinates —, the channel emits, and the pass's estimated cost is at most
 /// [`MAX_EMITTER_RAYS_PER_CELL`]; `None` otherwise (the emission then goes through the
 /// operator, as its source term).
 pub fn emitter_pass(
-    scene: &Scene,
+    medium: &Medium,
     c: usize,
     settings: &SolveSettings,
     hooks: &SolveHooks,
@@ -158,14 +172,11 @@ pub fn emitter_pass(
         settings.method,
         SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
     );
-    if !uses_it || scene.medium.channels()[c].emission.is_zero() {
+    if !uses_it || medium.channels()[c].emission.is_zero() {
         return Ok(None);
     }
-    let options = EmitterPassOptions::default();
-    let cost =
-        EmitterPass::estimated_rays_per_cell(&scene.medium, c, &options, EMITTER_COST_SAMPLES)
-            .context("the emitter pass")?;
-    if !emitter_pass_pays(cost, scene.medium.grid().cell_count()) {
+    let (cost, pays) = emitter_pass_decision(medium, c)?;
+    if !pays {
         // An extended emitting region (a fire in its smoke): a smooth source, which the
         // operator carries without ray effects, and whose pass would cost far more than the
         // solve.
@@ -178,9 +189,10 @@ pub fn emitter_pass(
     hooks.control.phase(&channel_phase(
         "tracing the emitters' uncollided light",
         c,
-        scene.medium.channels().len(),
+        medium.channels().len(),
     ));
-    let pass = EmitterPass::compute(&scene.medium, c, &options).context("the emitter pass")?;
+    let pass = EmitterPass::compute(medium, c, &EmitterPassOptions::default())
+        .context("the emitter pass")?;
     let report = pass.report();
     tracing::info!(
         emitting_cells = report.emitting_cells,
@@ -204,18 +216,19 @@ pub fn grid_text(grid: &medium::Grid) -> String {
 /// operator carries only scattered light: `g = e + g_s` with
 /// `g_s = S₁ + σs φ_e / 4π + K g_s` instead of `g = S₁ + e + K g`.
 pub fn solve_zonal(
-    scene: &Scene,
+    medium: &Medium,
+    environment: Option<&Environment>,
     c: usize,
     light_pass: &LightPass,
     emitters: Option<&EmitterPass>,
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
-    let channel = &scene.medium.channels()[c];
+    let channel = &medium.channels()[c];
     // The lights' first bounce is the render's exact single scattering; the environment's is
     // smooth in direction and stays in the solved source (`higher_order` keeps it).
     let light_source = light_pass
-        .zonal_source(&scene.medium, c)
+        .zonal_source(medium, c)
         .with_context(|| format!("zonal source of channel {c}"))?;
     if channel.albedo.max() == 0.0 {
         // Nothing scatters: the source is the answer (g = E), whatever the iteration — the
@@ -231,18 +244,18 @@ pub fn solve_zonal(
             )),
         ));
     }
-    let channels = scene.medium.channels().len();
+    let channels = medium.channels().len();
     let op: Box<dyn TransportOperator> = match settings.method {
         SolveMethod::Zonal => {
             hooks.control.phase(&channel_phase(
                 &format!(
                     "building the exact form factors ({})",
-                    grid_text(scene.medium.grid())
+                    grid_text(medium.grid())
                 ),
                 c,
                 channels,
             ));
-            let op = FormFactorMatrix::build(&scene.medium, c, &ExactOptions::default(), None)
+            let op = FormFactorMatrix::build(medium, c, &ExactOptions::default(), None)
                 .context("building the exact form factors")?;
             tracing::info!(
                 entries = op.report().entries,
@@ -255,13 +268,13 @@ pub fn solve_zonal(
             hooks.control.phase(&channel_phase(
                 &format!(
                     "building the hierarchical form factors ({})",
-                    grid_text(scene.medium.grid())
+                    grid_text(medium.grid())
                 ),
                 c,
                 channels,
             ));
             let op = HierarchicalOperator::build(
-                &scene.medium,
+                medium,
                 c,
                 &HierarchicalOptions {
                     tolerance: HIERARCHY_TOLERANCE,
@@ -284,8 +297,8 @@ pub fn solve_zonal(
             *s += channel.sigma_s(i) as f64 * phi / (4.0 * PI) - channel.emission.get(i) as f64;
         }
     }
-    if let Some(env) = scene.environment.as_ref().filter(|e| !e.is_dark()) {
-        add_zonal_environment(&mut source, env, scene, c, op.as_ref())?;
+    if let Some(env) = environment.filter(|e| !e.is_dark()) {
+        add_zonal_environment(&mut source, env, medium, c, op.as_ref())?;
     }
     let (mut g, report) = run_solver(op.as_ref(), &source, settings, hooks)?;
     if emitters.is_some() {
@@ -311,12 +324,12 @@ pub fn solve_zonal(
 fn add_zonal_environment(
     source: &mut [f64],
     env: &Environment,
-    scene: &Scene,
+    medium: &Medium,
     c: usize,
     op: &dyn TransportOperator,
 ) -> Result<()> {
-    let channel = &scene.medium.channels()[c];
-    let channels = scene.medium.channels().len();
+    let channel = &medium.channels()[c];
+    let channels = medium.channels().len();
     if env.uniform_radiance().is_some() {
         // A uniform environment by reciprocity: the light it sends into cell i is what cell i
         // would send out uncollided, `E_i = L (a_i σt_i − (K σt)_i)` (a non-absorbing medium
@@ -335,7 +348,7 @@ fn add_zonal_environment(
     let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
     let fluence = env
         .uncollided_fluence(
-            scene.medium.grid(),
+            medium.grid(),
             &channel.sigma_t,
             (c, channels),
             bins.centres(),
@@ -368,7 +381,8 @@ pub fn ordinates_options(
 /// emission's first collision, from the pass, is the external density instead of `e`, and is
 /// what the render adds as its first scattering.
 pub fn solve_ordinates(
-    scene: &Scene,
+    medium: &Medium,
+    environment: Option<&Environment>,
     c: usize,
     light_pass: &LightPass,
     emitters: Option<&EmitterPass>,
@@ -376,18 +390,18 @@ pub fn solve_ordinates(
     hooks: &SolveHooks,
 ) -> Result<(ScatteredField, Option<SolveReport>)> {
     let bins = DirectionBins::with_count(settings.bins)?;
-    let options = ordinates_options(settings, &bins, &scene.medium.phase());
-    let channels = scene.medium.channels().len();
+    let options = ordinates_options(settings, &bins, &medium.phase());
+    let channels = medium.channels().len();
     hooks.control.phase(&channel_phase(
         &format!(
             "preparing the transport sweeps ({} × {} bins)",
-            grid_text(scene.medium.grid()),
+            grid_text(medium.grid()),
             bins.len()
         ),
         c,
         channels,
     ));
-    let op = OrdinatesOperator::new(&scene.medium, c, bins, options)?;
+    let op = OrdinatesOperator::new(medium, c, bins, options)?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source
     // (with an emitter pass, the emission's first collision S_e in place of e).
     let external = match emitters {
@@ -404,9 +418,9 @@ pub fn solve_ordinates(
     // (so a non-absorbing medium holds L everywhere: the white furnace). Its scattering K ψ
     // joins the source, and ψ what the render's final bounce scatters: its first bounce is
     // smooth in direction, so the bins carry it rather than the render's single scattering.
-    let uncollided = match scene.environment.as_ref().filter(|e| !e.is_dark()) {
+    let uncollided = match environment.filter(|e| !e.is_dark()) {
         Some(env) => {
-            let channels = scene.medium.channels().len();
+            let channels = medium.channels().len();
             let psi = op.inflow_radiance(|d| env.radiance_along(d, c, channels));
             let mut scattered = vec![0.0; op.len()];
             op.apply(&psi, &mut scattered);
@@ -694,24 +708,18 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let unscattered = ch.light_pass.total_cell_irradiance();
     let transport = &solution.transport;
     if transport.scale() == 1 {
-        return fluence_on(&solution.medium, c, ch, unscattered, &solution.bins);
+        return fluence_on(&solution.medium, c, ch, &unscattered, &solution.bins);
     }
     let cache = ch.render_cache.transport(&solution.medium, transport, c)?;
     let coarse_pass = transport
         .light_pass(&solution.medium, c, &ch.light_pass, &cache.medium)
         .context("the light pass on the transport grid")?;
     let coarse_unscattered = coarse_pass.total_cell_irradiance();
-    let collided: Vec<f64> = fluence_on(
-        &cache.medium,
-        c,
-        ch,
-        coarse_unscattered.clone(),
-        &solution.bins,
-    )?
-    .iter()
-    .zip(&coarse_unscattered)
-    .map(|(f, u)| f - u)
-    .collect();
+    let collided: Vec<f64> = fluence_on(&cache.medium, c, ch, &coarse_unscattered, &solution.bins)?
+        .iter()
+        .zip(&coarse_unscattered)
+        .map(|(f, u)| f - u)
+        .collect();
     let grid = solution.medium.grid();
     Ok(unscattered
         .par_iter()
@@ -729,7 +737,7 @@ fn fluence_on(
     medium: &Medium,
     c: usize,
     ch: &ChannelSolution,
-    unscattered: Vec<f64>,
+    unscattered: &[f64],
     bins: &Option<StoredBins>,
 ) -> Result<Vec<f64>> {
     let m = &medium.channels()[c];

@@ -74,17 +74,18 @@ pub fn solve_scene(
         medium.grid(),
         crate::engine::budget::transport_scale(scene, settings),
     )?;
-    let coarse_scene = if transport.scale() > 1 {
+    let coarse_medium = if transport.scale() > 1 {
         tracing::info!(
             scale = transport.scale(),
             dims = ?transport.coarse().dims,
             "solving multiple scattering on a coarser transport grid"
         );
-        Some(on_medium(scene, transport.medium(medium)?))
+        Some(transport.medium(medium)?)
     } else {
         None
     };
-    let transport_scene = coarse_scene.as_ref().unwrap_or(scene);
+    let transport_medium = coarse_medium.as_ref().unwrap_or(medium);
+    let environment = scene.environment.as_ref();
     let mut channels = Vec::with_capacity(medium.channels().len());
     for c in 0..medium.channels().len() {
         let span = tracing::info_span!("channel", c);
@@ -99,17 +100,18 @@ pub fn solve_scene(
         ));
         let light_pass = LightPass::compute(medium, c, &scene.lights)
             .with_context(|| format!("light pass of channel {c}"))?;
-        let coarse_pass = match &coarse_scene {
-            Some(coarse) => Some(transport.light_pass(medium, c, &light_pass, &coarse.medium)?),
+        let coarse_pass = match &coarse_medium {
+            Some(coarse) => Some(transport.light_pass(medium, c, &light_pass, coarse)?),
             None => None,
         };
         let transport_pass = coarse_pass.as_ref().unwrap_or(&light_pass);
-        let emitters = crate::engine::methods::emitter_pass(transport_scene, c, settings, hooks)?;
+        let emitters = crate::engine::methods::emitter_pass(transport_medium, c, settings, hooks)?;
         let (scattered, report) = match settings.method {
             SolveMethod::None | SolveMethod::SingleScatter => (ScatteredField::None, None),
             SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
                 crate::engine::methods::solve_zonal(
-                    transport_scene,
+                    transport_medium,
+                    environment,
                     c,
                     transport_pass,
                     emitters.as_ref(),
@@ -118,7 +120,8 @@ pub fn solve_scene(
                 )?
             }
             SolveMethod::DiscreteOrdinates => crate::engine::methods::solve_ordinates(
-                transport_scene,
+                transport_medium,
+                environment,
                 c,
                 transport_pass,
                 emitters.as_ref(),
@@ -151,22 +154,6 @@ pub fn solve_scene(
         transport,
         channels,
     })
-}
-
-/// `scene` with `medium` in place of its own (the transport grid's), for the solvers.
-fn on_medium(scene: &Scene, medium: Medium) -> Scene {
-    Scene {
-        medium,
-        lights: scene.lights.clone(),
-        environment: scene.environment,
-        background: scene.background,
-        solve: scene.solve.clone(),
-        render: scene.render.clone(),
-        cameras: scene.cameras.clone(),
-        origin: scene.origin.clone(),
-        source: scene.source.clone(),
-        placement: scene.placement.clone(),
-    }
 }
 
 /// `what` of channel `c`, naming the channel only when there are several.

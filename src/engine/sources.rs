@@ -302,9 +302,7 @@ impl LookupCache {
         self.values[slot] = v;
         v
     }
-}
 
-impl LookupCache {
     fn new() -> Box<LookupCache> {
         Box::new(LookupCache {
             key: None,

@@ -80,11 +80,25 @@ impl Coarsening {
         self.coarse.index(i / s, j / s, k / s)
     }
 
-    /// `Σ_{data cells in block} value(cell)` per transport cell.
-    fn block_sums(&self, value: impl Fn(usize) -> f64) -> Vec<f64> {
-        let mut sums = vec![0.0f64; self.coarse.cell_count()];
-        for cell in 0..self.fine.cell_count() {
-            sums[self.coarse_cell_of(cell)] += value(cell);
+    /// `Σ_{data cells in block} value(cell)` per transport cell, for `N` quantities at once:
+    /// one pass over the data grid, rows mapped to blocks without a division per cell.
+    fn block_sums<const N: usize>(&self, value: impl Fn(usize) -> [f64; N]) -> Vec<[f64; N]> {
+        let mut sums = vec![[0.0f64; N]; self.coarse.cell_count()];
+        let [nx, ny, nz] = self.fine.dims;
+        let s = self.scale;
+        let mut cell = 0;
+        for k in 0..nz {
+            for j in 0..ny {
+                let row = self.coarse.index(0, j / s, k / s);
+                for i in 0..nx {
+                    let v = value(cell);
+                    let sum = &mut sums[row + i / s];
+                    for (a, b) in sum.iter_mut().zip(v) {
+                        *a += b;
+                    }
+                    cell += 1;
+                }
+            }
         }
         sums
     }
@@ -105,40 +119,36 @@ impl Coarsening {
             .channels()
             .iter()
             .map(|ch| {
-                let sigma_t = self.block_sums(|i| ch.sigma_t[i] as f64);
+                // Per block: Σσt, Σσs, Σe.
+                let sums = self.block_sums(|i| {
+                    [
+                        ch.sigma_t[i] as f64,
+                        ch.sigma_s(i) as f64,
+                        ch.emission.get(i) as f64,
+                    ]
+                });
                 let albedo = match &ch.albedo {
                     CellValues::Uniform(a) => CellValues::Uniform(*a),
-                    CellValues::PerCell(_) => {
-                        let sigma_s = self.block_sums(|i| ch.sigma_s(i) as f64);
-                        CellValues::PerCell(
-                            sigma_t
-                                .iter()
-                                .zip(&sigma_s)
-                                .map(|(&t, &s)| {
-                                    if t > 0.0 {
-                                        (s / t).clamp(0.0, 1.0) as f32
-                                    } else {
-                                        0.0
-                                    }
-                                })
-                                .collect(),
-                        )
-                    }
-                };
-                let emission = match &ch.emission {
-                    CellValues::Uniform(e) => CellValues::Uniform(*e),
-                    CellValues::PerCell(e) => CellValues::PerCell(
-                        self.block_sums(|i| e[i] as f64)
-                            .into_iter()
-                            .map(|v| (v * per_block) as f32)
+                    CellValues::PerCell(_) => CellValues::PerCell(
+                        sums.iter()
+                            .map(|&[t, s, _]| {
+                                if t > 0.0 {
+                                    (s / t).clamp(0.0, 1.0) as f32
+                                } else {
+                                    0.0
+                                }
+                            })
                             .collect(),
                     ),
                 };
+                let emission = match &ch.emission {
+                    CellValues::Uniform(e) => CellValues::Uniform(*e),
+                    CellValues::PerCell(_) => CellValues::PerCell(
+                        sums.iter().map(|v| (v[2] * per_block) as f32).collect(),
+                    ),
+                };
                 ChannelMedium {
-                    sigma_t: sigma_t
-                        .into_iter()
-                        .map(|v| (v * per_block) as f32)
-                        .collect(),
+                    sigma_t: sums.iter().map(|v| (v[0] * per_block) as f32).collect(),
                     albedo,
                     emission,
                 }
@@ -179,26 +189,28 @@ impl Coarsening {
                 format!("channel {c} does not exist"),
             ));
         };
-        let sigma_s = self.block_sums(|i| ch.sigma_s(i) as f64);
-        let sigma_t = self.block_sums(|i| ch.sigma_t[i] as f64);
-        let count = self.block_sums(|_| 1.0);
+        // Per block: Σσs, Σσt and the data cells in it.
+        let weights = self.block_sums(|i| [ch.sigma_s(i) as f64, ch.sigma_t[i] as f64, 1.0]);
         let volume = self.coarse.cell_volume();
         let fields = pass
             .fields
             .iter()
             .map(|f| {
                 let e = &f.cell_irradiance;
-                let by_s = self.block_sums(|i| ch.sigma_s(i) as f64 * e[i] as f64);
-                let by_t = self.block_sums(|i| ch.sigma_t[i] as f64 * e[i] as f64);
-                let plain = self.block_sums(|i| e[i] as f64);
-                let cell_irradiance: Vec<f32> = (0..self.coarse.cell_count())
-                    .map(|o| {
-                        let v = if sigma_s[o] > 0.0 {
-                            by_s[o] / sigma_s[o]
-                        } else if sigma_t[o] > 0.0 {
-                            by_t[o] / sigma_t[o]
+                let weighted = self.block_sums(|i| {
+                    let e = e[i] as f64;
+                    [ch.sigma_s(i) as f64 * e, ch.sigma_t[i] as f64 * e, e]
+                });
+                let cell_irradiance: Vec<f32> = weighted
+                    .iter()
+                    .zip(&weights)
+                    .map(|(by, &[s, t, count])| {
+                        let v = if s > 0.0 {
+                            by[0] / s
+                        } else if t > 0.0 {
+                            by[1] / t
                         } else {
-                            plain[o] / count[o]
+                            by[2] / count
                         };
                         v as f32
                     })
