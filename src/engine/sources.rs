@@ -6,9 +6,9 @@
 use anyhow::Result;
 use formfactor::ordinates::bins::{face_bilinear, interpolate_with};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
-use gather::{InScattering, OpticalModel, RayCarry, Trilinear, ViewSegment};
+use gather::{InScattering, OpticalModel, RayCarry, StepSample, Trilinear, ViewSegment};
 use glam::DVec3;
-use medium::{ChannelMedium, Grid, Interpolation, Medium};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium};
 
 use crate::engine::solution::{ChannelSolution, ScatteredField, Solution};
 
@@ -62,6 +62,70 @@ impl TransportLattice<'_> {
             0.0
         }
     }
+
+    /// [`at`](Self::at) through `block`, which keeps the 8 transport cells' `Q/σs` around
+    /// the last point: a ray's steps stay between the same 8 centres for several steps
+    /// (`2s` at half a data cell per step), so their values are read once, not once per step.
+    #[inline]
+    fn at_block(
+        &self,
+        x: DVec3,
+        sigma_s: f64,
+        block: &mut Block,
+        tag: (u64, u64),
+        mut value: impl FnMut(usize) -> f64,
+    ) -> f64 {
+        if sigma_s <= 0.0 {
+            return 0.0;
+        }
+        let corners = Trilinear::new(&self.coarse, x);
+        let cells = corners.cells();
+        let key = (tag.0, tag.1, cells[0], cells[7]);
+        if block.key != Some(key) {
+            block.key = Some(key);
+            for (k, &o) in cells.iter().enumerate() {
+                let inv = self.inverse_sigma_s[o] as f64;
+                (block.ratio[k], block.scatters[k]) = if inv > 0.0 {
+                    (value(o) * inv, 1.0)
+                } else {
+                    (0.0, 0.0)
+                };
+            }
+        }
+        let weights = corners.weights();
+        let (mut sum, mut weight) = (0.0, 0.0);
+        for ((w, r), m) in weights.iter().zip(&block.ratio).zip(&block.scatters) {
+            sum += w * r;
+            weight += w * m;
+        }
+        if weight > 0.0 {
+            sigma_s * sum / weight
+        } else {
+            0.0
+        }
+    }
+
+    /// The data grid's σs at a step: the renderer's σt times a uniform albedo, else
+    /// interpolated from the cells' own σs.
+    #[inline]
+    fn sigma_s_at(&self, step: &StepSample, trilinear: bool) -> f64 {
+        match (&self.channel.albedo, trilinear) {
+            (CellValues::Uniform(a), true) => *a as f64 * step.sigma_t,
+            (_, true) => step.corners.sample(|i| self.channel.sigma_s(i) as f64),
+            (_, false) => self.channel.sigma_s(step.corners.cell()) as f64,
+        }
+    }
+}
+
+/// The transport cells' `Q/σs` (0 where a cell does not scatter) and whether each scatters
+/// (1 or 0), at the 8 corners of one block of [`Trilinear::cells`], for one source and
+/// direction.
+#[derive(Clone, Copy)]
+struct Block {
+    /// `(generation, source, first corner, last corner)` the values are of.
+    key: Option<(u64, u64, usize, usize)>,
+    ratio: [f64; 8],
+    scatters: [f64; 8],
 }
 
 impl<'a> CellLattice<'a> {
@@ -114,26 +178,16 @@ impl<'a> CellLattice<'a> {
         }
     }
 
-    /// [`at`](Self::at) with the neighbours the renderer found.
+    /// [`at`](Self::at) with what the renderer found at its step.
     #[inline]
-    fn at_corners(
-        &self,
-        x: DVec3,
-        corners: &Trilinear,
-        mut value: impl FnMut(usize) -> f64,
-    ) -> f64 {
+    fn at_step(&self, step: &StepSample, mut value: impl FnMut(usize) -> f64) -> f64 {
         if let Some(t) = &self.transport {
-            let sigma_s = if self.trilinear {
-                corners.sample(|i| t.channel.sigma_s(i) as f64)
-            } else {
-                t.channel.sigma_s(corners.cell()) as f64
-            };
-            return t.at(x, sigma_s, value);
+            return t.at(step.x, t.sigma_s_at(step, self.trilinear), value);
         }
         if self.trilinear {
-            corners.source(self.sigma_t, value)
+            step.corners.source(self.sigma_t, value)
         } else {
-            value(corners.cell())
+            value(step.corners.cell())
         }
     }
 
@@ -197,9 +251,8 @@ impl InScattering for CellSource<'_> {
         self.lattice.at(x, cell, |c| self.values[c] as f64)
     }
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, _w: DVec3) -> f64 {
-        self.lattice
-            .at_corners(x, corners, |c| self.values[c] as f64)
+    fn at_step(&self, step: &StepSample, _w: DVec3) -> f64 {
+        self.lattice.at_step(step, |c| self.values[c] as f64)
     }
     fn max_source(&self) -> f64 {
         self.max
@@ -265,32 +318,35 @@ const LOOKUP_SLOTS: usize = 256;
 /// cell; an entry also names its source, so the channels of one ray share it, and the
 /// direction it was made for (a generation count, so a new ray empties nothing).
 struct LookupCache {
-    /// The direction and bin count of the current generation.
-    key: Option<([u64; 3], usize)>,
+    /// The direction and bin count of the current generation (NaN before the first).
+    key: (DVec3, usize),
     generation: u64,
     weights: [(usize, f64); 4],
+    cells: CellSlots,
+    /// The last block of transport cells read per source (by its id modulo [`BLOCKS`]).
+    blocks: [Block; BLOCKS],
+}
+
+/// Blocks of [`LookupCache`]: one per source of a ray's channels, up to this many.
+const BLOCKS: usize = 4;
+
+/// Direct-mapped per-cell values of [`LookupCache`].
+struct CellSlots {
     /// `(generation, source, cell)` per slot (`source`: the [`BinnedSource`]'s id).
     tags: [(u64, u64, usize); LOOKUP_SLOTS],
     values: [f64; LOOKUP_SLOTS],
 }
 
-impl LookupCache {
-    /// The bin weights of direction `w` for `n²` bins per face; a direction other than the
-    /// last call's starts a new generation.
+impl CellSlots {
     #[inline]
-    fn direction(&mut self, n: usize, w: DVec3) -> [(usize, f64); 4] {
-        let key = (w.to_array().map(f64::to_bits), n);
-        if self.key != Some(key) {
-            self.key = Some(key);
-            self.generation += 1;
-            self.weights = face_bilinear(n, w);
-        }
-        self.weights
-    }
-
-    #[inline]
-    fn get(&mut self, source: u64, cell: usize, value: impl FnOnce() -> f64) -> f64 {
-        let tag = (self.generation, source, cell);
+    fn get(
+        &mut self,
+        generation: u64,
+        source: u64,
+        cell: usize,
+        value: impl FnOnce() -> f64,
+    ) -> f64 {
+        let tag = (generation, source, cell);
         // Fibonacci hashing: neighbours a row or a layer apart land in different slots.
         let hash = (cell as u64 ^ source.rotate_left(29)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
         let slot = (hash >> (64 - LOOKUP_SLOTS.trailing_zeros())) as usize;
@@ -302,14 +358,37 @@ impl LookupCache {
         self.values[slot] = v;
         v
     }
+}
+
+impl LookupCache {
+    /// The bin weights of direction `w` for `n²` bins per face; a direction other than the
+    /// last call's starts a new generation.
+    #[inline]
+    fn direction(&mut self, n: usize, w: DVec3) -> [(usize, f64); 4] {
+        // Compared as floats, not bits (a store and reload of each): the same direction is
+        // the same ray's, and no ray has a NaN direction.
+        if self.key != (w, n) {
+            self.key = (w, n);
+            self.generation += 1;
+            self.weights = face_bilinear(n, w);
+        }
+        self.weights
+    }
 
     fn new() -> Box<LookupCache> {
         Box::new(LookupCache {
-            key: None,
+            key: (DVec3::NAN, 0),
             generation: 0,
             weights: [(0, 0.0); 4],
-            tags: [(0, 0, 0); LOOKUP_SLOTS],
-            values: [0.0; LOOKUP_SLOTS],
+            cells: CellSlots {
+                tags: [(0, 0, 0); LOOKUP_SLOTS],
+                values: [0.0; LOOKUP_SLOTS],
+            },
+            blocks: [Block {
+                key: None,
+                ratio: [0.0; 8],
+                scatters: [0.0; 8],
+            }; BLOCKS],
         })
     }
 
@@ -338,17 +417,32 @@ impl InScattering for BinnedSource<'_> {
         LookupCache::with(|cache| {
             let weights = cache.direction(self.n, w);
             self.lattice.at(x, cell, |c| {
-                cache.get(self.id, c, || self.lookup_with(c, &weights))
+                cache.cells.get(cache.generation, self.id, c, || {
+                    self.lookup_with(c, &weights)
+                })
             })
         })
     }
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
         LookupCache::with(|cache| {
             let weights = cache.direction(self.n, w);
-            self.lattice.at_corners(x, corners, |c| {
-                cache.get(self.id, c, || self.lookup_with(c, &weights))
-            })
+            let LookupCache {
+                generation,
+                cells,
+                blocks,
+                ..
+            } = cache;
+            let mut value =
+                |c| cells.get(*generation, self.id, c, || self.lookup_with(c, &weights));
+            match &self.lattice.transport {
+                Some(t) => {
+                    let block = &mut blocks[(self.id as usize) % BLOCKS];
+                    let sigma_s = t.sigma_s_at(step, self.lattice.trilinear);
+                    t.at_block(step.x, sigma_s, block, (*generation, self.id), value)
+                }
+                None => self.lattice.at_step(step, &mut value),
+            }
         })
     }
     fn max_source(&self) -> f64 {
@@ -444,7 +538,7 @@ mod tests {
         for x in [0.5, 0.99, 1.3, 2.0, 2.5] {
             let p = DVec3::new(x, 0.5, 0.5);
             assert_eq!(
-                source.at_corners(p, &Trilinear::new(&grid, p), DVec3::X),
+                source.at_step(&StepSample::new(&grid, &sigma_t, p), DVec3::X),
                 at(x)
             );
         }

@@ -32,5 +32,5 @@ pub use render::{
     OPTICAL_MODEL_NAMES,
 };
 pub use scattering::{
-    segment_weight, InScattering, RayCarry, ScatteringSum, UniformSource, ViewSegment,
+    segment_weight, InScattering, RayCarry, ScatteringSum, StepSample, UniformSource, ViewSegment,
 };

@@ -160,12 +160,18 @@ impl DepthLattice {
     /// The trilinear depth at world point `x` inside the grid cell `coords` (what
     /// [`DepthLattice::segment`] interpolates between sub-cell face crossings).
     pub fn depth_at(&self, x: DVec3, coords: [usize; 3]) -> f64 {
+        self.depth_at_with::<false>(x, coords)
+    }
+
+    /// [`DepthLattice::depth_at`], fused multiply-adds where `FMA`.
+    #[inline(always)]
+    pub(crate) fn depth_at_with<const FMA: bool>(&self, x: DVec3, coords: [usize; 3]) -> f64 {
         let r = self.refine;
         let h = self.sub_size * r as f64;
         let lo = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * h;
         let f = (x - lo) * self.inv_sub_size;
         let at = |q: usize| coords[q] * r + (f[q].max(0.0) as usize).min(r - 1);
-        self.corners([at(0), at(1), at(2)]).at::<false>(x)
+        self.corners([at(0), at(1), at(2)]).at::<FMA>(x)
     }
 
     /// Extinction-weighted relative L1 error of this lattice's cell means of `T_L` against the

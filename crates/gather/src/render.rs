@@ -3,7 +3,7 @@
 //! `nearest` media are piecewise constant per cell, so each cell a ray crosses (found by the
 //! exact DDA of [`Grid::traverse`]) contributes the analytic segment integral of physics.md:
 //! `ΔI = T · Q · (1 − e^{−σt Δs}) / σt`, then `T ← T · e^{−σt Δs}`. `trilinear` media are
-//! marched in fixed steps (a fraction of the cell size) of the trilinearly interpolated σt and
+//! marched in fixed steps (half a cell by default) of the trilinearly interpolated σt and
 //! emission, each step integrated with the same formula at its midpoint values. The
 //! background adds `T · I0` at the end.
 //!
@@ -26,7 +26,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::empty_space::EmptySpace;
 use crate::image_io::Image;
-use crate::scattering::{weight_and_attenuation, InScattering, RayCarry, ViewSegment};
+use crate::scattering::{
+    weight_and_attenuation_with, InScattering, RayCarry, StepSample, ViewSegment,
+};
 use crate::{Camera, GatherError};
 
 /// Width of the blocks a task's band of rows is walked in, so that neighbouring rays (which
@@ -112,7 +114,9 @@ pub struct RenderOptions {
     pub background: f64,
     /// An environment seen through the volume instead of `background`, by direction (a sky).
     pub environment: Option<Environment>,
-    /// Step of the `trilinear` march as a fraction of the cell size.
+    /// Step of the `trilinear` march as a fraction of the cell size. Half a cell by default:
+    /// images differ from a sixteenth of a cell's by ≤ 0.11 % RMS on the sample scenes
+    /// (docs/performance.md), at a quarter of the cost.
     pub trilinear_step: f64,
     /// Relative early-termination tolerance (see the module docs); 0 disables it.
     pub termination: f64,
@@ -125,7 +129,7 @@ impl Default for RenderOptions {
             spp: 1,
             background: 0.0,
             environment: None,
-            trilinear_step: 0.25,
+            trilinear_step: 0.5,
             termination: 1e-4,
         }
     }
@@ -222,7 +226,8 @@ pub struct RayIntegrator<'a> {
     index: Cow<'a, RenderIndex>,
     termination: f64,
     step: f64,
-    /// The CPU has FMA: `nearest` rays run [`RayIntegrator::radiance_nearest_fma`].
+    /// The CPU has FMA: rays run [`RayIntegrator::radiance_nearest_fma`] and
+    /// [`RayIntegrator::radiance_trilinear_fma`].
     fma: bool,
 }
 
@@ -313,7 +318,14 @@ impl<'a> RayIntegrator<'a> {
                 }
                 self.radiance_nearest::<false>(ray, t_in, t_out)
             }
-            Interpolation::Trilinear => self.radiance_trilinear(ray, t_in, t_out),
+            Interpolation::Trilinear => {
+                #[cfg(target_arch = "x86_64")]
+                if self.fma {
+                    // SAFETY: `fma` is set only where the CPU has FMA.
+                    return unsafe { self.radiance_trilinear_fma(ray, t_in, t_out) };
+                }
+                self.radiance_trilinear::<false>(ray, t_in, t_out)
+            }
         }
     }
 
@@ -402,7 +414,15 @@ impl<'a> RayIntegrator<'a> {
         radiance + transmittance * self.backdrop(ray)
     }
 
-    fn radiance_trilinear(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
+    /// [`RayIntegrator::radiance_trilinear`] compiled with FMA (its per-step `exp` inlined).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "fma")]
+    fn radiance_trilinear_fma(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
+        self.radiance_trilinear::<true>(ray, t_in, t_out)
+    }
+
+    #[inline(always)]
+    fn radiance_trilinear<const FMA: bool>(&self, ray: &Ray, t_in: f64, t_out: f64) -> f64 {
         let empty = &self.index.empty;
         let length = t_out - t_in;
         let steps = (length / self.step).ceil().max(1.0);
@@ -430,25 +450,73 @@ impl<'a> RayIntegrator<'a> {
                 continue;
             }
             k += 1;
-            let (sigma, mut q) = match (self.use_sigma, self.use_emission) {
-                (true, true) => corners.sample2(self.sigma_t, self.emission),
-                (true, false) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
-                (false, true) => (0.0, corners.sample(|c| self.emission.get(c) as f64)),
-                (false, false) => (0.0, 0.0),
+            // Where the step may be optically thick, the source and σt change too much within
+            // it for one midpoint: split it into pieces of at most `MAX_PIECE_DEPTH` (bounded
+            // by the largest σt of the midpoint's neighbours).
+            let pieces = if self.use_sigma {
+                let sigma_max = corners.max(|c| self.sigma_t[c] as f64);
+                (sigma_max * dt / MAX_PIECE_DEPTH)
+                    .ceil()
+                    .clamp(1.0, MAX_PIECES)
+            } else {
+                1.0
             };
-            if self.use_scattering {
-                q += self.scattering.at_corners(x, &corners, flow);
+            if pieces == 1.0 {
+                let (q, attenuation) = self.piece::<FMA>(x, corners, dt, flow);
+                radiance += transmittance * q;
+                transmittance *= attenuation;
+            } else {
+                let piece = dt / pieces;
+                for j in 0..pieces as usize {
+                    let x = ray.at(t + (j as f64 + 0.5 - 0.5 * pieces) * piece);
+                    let (q, attenuation) =
+                        self.piece::<FMA>(x, Trilinear::new(&self.grid, x), piece, flow);
+                    radiance += transmittance * q;
+                    transmittance *= attenuation;
+                }
             }
-            let (weight, attenuation) = weight_and_attenuation(sigma, dt);
-            radiance += transmittance * q * weight;
-            transmittance *= attenuation;
             if self.can_stop(transmittance, radiance, t + 0.5 * dt, t_out) {
                 return radiance;
             }
         }
         radiance + transmittance * self.backdrop(ray)
     }
+
+    /// One piece of `length` of a `trilinear` march with its midpoint `x` (neighbours
+    /// `corners`): what it adds for unit transmittance before it, and its attenuation.
+    #[inline(always)]
+    fn piece<const FMA: bool>(
+        &self,
+        x: DVec3,
+        corners: Trilinear,
+        length: f64,
+        flow: DVec3,
+    ) -> (f64, f64) {
+        let (sigma, mut q) = match (self.use_sigma, self.use_emission) {
+            (true, true) => corners.sample2(self.sigma_t, self.emission),
+            (true, false) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
+            (false, true) => (0.0, corners.sample(|c| self.emission.get(c) as f64)),
+            (false, false) => (0.0, 0.0),
+        };
+        let (weight, attenuation) = weight_and_attenuation_with::<FMA>(sigma, length);
+        if self.use_scattering {
+            let step = StepSample {
+                x,
+                corners,
+                sigma_t: sigma,
+            };
+            q += self.scattering.at_step(&step, flow);
+        }
+        (q * weight, attenuation)
+    }
 }
+
+/// Largest optical depth of one midpoint sample of a `trilinear` march (bounded by the
+/// largest σt around the step's midpoint): the first bounce changes by `e^{−τ}` across it.
+const MAX_PIECE_DEPTH: f64 = 0.1;
+
+/// Most pieces one step of a `trilinear` march is split into.
+const MAX_PIECES: f64 = 64.0;
 
 /// `max e/σt` over the cells that emit; infinite if one emits with σt = 0.
 fn emission_ratio_max(sigma_t: &[f32], emission: &CellValues) -> f64 {
@@ -524,6 +592,12 @@ impl Trilinear {
         self.cell
     }
 
+    /// The coordinates of [`Trilinear::cell`].
+    #[inline]
+    pub fn coords(&self) -> [usize; 3] {
+        self.coords
+    }
+
     /// The value a source function `j = Q/σt` reconstructs to at the point, times σt there:
     /// `σt(x) · Σ w_c j_c / Σ w_c` over the neighbours with `σt > 0` (`j` is undefined in
     /// empty cells, so they do not pull it to zero; `σt(x)` fades the edges). `value(c)` is the
@@ -545,6 +619,31 @@ impl Trilinear {
         } else {
             0.0
         }
+    }
+
+    /// The 8 neighbours, x fastest then y then z (the order of [`Trilinear::weights`]; a
+    /// neighbour appears twice where the point is past the outermost centres).
+    #[inline]
+    pub fn cells(&self) -> [usize; 8] {
+        std::array::from_fn(|k| {
+            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
+            self.index[0][dx]
+                + self.index[1][dy] * self.strides[1]
+                + self.index[2][dz] * self.strides[2]
+        })
+    }
+
+    /// The trilinear weights of [`Trilinear::cells`].
+    #[inline]
+    pub fn weights(&self) -> [f64; 8] {
+        let w = self.frac.map(|f| [1.0 - f, f]);
+        std::array::from_fn(|k| w[0][k & 1] * w[1][(k >> 1) & 1] * w[2][k >> 2])
+    }
+
+    /// The largest `value` of the 8 neighbours (weight 0 or not).
+    #[inline]
+    pub fn max(&self, mut value: impl FnMut(usize) -> f64) -> f64 {
+        self.cells().into_iter().map(&mut value).fold(0.0, f64::max)
     }
 
     /// Calls `f(cell, weight)` for each neighbour of non-zero weight.

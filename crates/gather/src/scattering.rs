@@ -11,6 +11,7 @@ use glam::DVec3;
 
 use crate::render::Trilinear;
 use medium::traversal::{Ray, Segment};
+use medium::Grid;
 
 /// The part of a view ray inside one cell, as the renderer hands it to the sources, with the
 /// segment's constant-source weight and attenuation already computed (one `exp` shared by
@@ -130,6 +131,29 @@ impl RayCarry {
     }
 }
 
+/// What a `trilinear` render finds at a step's midpoint, shared with the sources so they
+/// need not find it again: the point, its cell-centred neighbours, and the medium's σt
+/// interpolated there.
+pub struct StepSample {
+    pub x: DVec3,
+    pub corners: Trilinear,
+    pub sigma_t: f64,
+}
+
+impl StepSample {
+    /// The sample at `x` of a `trilinear` medium whose extinction per cell is `sigma_t`.
+    #[inline]
+    pub fn new(grid: &Grid, sigma_t: &[f32], x: DVec3) -> Self {
+        let corners = Trilinear::new(grid, x);
+        let sigma_t = corners.sample(|c| sigma_t[c] as f64);
+        StepSample {
+            x,
+            corners,
+            sigma_t,
+        }
+    }
+}
+
 /// Scattered radiance per unit length, `Q_s(x, ω)`, for one colour channel.
 ///
 /// `Q_s = σs · (in-scattered radiance)` vanishes where `σt = 0`, so the renderer never asks
@@ -146,12 +170,12 @@ pub trait InScattering: Sync {
     /// (`= −ray.direction`). Used by `trilinear` renders, which march in fixed steps.
     fn at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3) -> f64;
 
-    /// [`at`](Self::at) with the cell-centred neighbours of `x` the renderer has already
-    /// found (`trilinear` renders find them once per step for σt): sources that reconstruct
-    /// between cells use them instead of finding them again.
+    /// [`at`](Self::at) at a `trilinear` render's step, with what the renderer has already
+    /// found there (the cell-centred neighbours and the interpolated σt): sources that
+    /// reconstruct between cells use them instead of finding them again.
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, view_flow_dir: DVec3) -> f64 {
-        self.at(x, corners.cell(), view_flow_dir)
+    fn at_step(&self, step: &StepSample, view_flow_dir: DVec3) -> f64 {
+        self.at(step.x, step.corners.cell(), view_flow_dir)
     }
 
     /// An upper bound on `Q_s` anywhere in the medium, for any direction. The renderer's
@@ -196,8 +220,8 @@ impl<S: InScattering> InScattering for Option<S> {
         self.as_ref().map_or(0.0, |s| s.at(x, cell, w))
     }
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
-        self.as_ref().map_or(0.0, |s| s.at_corners(x, corners, w))
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
+        self.as_ref().map_or(0.0, |s| s.at_step(step, w))
     }
     fn max_source(&self) -> f64 {
         self.as_ref().map_or(0.0, |s| s.max_source())
@@ -220,8 +244,8 @@ impl<S: InScattering + ?Sized> InScattering for &S {
         (**self).at(x, cell, w)
     }
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
-        (**self).at_corners(x, corners, w)
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
+        (**self).at_step(step, w)
     }
     fn max_source(&self) -> f64 {
         (**self).max_source()
@@ -241,8 +265,8 @@ impl<S: InScattering + ?Sized> InScattering for Box<S> {
         (**self).at(x, cell, w)
     }
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
-        (**self).at_corners(x, corners, w)
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
+        (**self).at_step(step, w)
     }
     fn max_source(&self) -> f64 {
         (**self).max_source()
@@ -274,8 +298,8 @@ impl InScattering for ScatteringSum<'_> {
         self.parts.iter().map(|s| s.at(x, cell, w)).sum()
     }
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
-        self.parts.iter().map(|s| s.at_corners(x, corners, w)).sum()
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
+        self.parts.iter().map(|s| s.at_step(step, w)).sum()
     }
     fn max_source(&self) -> f64 {
         self.parts.iter().map(|s| s.max_source()).sum()
@@ -296,8 +320,8 @@ impl<A: InScattering, B: InScattering> InScattering for (A, B) {
         self.0.at(x, cell, w) + self.1.at(x, cell, w)
     }
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, w: DVec3) -> f64 {
-        self.0.at_corners(x, corners, w) + self.1.at_corners(x, corners, w)
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
+        self.0.at_step(step, w) + self.1.at_step(step, w)
     }
     fn max_source(&self) -> f64 {
         self.0.max_source() + self.1.max_source()

@@ -25,10 +25,10 @@ use medium::{Light, Medium, PhaseFunction};
 
 use std::borrow::Cow;
 
+use crate::exponential::exp;
 use crate::light_depth::{DepthLattice, LightAt};
 pub use crate::light_depth::{LightDepth, LightDepthModel, TRILINEAR_CELL_MEAN_TOLERANCE};
-use crate::render::Trilinear;
-use crate::scattering::{InScattering, RayCarry, ViewSegment};
+use crate::scattering::{InScattering, RayCarry, StepSample, ViewSegment};
 use crate::GatherError;
 
 /// Gauss–Legendre nodes and weights on `[−1, 1]`, for 1 to 6 nodes (tabulated digits).
@@ -255,10 +255,40 @@ impl<'a> SingleScatter<'a> {
     /// `Q1` at `x` in `cell` with extinction `sigma_t` there: every light's first bounce.
     #[inline]
     fn source_at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3, sigma_t: f64) -> f64 {
+        let coords = self.pass.grid.coords(cell);
+        self.source_at_with::<false>(x, cell, coords, view_flow_dir, sigma_t)
+    }
+
+    /// [`SingleScatter::source_at`] in the cell at `coords`, the `exp`s as [`exp`]`::<FMA>`.
+    #[inline(always)]
+    fn source_at_with<const FMA: bool>(
+        &self,
+        x: DVec3,
+        cell: usize,
+        coords: [usize; 3],
+        view_flow_dir: DVec3,
+        sigma_t: f64,
+    ) -> f64 {
         let sigma_s = sigma_t * self.albedo.get(cell) as f64;
         (0..self.pass.fields.len())
-            .map(|l| self.source_from(l, x, cell, view_flow_dir, sigma_s))
+            .map(|l| {
+                let (flow, e) = self.light_at_with::<FMA>(l, x, cell, coords);
+                self.source_of(flow, e, cell, view_flow_dir, sigma_s)
+            })
             .sum()
+    }
+
+    /// [`InScattering::at_step`] compiled with FMA (the light's `exp` inlined).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "fma")]
+    fn at_step_fma(&self, step: &StepSample, view_flow_dir: DVec3) -> f64 {
+        self.source_at_with::<true>(
+            step.x,
+            step.corners.cell(),
+            step.corners.coords(),
+            view_flow_dir,
+            step.sigma_t,
+        )
     }
 
     /// Light `l`'s flow direction and irradiance (times `T_L` with shadows) at `x`. A
@@ -267,11 +297,23 @@ impl<'a> SingleScatter<'a> {
     /// is not, where σt changes steeply from cell to cell) and the more accurate of the two.
     #[inline]
     fn light_at(&self, l: usize, x: DVec3, cell: usize) -> (DVec3, f64) {
+        self.light_at_with::<false>(l, x, cell, self.pass.grid.coords(cell))
+    }
+
+    /// [`SingleScatter::light_at`] in the cell at `coords`, the `exp` as [`exp`]`::<FMA>`.
+    #[inline(always)]
+    fn light_at_with<const FMA: bool>(
+        &self,
+        l: usize,
+        x: DVec3,
+        cell: usize,
+        coords: [usize; 3],
+    ) -> (DVec3, f64) {
         if self.options.shadows {
             if let Some(lattice) = self.depth.lattice(l).filter(|_| self.trilinear) {
                 let (flow, e) = self.pass.unshadowed_at(l, x);
-                let depth = lattice.depth_at(x, self.pass.grid.coords(cell));
-                return (flow, e * (-depth).exp());
+                let depth = lattice.depth_at_with::<FMA>(x, coords);
+                return (flow, e * exp::<FMA>(-depth));
             }
             self.pass.irradiance_at(l, x, cell)
         } else {
@@ -283,6 +325,13 @@ impl<'a> SingleScatter<'a> {
     #[inline]
     fn source_from(&self, l: usize, x: DVec3, cell: usize, w: DVec3, sigma_s: f64) -> f64 {
         let (flow, e) = self.light_at(l, x, cell);
+        self.source_of(flow, e, cell, w, sigma_s)
+    }
+
+    /// The source from light flowing along `flow` with irradiance `e` (shadowed) at a point of
+    /// `cell` with scattering coefficient `sigma_s`, for view flow `w`.
+    #[inline(always)]
+    fn source_of(&self, flow: DVec3, e: f64, cell: usize, w: DVec3, sigma_s: f64) -> f64 {
         if e == 0.0 {
             return 0.0;
         }
@@ -609,20 +658,26 @@ impl InScattering for SingleScatter<'_> {
 
     fn at(&self, x: DVec3, cell: usize, view_flow_dir: DVec3) -> f64 {
         if self.trilinear {
-            return self.at_corners(x, &Trilinear::new(&self.pass.grid, x), view_flow_dir);
+            let step = StepSample::new(&self.pass.grid, self.sigma_t, x);
+            return self.at_step(&step, view_flow_dir);
         }
         self.source_at(x, cell, view_flow_dir, self.sigma_t[cell] as f64)
     }
 
-    /// σs follows σt as the `trilinear` medium is reconstructed at x (the corners the
-    /// renderer found for σt).
+    /// σs follows σt as the `trilinear` medium is reconstructed at x (the renderer's σt
+    /// there).
     #[inline]
-    fn at_corners(&self, x: DVec3, corners: &Trilinear, view_flow_dir: DVec3) -> f64 {
+    fn at_step(&self, step: &StepSample, view_flow_dir: DVec3) -> f64 {
         if !self.trilinear {
-            return self.at(x, corners.cell(), view_flow_dir);
+            return self.at(step.x, step.corners.cell(), view_flow_dir);
         }
-        let sigma_t = corners.sample(|c| self.sigma_t[c] as f64);
-        self.source_at(x, corners.cell(), view_flow_dir, sigma_t)
+        #[cfg(target_arch = "x86_64")]
+        if self.fma {
+            // SAFETY: `fma` is set only where the CPU has FMA.
+            return unsafe { self.at_step_fma(step, view_flow_dir) };
+        }
+        let (cell, coords) = (step.corners.cell(), step.corners.coords());
+        self.source_at_with::<false>(step.x, cell, coords, view_flow_dir, step.sigma_t)
     }
 
     fn max_source(&self) -> f64 {

@@ -680,3 +680,71 @@ fn trilinear_first_bounce_is_continuous_across_cell_faces() {
         "{error} vs exit face {exit_face_error}"
     );
 }
+
+/// The `trilinear` march's default step (half a cell) against a sixty-fourth of a cell, with
+/// the first bounce of a directional light through white-noise σt whose cells run from empty
+/// to optically thick (σt h up to 3), the worst case for a midpoint rule: the march splits
+/// steps that may be thick into pieces of small optical depth. (Fixed quarter-cell steps,
+/// the renderer's default before, were 5 % off here; half-cell steps 18 %.)
+#[test]
+fn the_default_trilinear_step_matches_a_fine_one_in_thick_cells() {
+    let grid = Grid::new([16, 16, 16], 0.5).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let sigma_t: Vec<f32> = (0..grid.cell_count())
+        .map(|_| {
+            if rng.random::<f32>() < 0.3 {
+                0.0
+            } else {
+                6.0 * rng.random::<f32>()
+            }
+        })
+        .collect();
+    let medium = Medium::new(
+        grid,
+        vec![ChannelMedium {
+            sigma_t,
+            albedo: CellValues::Uniform(0.9),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::HenyeyGreenstein { g: 0.6 },
+        Interpolation::Trilinear,
+        None,
+    )
+    .unwrap();
+    let light = Light::Directional {
+        direction: DVec3::new(0.3, -0.5, 0.8).normalize(),
+        irradiance: 1.0,
+    };
+    let pass = LightPass::compute(&medium, 0, &[light]).unwrap();
+    let ss = SingleScatter::new(&medium, 0, &pass, SingleScatterOptions::default()).unwrap();
+    let rays: Vec<Ray> = (0..2000)
+        .map(|_| {
+            let eye = DVec3::new(
+                -6.0,
+                rng.random_range(-2.0..10.0),
+                rng.random_range(-2.0..10.0),
+            );
+            let target = DVec3::new(4.0, rng.random_range(1.0..7.0), rng.random_range(1.0..7.0));
+            Ray::new(eye, target - eye)
+        })
+        .collect();
+    let render = |step: f64| -> Vec<f64> {
+        let opts = RenderOptions {
+            trilinear_step: step,
+            ..options()
+        };
+        let integrator = RayIntegrator::new(&medium, 0, &opts, &ss).unwrap();
+        rays.iter().map(|r| integrator.radiance(r)).collect()
+    };
+    let fine = render(1.0 / 64.0);
+    assert!(fine.iter().filter(|&&v| v > 1e-3).count() > 1000);
+    let default_step = RenderOptions::default().trilinear_step;
+    let (d, n) = render(default_step)
+        .iter()
+        .zip(&fine)
+        .fold((0.0, 0.0), |(d, n), (x, y)| {
+            (d + (x - y) * (x - y), n + y * y)
+        });
+    let error = (d / n).sqrt();
+    assert!(error < 3e-3, "step {default_step}: relative RMS {error}");
+}
