@@ -228,6 +228,9 @@ pub struct SolveArgs {
 
 #[derive(Debug, Args)]
 pub struct ServeArgs {
+    /// Scene files to load at start, named by their file names (solved unless the cache
+    /// holds their solutions); the viewer opens on one of them.
+    pub scenes: Vec<PathBuf>,
     /// Address to listen on.
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: String,

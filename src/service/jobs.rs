@@ -61,6 +61,9 @@ pub(crate) struct Job {
     pub last_used: u64,
     /// A note for people, e.g. that a corrupt cache file was found and is being re-solved.
     pub note: Option<String>,
+    /// What people call it (`?name=` of the upload, a preloaded file's stem); kept while the
+    /// service runs.
+    pub name: Option<String>,
 }
 
 enum WorkerMsg {
@@ -236,6 +239,7 @@ impl Service {
                     file_bytes: bytes,
                     last_used: stamp,
                     note,
+                    name: None,
                 },
             );
         }
@@ -409,6 +413,7 @@ impl Service {
                     file_bytes: found.bytes,
                     last_used: stamp,
                     note: None,
+                    name: None,
                 },
             );
             evict(&mut jobs, cache, self.inner.limits.max_cache_bytes, &id);
@@ -515,11 +520,19 @@ impl Service {
                 file_bytes: 0,
                 last_used: stamp,
                 note: None,
+                name: None,
             },
         );
         drop(jobs);
         self.enqueue(&id);
         Ok((id, true))
+    }
+
+    /// Names scene `id` (no effect if it is unknown).
+    pub fn set_name(&self, id: &str, name: String) {
+        if let Some(job) = self.lock().get_mut(id) {
+            job.name = Some(name);
+        }
     }
 
     /// Cancels a queued or running solve. `None` for an unknown id, else whether there was
@@ -718,6 +731,9 @@ pub(crate) enum SubmitError {
 /// JSON summary of one scene (the body of `GET /v1/scenes/{id}`).
 pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
     let mut v = json!({ "id": id, "state": job.state.name() });
+    if let Some(name) = &job.name {
+        v["name"] = json!(name);
+    }
     match &job.state {
         JobState::Solving {
             phase,

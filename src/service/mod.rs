@@ -242,8 +242,42 @@ pub async fn serve(
     closing_tx.closed().await;
 }
 
+/// A scene file given to `volrad serve`, read before the service starts.
+pub struct Preload {
+    /// The file's stem: the scene's name in lists and the viewer.
+    pub name: String,
+    pub scene: scene::Scene,
+    /// The file's text, stored as an uploaded scene's is.
+    pub text: String,
+}
+
+impl Preload {
+    /// Reads and checks `path` (errors name the file).
+    pub fn read(path: &std::path::Path) -> Result<Preload> {
+        let scene = scene::Scene::from_file(path)?;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| path.display().to_string());
+        let name = routes::check_scene_name(&name).map_err(|e| anyhow::anyhow!(e))?;
+        Ok(Preload { name, scene, text })
+    }
+}
+
 /// `volrad serve`: serves until Ctrl-C.
 pub fn run(config: ServiceConfig, addr: &str, quiet: bool) -> Result<()> {
+    run_with(config, addr, quiet, Vec::new())
+}
+
+/// [`run`], first submitting `preload` (solved in order unless the cache holds them).
+pub fn run_with(
+    config: ServiceConfig,
+    addr: &str,
+    quiet: bool,
+    preload: Vec<Preload>,
+) -> Result<()> {
     // A write beyond the file-size limit (RLIMIT_FSIZE: `ulimit -f`, a container's or a
     // supervisor's limit) raises SIGXFSZ, whose default action kills the process: every
     // client would lose the server, and solves in progress, over one large solution file.
@@ -254,6 +288,21 @@ pub fn run(config: ServiceConfig, addr: &str, quiet: bool) -> Result<()> {
         libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
     let service = Service::open(config.clone())?;
+    for p in preload {
+        crate::engine::budget::check_solve(
+            &p.scene,
+            &p.scene.solve,
+            Some(service.solve_memory_limit()),
+        )
+        .with_context(|| format!("scene `{}`", p.name))?;
+        let (id, _) = service.submit(p.scene, &p.text).map_err(|e| match e {
+            jobs::SubmitError::TooMany(n) => {
+                anyhow::anyhow!("scene `{}`: the cache already holds {n} scenes", p.name)
+            }
+            jobs::SubmitError::Storage(m) => anyhow::anyhow!("scene `{}`: {m}", p.name),
+        })?;
+        service.set_name(&id, p.name);
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -299,5 +348,11 @@ pub fn run_cli(args: &crate::cli::ServeArgs, quiet: bool, max_memory: Option<u64
     if let Some(n) = args.render_slots {
         config.render_slots = n.max(1);
     }
-    run(config, &args.addr, quiet)
+    // Scene files are read and checked before anything starts.
+    let preload = args
+        .scenes
+        .iter()
+        .map(|p| Preload::read(p))
+        .collect::<Result<Vec<_>>>()?;
+    run_with(config, &args.addr, quiet, preload)
 }

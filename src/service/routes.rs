@@ -151,12 +151,20 @@ pub fn query_from_str(query: &str) -> ApiResult<HashMap<String, String>> {
         .map_err(|e| ApiError::bad(format!("malformed query string: {e}")))
 }
 
-/// `POST /v1/scenes`: TOML (default) or JSON (`Content-Type: application/json`) scene text.
+/// `POST /v1/scenes[?name=NAME]`: TOML (default) or JSON (`Content-Type: application/json`)
+/// scene text; `name` is what lists and the viewer call it.
 async fn post_scene(
     State(service): State<Service>,
     headers: HeaderMap,
+    q: RawQuery,
     body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Response> {
+    let q = query_map(q)?;
+    refuse_unknown_parameters(&q, &["name"])?;
+    let name = q
+        .get("name")
+        .map(|n| check_scene_name(n).map_err(ApiError::bad))
+        .transpose()?;
     let body = body_bytes(body)?;
     let is_json = headers
         .get(header::CONTENT_TYPE)
@@ -214,6 +222,9 @@ async fn post_scene(
         ),
         SubmitError::Storage(m) => ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, m),
     })?;
+    if let Some(name) = name {
+        service.set_name(&id, name);
+    }
     let jobs = service.lock();
     let mut v = jobs
         .get(&id)
@@ -703,6 +714,18 @@ const RENDER_PARAMETERS: [&str; 10] = [
     "camera", "eye", "target", "up", "fov", "width", "height", "spp", "exposure", "format",
 ];
 
+/// A scene's display name: 1 to 64 characters, none of them control characters.
+pub(crate) fn check_scene_name(name: &str) -> Result<String, String> {
+    let n = name.chars().count();
+    if n == 0 || n > 64 || name.chars().any(char::is_control) {
+        return Err(format!(
+            "name: `{}` is not 1 to 64 characters without control characters",
+            name.escape_debug()
+        ));
+    }
+    Ok(name.to_string())
+}
+
 /// Refuses query parameters the endpoint does not read, naming them and the ones it does,
 /// rather than answering as if they were not there.
 fn refuse_unknown_parameters(q: &HashMap<String, String>, known: &[&str]) -> ApiResult<()> {
@@ -762,6 +785,7 @@ async fn render(
     }
     let exposure = exposure.or(solution.render.exposure);
     let queued_at = std::time::Instant::now();
+    let auto_exposure = exposure.is_none();
     let waiting = WaitingRender::enter(&service)?;
     let permit = Arc::clone(&service.inner.render_slots)
         .acquire_owned()
@@ -773,19 +797,17 @@ async fn render(
             )
         })?;
     drop(waiting);
-    let (encoded, timing) =
-        tokio::task::spawn_blocking(move || -> Result<(Vec<u8>, String), String> {
+    let (encoded, timing, used_exposure) =
+        tokio::task::spawn_blocking(move || -> Result<(Vec<u8>, String, f64), String> {
             let _permit = permit;
             let t0 = std::time::Instant::now();
             let wait_ms = (t0 - queued_at).as_secs_f64() * 1e3;
             let image = crate::engine::pipeline::render_view(&solution, &camera, spp)
                 .map_err(|e| format!("{e:#}"))?;
             let t1 = std::time::Instant::now();
+            let exposure = exposure.unwrap_or_else(|| gather::auto_exposure(&image));
             let bytes = match format {
-                RenderFormat::Png => encode_png(
-                    &image,
-                    exposure.unwrap_or_else(|| gather::auto_exposure(&image)),
-                )?,
+                RenderFormat::Png => encode_png(&image, exposure)?,
                 RenderFormat::Pfm => {
                     let mut out = Vec::new();
                     image.write_pfm_to(&mut out).map_err(|e| e.to_string())?;
@@ -799,7 +821,7 @@ async fn render(
                 ms(t0, t1),
                 ms(t1, std::time::Instant::now())
             );
-            Ok((bytes, timing))
+            Ok((bytes, timing, exposure))
         })
         .await
         .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "the renderer panicked"))?
@@ -813,6 +835,16 @@ async fn render(
             (header::CONTENT_TYPE, content_type.to_string()),
             (header::CACHE_CONTROL, "no-store".to_string()),
             (header::HeaderName::from_static("server-timing"), timing),
+            // The exposure a PNG was made with (automatic when the request and the scene
+            // give none), so a client can offer to adjust it from there.
+            (
+                header::HeaderName::from_static("x-volrad-exposure"),
+                format!("{used_exposure}"),
+            ),
+            (
+                header::HeaderName::from_static("x-volrad-exposure-source"),
+                if auto_exposure { "auto" } else { "given" }.to_string(),
+            ),
         ],
         encoded,
     )

@@ -698,3 +698,32 @@ bins = 384
     let o = volrad(&["--max-memory", "lots", "solve", s(&scene), "-o", s(&out)]);
     assert!(!o.status.success() && stderr(&o).contains("expected a size"));
 }
+
+/// `volrad serve` reads and checks the scene files it is given before it binds: a missing
+/// file or a bad scene is refused naming it, and nothing starts listening.
+#[test]
+fn serve_checks_its_scene_files_before_starting() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.toml");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[volume]\ngenerator = { kind = \"cloud\", seed = 1 }\ndims = [4, 4, 4]\n[medium]\nalbedo = 2.0\n",
+    )
+    .unwrap();
+    let cache = dir.path().join("cache");
+    for (file, mentions) in [(&missing, "missing.toml"), (&bad, "albedo")] {
+        let out = volrad(&[
+            "serve",
+            s(file),
+            "--addr",
+            "127.0.0.1:0",
+            "--cache",
+            s(&cache),
+        ]);
+        assert!(!out.status.success());
+        let err = stderr(&out);
+        assert!(err.contains(mentions), "{err}");
+        assert!(!err.contains("http://"), "started anyway: {err}");
+    }
+}

@@ -788,3 +788,46 @@ fn volumes_upload_in_every_format_the_command_line_reads() {
     );
     server.stop();
 }
+
+/// A scene posted with `?name=` is listed and described by that name; a bad name or another
+/// parameter is refused naming it; a PNG says the exposure it was made with, and whether the
+/// service chose it (what the viewer's exposure slider starts from).
+#[test]
+fn named_scenes_and_the_exposure_of_each_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let text = scene(11, 0.9).replace("[render]\nexposure = 4.0\n", "");
+    let post = |query: &str| {
+        request(
+            addr,
+            "POST",
+            &format!("/v1/scenes{query}"),
+            Some("application/toml"),
+            text.as_bytes(),
+        )
+        .unwrap()
+    };
+    assert_error(&post("?name="), 400, "name");
+    assert_error(&post("?name=a%0Ab"), 400, "name");
+    assert_error(&post("?nmae=cloud"), 400, "nmae");
+    let r = post("?name=small%20cloud");
+    assert_eq!(r.status, 202, "{}", r.text());
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_finished(addr, &id)["name"], "small cloud");
+    let list = get(addr, "/v1/scenes").unwrap().json();
+    assert_eq!(list["scenes"][0]["name"], "small cloud", "{list}");
+
+    let auto = get(addr, &format!("/v1/scenes/{id}/render?width=32&height=24")).unwrap();
+    assert_eq!(auto.status, 200, "{}", auto.text());
+    assert_eq!(auto.header("x-volrad-exposure-source"), Some("auto"));
+    let chosen: f64 = auto.header("x-volrad-exposure").unwrap().parse().unwrap();
+    assert!(chosen.is_finite() && chosen > 0.0, "{chosen}");
+    let given = get(
+        addr,
+        &format!("/v1/scenes/{id}/render?width=32&height=24&exposure=2.5"),
+    )
+    .unwrap();
+    assert_eq!(given.header("x-volrad-exposure-source"), Some("given"));
+    assert_eq!(given.header("x-volrad-exposure"), Some("2.5"));
+}

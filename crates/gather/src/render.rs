@@ -114,9 +114,9 @@ pub struct RenderOptions {
     pub background: f64,
     /// An environment seen through the volume instead of `background`, by direction (a sky).
     pub environment: Option<Environment>,
-    /// Step of the `trilinear` march as a fraction of the cell size. Half a cell by default:
-    /// images differ from a sixteenth of a cell's by ≤ 0.11 % RMS on the sample scenes
-    /// (docs/performance.md), at a quarter of the cost.
+    /// Step of the `trilinear` march as a fraction of the cell size (steps that may be
+    /// optically thick are split further). Half a cell by default: images of the sample scenes
+    /// differ from an eighth of a cell's by ≤ 0.14 % RMS (docs/performance.md).
     pub trilinear_step: f64,
     /// Relative early-termination tolerance (see the module docs); 0 disables it.
     pub termination: f64,
