@@ -32,6 +32,7 @@ pub mod cache;
 pub mod client;
 pub mod jobs;
 pub mod routes;
+pub mod slice;
 
 use anyhow::{Context, Result};
 use std::future::Future;

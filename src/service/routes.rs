@@ -64,6 +64,7 @@ pub fn router(service: Service) -> Router {
         .route("/v1/scenes/{id}", get(get_scene).delete(delete_scene))
         .route("/v1/scenes/{id}/cancel", post(cancel_scene))
         .route("/v1/scenes/{id}/render", get(render))
+        .route("/v1/scenes/{id}/slice", get(slice))
         .route("/v1/volumes", post(post_volume))
         .fallback(|| async { ApiError::new(StatusCode::NOT_FOUND, "no such route") })
         .layer(DefaultBodyLimit::max(body_limit))
@@ -764,18 +765,7 @@ async fn render(
         exposure,
         camera,
     } = parse_render_query(&q, limits)?;
-    let id = resolve(&service, &id)?;
-    let solution = match service.solution(&id) {
-        Some(s) => s,
-        None => {
-            let state = service.state(&id).ok_or_else(|| ApiError::not_found(&id))?;
-            let why = match state {
-                JobState::Failed { reason } => format!("scene `{id}` has no solution: {reason}"),
-                s => format!("scene `{id}` is {}; render it when it is done", s.name()),
-            };
-            return Err(ApiError::new(StatusCode::CONFLICT, why));
-        }
-    };
+    let solution = solved(&service, &id)?;
     let camera = render_camera(&camera, &solution.cameras, solution.medium.grid(), limits)?;
     if spp.unwrap_or(solution.render.spp) > limits.max_spp {
         return Err(ApiError::bad(format!(
@@ -847,6 +837,102 @@ async fn render(
             ),
         ],
         encoded,
+    )
+        .into_response())
+}
+
+/// The solution of scene `id` (or a unique prefix): 404 when unknown, 409 while it has none.
+fn solved(service: &Service, id: &str) -> ApiResult<Arc<crate::engine::solution::Solution>> {
+    let id = resolve(service, id)?;
+    match service.solution(&id) {
+        Some(s) => Ok(s),
+        None => {
+            let state = service.state(&id).ok_or_else(|| ApiError::not_found(&id))?;
+            let why = match state {
+                JobState::Failed { reason } => format!("scene `{id}` has no solution: {reason}"),
+                s => format!("scene `{id}` is {}; ask again when it is done", s.name()),
+            };
+            Err(ApiError::new(StatusCode::CONFLICT, why))
+        }
+    }
+}
+
+/// `GET /v1/scenes/{id}/slice?field=&axis=&index=&channel=&scale=`: a plane of cells of a
+/// solved field as a colour-mapped PNG ([`super::slice`]); `X-Volrad-Range` gives the values
+/// of the colour map's ends (`none` for a field with no positive value).
+async fn slice(
+    State(service): State<Service>,
+    Path(id): Path<String>,
+    q: RawQuery,
+) -> ApiResult<Response> {
+    use super::slice::{colour, parse_slice_query, plane, range, SLICE_PARAMETERS};
+    let q = query_map(q)?;
+    refuse_unknown_parameters(&q, &SLICE_PARAMETERS)?;
+    let query = parse_slice_query(&q).map_err(ApiError::bad)?;
+    let solution = solved(&service, &id)?;
+    let dims = solution.medium.grid().dims;
+    let axis_name = ["x", "y", "z"][query.axis];
+    let index = query.index.unwrap_or(dims[query.axis] / 2);
+    if index >= dims[query.axis] {
+        return Err(ApiError::bad(format!(
+            "index: {index} is outside the grid's {} cells along {axis_name}",
+            dims[query.axis]
+        )));
+    }
+    if query.channel >= solution.channels.len() {
+        return Err(ApiError::bad(format!(
+            "channel: {} is not one of the solution's {} channel(s)",
+            query.channel,
+            solution.channels.len()
+        )));
+    }
+    // The field comes from the whole solution (fluence interpolates the transport grid): in
+    // a render slot, off the async threads.
+    let waiting = WaitingRender::enter(&service)?;
+    let permit = Arc::clone(&service.inner.render_slots)
+        .acquire_owned()
+        .await
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the server is shutting down",
+            )
+        })?;
+    drop(waiting);
+    let (png, value_range) = tokio::task::spawn_blocking(move || -> Result<_, String> {
+        let _permit = permit;
+        let (values, _units) =
+            crate::engine::methods::export_field(&solution, query.channel, query.field)
+                .map_err(|e| format!("{e:#}"))?;
+        let value_range = range(&values, query.log);
+        let (w, h, cells) = plane(&values, dims, query.axis, index);
+        let rgb = colour(&cells, value_range, query.log);
+        let png = gather::image_io::encode_png(
+            w as u32,
+            h as u32,
+            3,
+            &rgb,
+            gather::PngCompression::Fast,
+        )?;
+        Ok((png, value_range))
+    })
+    .await
+    .map_err(|_| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "the slice panicked"))?
+    .map_err(|e| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e))?;
+    let range_text = match value_range {
+        Some((lo, hi)) => format!("{lo:e} {hi:e}"),
+        None => "none".to_string(),
+    };
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png".to_string()),
+            (header::CACHE_CONTROL, "no-store".to_string()),
+            (
+                header::HeaderName::from_static("x-volrad-range"),
+                range_text,
+            ),
+        ],
+        png,
     )
         .into_response())
 }

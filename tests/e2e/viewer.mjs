@@ -1,8 +1,9 @@
 // End-to-end test of the viewer page of `volrad serve` in a real headless Chromium, one check
 // per feature: it opens on a preloaded scene, rendered; the image keeps the camera's aspect;
 // the scene's cameras can be picked; the URL holds scene and camera and opens the same view;
-// exposure (automatic, then by hand); save; the bounding box and axes; dragging to a free view
-// and back with reset; an upload under a name with its solve report and residual plot.
+// exposure (automatic, then by hand); save; the bounding box and axes; a slice of the fluence;
+// dragging to a free view and back with reset; an upload under a name with its solve report
+// and residual plot.
 // Prints "N passed, M failed".
 //
 //   VOLRAD_BIN=target/debug/volrad CHROMIUM=/usr/bin/chromium node tests/e2e/viewer.mjs [screenshot.png]
@@ -179,6 +180,19 @@ try {
   s = await shown(page);
   check("reset returns to the camera", s.url === before.url && s.camera === "front", JSON.stringify({ before, s }));
 
+  // A slice of the solved fluence: one pixel per cell, its plane drawn over the image; moving
+  // the plane asks for another.
+  await page.selectOption("#sliceField", "fluence");
+  await page.waitForFunction(() => Number(document.getElementById("slice").dataset.slices || 0) >= 1 && document.getElementById("slice").naturalWidth > 0, null, { timeout: 30000 });
+  const sl = await page.evaluate(() => ({ w: document.getElementById("slice").naturalWidth, h: document.getElementById("slice").naturalHeight,
+    plane: document.querySelectorAll("#gizmo line.slice").length, hi: document.getElementById("sliceHi").textContent, url: document.getElementById("slice").dataset.url }));
+  check("a slice of the fluence, its plane drawn", sl.w === 16 && sl.h === 16 && sl.plane === 4 && /e/.test(sl.hi), JSON.stringify(sl));
+  await page.evaluate(() => { const r = document.getElementById("sliceIndex"); r.value = "2"; r.dispatchEvent(new Event("input")); });
+  await page.waitForFunction(() => Number(document.getElementById("slice").dataset.slices) >= 2, null, { timeout: 30000 });
+  const moved = await page.evaluate(() => document.getElementById("slice").dataset.url);
+  check("moving the plane shows another slice", moved.includes("index=2") && moved !== sl.url, moved);
+  await page.selectOption("#sliceField", "");
+
   // A shared URL opens the same scene and camera.
   const other = await browser.newPage({ viewport: { width: 900, height: 600 } });
   other.on("pageerror", (e) => errors.push(String(e)));
@@ -208,6 +222,9 @@ try {
     await page.evaluate(() => { document.getElementById("uploadBox").open = false; });
     await page.selectOption("#scenes", { label: (await page.evaluate(() => [...document.getElementById("scenes").options].map((o) => o.textContent).find((t) => t.startsWith("puff")))) });
     await nextImage(page, (await shown(page)).n);
+    const n = await page.evaluate(() => Number(document.getElementById("slice").dataset.slices || 0));
+    await page.selectOption("#sliceField", "fluence");
+    await page.waitForFunction((n) => Number(document.getElementById("slice").dataset.slices || 0) > n, n, { timeout: 30000 });
     await page.evaluate(() => { document.getElementById("side").scrollTop = 0; });
     await page.screenshot({ path: screenshot });
   }

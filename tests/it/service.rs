@@ -206,6 +206,7 @@ fn solve_poll_render_and_same_scene_is_one_job() {
         "/v1/scenes/{id}",
         "/v1/scenes/{id}/render",
         "/v1/scenes/{id}/cancel",
+        "/v1/scenes/{id}/slice",
         "/v1/volumes",
     ] {
         assert!(spec["paths"][path].is_object(), "openapi lists {path}");
@@ -830,4 +831,48 @@ fn named_scenes_and_the_exposure_of_each_image() {
     .unwrap();
     assert_eq!(given.header("x-volrad-exposure-source"), Some("given"));
     assert_eq!(given.header("x-volrad-exposure"), Some("2.5"));
+}
+
+/// A slice of a solved field is a PNG with one pixel per cell of the plane, its colour range
+/// in a header; the lit side of a cloud is brighter in the map than its far side; bad
+/// requests are refused naming the parameter.
+#[test]
+fn slices_of_solved_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let id = submit(addr, &scene(5, 0.9));
+    assert_eq!(wait_finished(addr, &id)["state"], "done");
+    let slice = |query: &str| get(addr, &format!("/v1/scenes/{id}/slice{query}")).unwrap();
+    // The scene's grid is 10×10×8; the light travels along −y, so it enters at high y.
+    let z = slice("?field=fluence&axis=z&index=4&scale=log");
+    assert_eq!(z.status, 200, "{}", z.text());
+    assert_eq!(png_size(&z.body), (10, 10));
+    let range = z.header("x-volrad-range").unwrap().to_string();
+    let ends: Vec<f64> = range.split(' ').map(|v| v.parse().unwrap()).collect();
+    assert!(
+        ends[0] > 0.0 && (ends[1] / ends[0] - 1e4).abs() < 1.0,
+        "{range}"
+    );
+    let img = image::load_from_memory(&z.body).unwrap().to_rgb8();
+    // Row 0 is the top of the plane: high y, the lit side; compare the middle columns.
+    let brightness = |row: u32| -> u32 { (3..7).map(|x| img.get_pixel(x, row).0[1] as u32).sum() };
+    assert!(
+        brightness(1) > brightness(8),
+        "{} vs {}",
+        brightness(1),
+        brightness(8)
+    );
+    assert_eq!(
+        png_size(&slice("?field=sigma-t&axis=x&scale=linear").body),
+        (10, 8)
+    );
+    for (query, mentions) in [
+        ("?field=heat", "field"),
+        ("?axis=z&index=8", "index"),
+        ("?channel=1", "channel"),
+        ("?axsi=z", "axsi"),
+    ] {
+        assert_error(&slice(query), 400, mentions);
+    }
 }
