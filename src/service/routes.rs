@@ -776,17 +776,7 @@ async fn render(
     let exposure = exposure.or(solution.render.exposure);
     let queued_at = std::time::Instant::now();
     let auto_exposure = exposure.is_none();
-    let waiting = WaitingRender::enter(&service)?;
-    let permit = Arc::clone(&service.inner.render_slots)
-        .acquire_owned()
-        .await
-        .map_err(|_| {
-            ApiError::new(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "the server is shutting down",
-            )
-        })?;
-    drop(waiting);
+    let permit = render_slot(&service).await?;
     let (encoded, timing, used_exposure) =
         tokio::task::spawn_blocking(move || -> Result<(Vec<u8>, String, f64), String> {
             let _permit = permit;
@@ -888,17 +878,7 @@ async fn slice(
     }
     // The field comes from the whole solution (fluence interpolates the transport grid): in
     // a render slot, off the async threads.
-    let waiting = WaitingRender::enter(&service)?;
-    let permit = Arc::clone(&service.inner.render_slots)
-        .acquire_owned()
-        .await
-        .map_err(|_| {
-            ApiError::new(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "the server is shutting down",
-            )
-        })?;
-    drop(waiting);
+    let permit = render_slot(&service).await?;
     let (png, value_range) = tokio::task::spawn_blocking(move || -> Result<_, String> {
         let _permit = permit;
         let (values, _units) =
@@ -935,6 +915,23 @@ async fn slice(
         png,
     )
         .into_response())
+}
+
+/// One of the render slots, waited for among a bounded number of requests (beyond it, 503):
+/// renders and slices hold one while they compute.
+async fn render_slot(service: &Service) -> ApiResult<tokio::sync::OwnedSemaphorePermit> {
+    let waiting = WaitingRender::enter(service)?;
+    let permit = Arc::clone(&service.inner.render_slots)
+        .acquire_owned()
+        .await
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "the server is shutting down",
+            )
+        })?;
+    drop(waiting);
+    Ok(permit)
 }
 
 /// A render request waiting for a slot; the count is bounded so a flood of requests is
