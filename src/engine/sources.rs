@@ -105,12 +105,12 @@ impl TransportLattice<'_> {
         }
     }
 
-    /// The data grid's σs at a step: the renderer's σt times a uniform albedo, else
-    /// interpolated from the cells' own σs.
+    /// The data grid's σs at a step: σt there (the renderer's, when it reads this medium's)
+    /// times a uniform albedo, else interpolated from the cells' own σs.
     #[inline]
     fn sigma_s_at(&self, step: &StepSample, trilinear: bool) -> f64 {
         match (&self.channel.albedo, trilinear) {
-            (CellValues::Uniform(a), true) => *a as f64 * step.sigma_t,
+            (CellValues::Uniform(a), true) => *a as f64 * step.sigma_t_from(&self.channel.sigma_t),
             (_, true) => step.corners.sample(|i| self.channel.sigma_s(i) as f64),
             (_, false) => self.channel.sigma_s(step.corners.cell()) as f64,
         }

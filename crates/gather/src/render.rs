@@ -3,8 +3,9 @@
 //! `nearest` media are piecewise constant per cell, so each cell a ray crosses (found by the
 //! exact DDA of [`Grid::traverse`]) contributes the analytic segment integral of physics.md:
 //! `ΔI = T · Q · (1 − e^{−σt Δs}) / σt`, then `T ← T · e^{−σt Δs}`. `trilinear` media are
-//! marched in fixed steps (half a cell by default) of the trilinearly interpolated σt and
-//! emission, each step integrated with the same formula at its midpoint values. The
+//! marched in fixed steps (half a cell by default; a step that may be optically thick is
+//! split into pieces of optical depth ≤ `MAX_PIECE_DEPTH`) of the trilinearly interpolated σt
+//! and emission, each integrated with the same formula at its midpoint values. The
 //! background adds `T · I0` at the end.
 //!
 //! Early termination: a ray stops once the rest of it cannot change the pixel by more than
@@ -500,11 +501,9 @@ impl<'a> RayIntegrator<'a> {
         };
         let (weight, attenuation) = weight_and_attenuation_with::<FMA>(sigma, length);
         if self.use_scattering {
-            let step = StepSample {
-                x,
-                corners,
-                sigma_t: sigma,
-            };
+            // With no σt read (emission-only), the sources interpolate their own.
+            let cells = if self.use_sigma { self.sigma_t } else { &[] };
+            let step = StepSample::interpolated(x, corners, cells, sigma);
             q += self.scattering.at_step(&step, flow);
         }
         (q * weight, attenuation)

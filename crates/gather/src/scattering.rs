@@ -132,24 +132,55 @@ impl RayCarry {
 }
 
 /// What a `trilinear` render finds at a step's midpoint, shared with the sources so they
-/// need not find it again: the point, its cell-centred neighbours, and the medium's σt
-/// interpolated there.
-pub struct StepSample {
+/// need not find it again: the point, its cell-centred neighbours, and σt interpolated there
+/// from the per-cell values the renderer reads.
+pub struct StepSample<'a> {
     pub x: DVec3,
     pub corners: Trilinear,
-    pub sigma_t: f64,
+    sigma_t: f64,
+    /// The per-cell σt that `sigma_t` was interpolated from (empty: none).
+    cells: &'a [f32],
 }
 
-impl StepSample {
+impl<'a> StepSample<'a> {
     /// The sample at `x` of a `trilinear` medium whose extinction per cell is `sigma_t`.
     #[inline]
-    pub fn new(grid: &Grid, sigma_t: &[f32], x: DVec3) -> Self {
+    pub fn new(grid: &Grid, sigma_t: &'a [f32], x: DVec3) -> Self {
         let corners = Trilinear::new(grid, x);
-        let sigma_t = corners.sample(|c| sigma_t[c] as f64);
+        let interpolated = corners.sample(|c| sigma_t[c] as f64);
+        StepSample {
+            x,
+            corners,
+            sigma_t: interpolated,
+            cells: sigma_t,
+        }
+    }
+
+    /// A sample whose σt, `sigma_t`, the caller interpolated from `cells` with `corners`.
+    #[inline]
+    pub(crate) fn interpolated(
+        x: DVec3,
+        corners: Trilinear,
+        cells: &'a [f32],
+        sigma_t: f64,
+    ) -> Self {
         StepSample {
             x,
             corners,
             sigma_t,
+            cells,
+        }
+    }
+
+    /// σt at the point interpolated from the per-cell `cells`: the renderer's value when it
+    /// read the same array (the usual case), else interpolated here — a view with rescaled
+    /// extinction passes through another medium than the one the sources were solved in.
+    #[inline]
+    pub fn sigma_t_from(&self, cells: &[f32]) -> f64 {
+        if std::ptr::eq(cells, self.cells) {
+            self.sigma_t
+        } else {
+            self.corners.sample(|c| cells[c] as f64)
         }
     }
 }

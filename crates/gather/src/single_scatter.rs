@@ -287,7 +287,7 @@ impl<'a> SingleScatter<'a> {
             step.corners.cell(),
             step.corners.coords(),
             view_flow_dir,
-            step.sigma_t,
+            step.sigma_t_from(self.sigma_t),
         )
     }
 
@@ -665,7 +665,7 @@ impl InScattering for SingleScatter<'_> {
     }
 
     /// σs follows σt as the `trilinear` medium is reconstructed at x (the renderer's σt
-    /// there).
+    /// there, when it reads this medium's).
     #[inline]
     fn at_step(&self, step: &StepSample, view_flow_dir: DVec3) -> f64 {
         if !self.trilinear {
@@ -677,7 +677,8 @@ impl InScattering for SingleScatter<'_> {
             return unsafe { self.at_step_fma(step, view_flow_dir) };
         }
         let (cell, coords) = (step.corners.cell(), step.corners.coords());
-        self.source_at_with::<false>(step.x, cell, coords, view_flow_dir, step.sigma_t)
+        let sigma_t = step.sigma_t_from(self.sigma_t);
+        self.source_at_with::<false>(step.x, cell, coords, view_flow_dir, sigma_t)
     }
 
     fn max_source(&self) -> f64 {

@@ -4,7 +4,7 @@
 
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
 use gather::OpticalModel;
-use gather::{InScattering, RayCarry, RayIntegrator, RenderOptions, ViewSegment};
+use gather::{InScattering, RayCarry, RayIntegrator, RenderOptions, StepSample, ViewSegment};
 use glam::DVec3;
 use medium::light_pass::LightPass;
 use medium::traversal::Ray;
@@ -747,4 +747,49 @@ fn the_default_trilinear_step_matches_a_fine_one_in_thick_cells() {
         });
     let error = (d / n).sqrt();
     assert!(error < 3e-3, "step {default_step}: relative RMS {error}");
+}
+
+/// A view through a medium with rescaled extinction (render-time absorption) keeps the solved
+/// medium's first bounce: at a step whose σt the renderer interpolated from the view medium,
+/// the source is the one the first bounce computes from its own medium, not the rescaled one.
+#[test]
+fn the_first_bounce_at_a_step_keeps_its_own_medium() {
+    let grid = Grid::new([6, 6, 6], 0.5).unwrap();
+    let sigma_t: Vec<f32> = (0..grid.cell_count())
+        .map(|i| 0.5 + (i % 7) as f32 * 0.3)
+        .collect();
+    let medium = Medium::new(
+        grid,
+        vec![ChannelMedium {
+            sigma_t: sigma_t.clone(),
+            albedo: CellValues::Uniform(0.8),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::HenyeyGreenstein { g: 0.3 },
+        Interpolation::Trilinear,
+        None,
+    )
+    .unwrap();
+    let light = Light::Directional {
+        direction: DVec3::new(0.3, -0.4, 0.87).normalize(),
+        irradiance: 1.0,
+    };
+    let pass = LightPass::compute(&medium, 0, &[light]).unwrap();
+    let ss = SingleScatter::new(&medium, 0, &pass, SingleScatterOptions::default()).unwrap();
+    let doubled: Vec<f32> = sigma_t.iter().map(|s| 2.0 * s).collect();
+    let own = &medium.channels()[0].sigma_t;
+    let w = DVec3::new(0.2, 0.3, -0.9).normalize();
+    for x in [DVec3::new(1.1, 1.3, 1.7), DVec3::new(2.2, 0.9, 1.4)] {
+        let cell = grid.index(
+            (x.x / 0.5) as usize,
+            (x.y / 0.5) as usize,
+            (x.z / 0.5) as usize,
+        );
+        let expected = ss.at(x, cell, w);
+        assert!(expected > 0.0);
+        for cells in [own, &doubled] {
+            let got = ss.at_step(&StepSample::new(&grid, cells, x), w);
+            assert!((got / expected - 1.0).abs() < 1e-12, "{got} vs {expected}");
+        }
+    }
 }
