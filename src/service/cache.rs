@@ -30,6 +30,11 @@ impl CacheDir {
         self.root.join(format!("{id}.toml"))
     }
 
+    /// The scene's name (`?name=`, a preloaded file's stem), one line of text.
+    pub fn name_path(&self, id: &str) -> PathBuf {
+        self.root.join(format!("{id}.name"))
+    }
+
     pub fn volumes_dir(&self) -> PathBuf {
         self.root.join("volumes")
     }

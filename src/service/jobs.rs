@@ -61,8 +61,8 @@ pub(crate) struct Job {
     pub last_used: u64,
     /// A note for people, e.g. that a corrupt cache file was found and is being re-solved.
     pub note: Option<String>,
-    /// What people call it (`?name=` of the upload, a preloaded file's stem); kept while the
-    /// service runs.
+    /// What people call it (`?name=` of the upload, a preloaded file's stem); stored beside
+    /// the scene (`ID.name`).
     pub name: Option<String>,
 }
 
@@ -100,6 +100,7 @@ struct Recovered {
     bytes: u64,
     /// The scene is known but has no valid solution: solve it again.
     requeue: bool,
+    name: Option<String>,
 }
 
 /// Reads one id's scene and solution back from the cache: a valid solution is served, a
@@ -163,7 +164,14 @@ fn recover(cache: &CacheDir, id: &str) -> Option<Recovered> {
         note,
         bytes,
         requeue,
+        name: read_name(cache, id),
     })
+}
+
+/// A scene's stored name, when it has a valid one.
+fn read_name(cache: &CacheDir, id: &str) -> Option<String> {
+    let text = std::fs::read_to_string(cache.name_path(id)).ok()?;
+    crate::service::routes::check_scene_name(text.trim_end()).ok()
 }
 
 /// Most solution files one lookup of an unknown id reads from a shared cache directory.
@@ -218,6 +226,7 @@ impl Service {
                 note,
                 bytes,
                 requeue: again,
+                name,
             }) = recover(&cache, &id)
             else {
                 continue;
@@ -239,7 +248,7 @@ impl Service {
                     file_bytes: bytes,
                     last_used: stamp,
                     note,
-                    name: None,
+                    name,
                 },
             );
         }
@@ -413,7 +422,7 @@ impl Service {
                     file_bytes: found.bytes,
                     last_used: stamp,
                     note: None,
-                    name: None,
+                    name: found.name,
                 },
             );
             evict(&mut jobs, cache, self.inner.limits.max_cache_bytes, &id);
@@ -528,9 +537,13 @@ impl Service {
         Ok((id, true))
     }
 
-    /// Names scene `id` (no effect if it is unknown).
+    /// Names scene `id` (no effect if it is unknown); the name is stored beside its scene,
+    /// so it survives a restart (a name that cannot be stored is kept while the service runs).
     pub fn set_name(&self, id: &str, name: String) {
         if let Some(job) = self.lock().get_mut(id) {
+            if let Err(e) = cache::write_atomic(&self.inner.cache.name_path(id), name.as_bytes()) {
+                tracing::warn!("cache: the name of {id} is not stored: {e:#}");
+            }
             job.name = Some(name);
         }
     }
@@ -560,6 +573,7 @@ impl Service {
                 job.control.cancel();
                 let _ = std::fs::remove_file(self.inner.cache.solution_path(id));
                 let _ = std::fs::remove_file(self.inner.cache.scene_path(id));
+                let _ = std::fs::remove_file(self.inner.cache.name_path(id));
                 true
             }
             None => false,

@@ -831,6 +831,12 @@ fn named_scenes_and_the_exposure_of_each_image() {
     .unwrap();
     assert_eq!(given.header("x-volrad-exposure-source"), Some("given"));
     assert_eq!(given.header("x-volrad-exposure"), Some("2.5"));
+
+    // The name is stored with the scene: a restart on the same cache knows it.
+    drop(server);
+    let again = start(dir.path());
+    let v = get(again.addr, &format!("/v1/scenes/{id}")).unwrap().json();
+    assert_eq!(v["name"], "small cloud", "{v}");
 }
 
 /// A slice of a solved field is a PNG with one pixel per cell of the plane, its colour range
