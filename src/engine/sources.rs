@@ -42,25 +42,11 @@ struct TransportLattice<'a> {
 
 impl TransportLattice<'_> {
     /// `σs · Q/σs` at `x`: `sigma_s` is the data grid's σs there, `value` the transport
-    /// cells' source.
+    /// cells' source ([`at_block`](Self::at_block) with a block of its own, read afresh).
     #[inline]
-    fn at(&self, x: DVec3, sigma_s: f64, mut value: impl FnMut(usize) -> f64) -> f64 {
-        if sigma_s <= 0.0 {
-            return 0.0;
-        }
-        let (mut sum, mut weight) = (0.0, 0.0);
-        Trilinear::new(&self.coarse, x).for_each(|o, w| {
-            let inv = self.inverse_sigma_s[o] as f64;
-            if inv > 0.0 {
-                sum += w * value(o) * inv;
-                weight += w;
-            }
-        });
-        if weight > 0.0 {
-            sigma_s * sum / weight
-        } else {
-            0.0
-        }
+    fn at(&self, x: DVec3, sigma_s: f64, value: impl FnMut(usize) -> f64) -> f64 {
+        let mut block = Block::EMPTY;
+        self.at_block(x, sigma_s, &mut block, (0, 0), value)
     }
 
     /// [`at`](Self::at) through `block`, which keeps the 8 transport cells' `Q/σs` around
@@ -126,6 +112,15 @@ struct Block {
     key: Option<(u64, u64, usize, usize)>,
     ratio: [f64; 8],
     scatters: [f64; 8],
+}
+
+impl Block {
+    /// A block that holds nothing yet.
+    const EMPTY: Block = Block {
+        key: None,
+        ratio: [0.0; 8],
+        scatters: [0.0; 8],
+    };
 }
 
 impl<'a> CellLattice<'a> {
@@ -384,11 +379,7 @@ impl LookupCache {
                 tags: [(0, 0, 0); LOOKUP_SLOTS],
                 values: [0.0; LOOKUP_SLOTS],
             },
-            blocks: [Block {
-                key: None,
-                ratio: [0.0; 8],
-                scatters: [0.0; 8],
-            }; BLOCKS],
+            blocks: [Block::EMPTY; BLOCKS],
         })
     }
 

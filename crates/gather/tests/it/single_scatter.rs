@@ -699,18 +699,7 @@ fn the_default_trilinear_step_matches_a_fine_one_in_thick_cells() {
             }
         })
         .collect();
-    let medium = Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.9),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::HenyeyGreenstein { g: 0.6 },
-        Interpolation::Trilinear,
-        None,
-    )
-    .unwrap();
+    let medium = trilinear_medium(grid, sigma_t, 0.9, 0.6);
     let light = Light::Directional {
         direction: DVec3::new(0.3, -0.5, 0.8).normalize(),
         irradiance: 1.0,
@@ -758,18 +747,7 @@ fn the_first_bounce_at_a_step_keeps_its_own_medium() {
     let sigma_t: Vec<f32> = (0..grid.cell_count())
         .map(|i| 0.5 + (i % 7) as f32 * 0.3)
         .collect();
-    let medium = Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t: sigma_t.clone(),
-            albedo: CellValues::Uniform(0.8),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::HenyeyGreenstein { g: 0.3 },
-        Interpolation::Trilinear,
-        None,
-    )
-    .unwrap();
+    let medium = trilinear_medium(grid, sigma_t.clone(), 0.8, 0.3);
     let light = Light::Directional {
         direction: DVec3::new(0.3, -0.4, 0.87).normalize(),
         irradiance: 1.0,
@@ -792,4 +770,20 @@ fn the_first_bounce_at_a_step_keeps_its_own_medium() {
             assert!((got / expected - 1.0).abs() < 1e-12, "{got} vs {expected}");
         }
     }
+}
+
+/// A `trilinear` medium of one channel: `sigma_t` per cell, uniform albedo, HG phase `g`.
+fn trilinear_medium(grid: Grid, sigma_t: Vec<f32>, albedo: f32, g: f64) -> Medium {
+    Medium::new(
+        grid,
+        vec![ChannelMedium {
+            sigma_t,
+            albedo: CellValues::Uniform(albedo),
+            emission: CellValues::Uniform(0.0),
+        }],
+        PhaseFunction::HenyeyGreenstein { g },
+        Interpolation::Trilinear,
+        None,
+    )
+    .unwrap()
 }
