@@ -33,6 +33,8 @@ pub struct CellLattice<'a> {
 #[derive(Clone, Copy)]
 struct TransportLattice<'a> {
     coarse: Grid,
+    /// `1 / coarse.cell_size`.
+    inverse_coarse_size: f64,
     /// The data grid's channel (its σs).
     channel: &'a ChannelMedium,
     /// `1/σs` per transport cell, 0 where it does not scatter.
@@ -64,7 +66,7 @@ impl TransportLattice<'_> {
         if sigma_s <= 0.0 {
             return 0.0;
         }
-        let corners = Trilinear::new(&self.coarse, x);
+        let corners = Trilinear::with_inverse_size(&self.coarse, self.inverse_coarse_size, x);
         let cells = corners.cells();
         let key = (tag.0, tag.1, cells[0], cells[7]);
         if block.key != Some(key) {
@@ -144,6 +146,7 @@ impl<'a> CellLattice<'a> {
             let cache = ch.render_cache.transport(medium, &solution.transport, c)?;
             Some(TransportLattice {
                 coarse: *solution.transport.coarse(),
+                inverse_coarse_size: 1.0 / solution.transport.coarse().cell_size,
                 channel: &medium.channels()[c],
                 inverse_sigma_s: &cache.inverse_sigma_s,
                 max_sigma_s: cache.max_sigma_s,

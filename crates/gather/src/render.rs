@@ -430,13 +430,14 @@ impl<'a> RayIntegrator<'a> {
         let dt = length / steps;
         let steps = steps as usize;
         let flow = -ray.direction;
+        let inverse_cell_size = 1.0 / self.grid.cell_size;
         let mut transmittance = 1.0f64;
         let mut radiance = 0.0f64;
         let mut k = 0;
         while k < steps {
             let t = t_in + (k as f64 + 0.5) * dt;
             let x = ray.at(t);
-            let corners = Trilinear::new(&self.grid, x);
+            let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
             // The interpolated field is zero in cells whose neighbours are all empty; jump over
             // the whole known-empty cube, keeping to the lattice of step midpoints.
             let radius = empty.empty_radius(corners.cell, 1);
@@ -454,24 +455,27 @@ impl<'a> RayIntegrator<'a> {
             // Where the step may be optically thick, the source and σt change too much within
             // it for one midpoint: split it into pieces of at most `MAX_PIECE_DEPTH` (bounded
             // by the largest σt of the midpoint's neighbours).
-            let pieces = if self.use_sigma {
-                let sigma_max = corners.max(|c| self.sigma_t[c] as f64);
-                (sigma_max * dt / MAX_PIECE_DEPTH)
+            // σt of the 8 neighbours, read once for the bound and the midpoint's value.
+            let (pieces, sigma) = if self.use_sigma {
+                let values = corners.gather(self.sigma_t);
+                let sigma_max = values.into_iter().fold(0.0, f64::max);
+                let pieces = (sigma_max * dt / MAX_PIECE_DEPTH)
                     .ceil()
-                    .clamp(1.0, MAX_PIECES)
+                    .clamp(1.0, MAX_PIECES);
+                (pieces, Some(corners.dot(&values)))
             } else {
-                1.0
+                (1.0, None)
             };
             if pieces == 1.0 {
-                let (q, attenuation) = self.piece::<FMA>(x, corners, dt, flow);
+                let (q, attenuation) = self.piece::<FMA>(x, corners, sigma, dt, flow);
                 radiance += transmittance * q;
                 transmittance *= attenuation;
             } else {
                 let piece = dt / pieces;
                 for j in 0..pieces as usize {
                     let x = ray.at(t + (j as f64 + 0.5 - 0.5 * pieces) * piece);
-                    let (q, attenuation) =
-                        self.piece::<FMA>(x, Trilinear::new(&self.grid, x), piece, flow);
+                    let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
+                    let (q, attenuation) = self.piece::<FMA>(x, corners, None, piece, flow);
                     radiance += transmittance * q;
                     transmittance *= attenuation;
                 }
@@ -484,20 +488,24 @@ impl<'a> RayIntegrator<'a> {
     }
 
     /// One piece of `length` of a `trilinear` march with its midpoint `x` (neighbours
-    /// `corners`): what it adds for unit transmittance before it, and its attenuation.
+    /// `corners`; σt there when the caller has it): what it adds for unit transmittance
+    /// before it, and its attenuation.
     #[inline(always)]
     fn piece<const FMA: bool>(
         &self,
         x: DVec3,
         corners: Trilinear,
+        sigma: Option<f64>,
         length: f64,
         flow: DVec3,
     ) -> (f64, f64) {
-        let (sigma, mut q) = match (self.use_sigma, self.use_emission) {
-            (true, true) => corners.sample2(self.sigma_t, self.emission),
-            (true, false) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
-            (false, true) => (0.0, corners.sample(|c| self.emission.get(c) as f64)),
-            (false, false) => (0.0, 0.0),
+        let (sigma, mut q) = match (self.use_sigma, self.use_emission, sigma) {
+            (true, false, Some(sigma)) => (sigma, 0.0),
+            (true, true, Some(sigma)) => (sigma, corners.sample(|c| self.emission.get(c) as f64)),
+            (true, true, None) => corners.sample2(self.sigma_t, self.emission),
+            (true, false, None) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
+            (false, true, _) => (0.0, corners.sample(|c| self.emission.get(c) as f64)),
+            (false, false, _) => (0.0, 0.0),
         };
         let (weight, attenuation) = weight_and_attenuation_with::<FMA>(sigma, length);
         if self.use_scattering {
@@ -547,12 +555,19 @@ pub struct Trilinear {
 impl Trilinear {
     #[inline]
     pub fn new(grid: &Grid, x: DVec3) -> Self {
+        Self::with_inverse_size(grid, 1.0 / grid.cell_size, x)
+    }
+
+    /// [`Trilinear::new`] with `1 / grid.cell_size` given (a march finds it once, not per
+    /// step).
+    #[inline(always)]
+    pub fn with_inverse_size(grid: &Grid, inverse_cell_size: f64, x: DVec3) -> Self {
         let mut index = [[0usize; 2]; 3];
         let mut frac = [0.0; 3];
         let mut own = [0usize; 3];
         for a in 0..3 {
             let n = grid.dims[a];
-            let q = x[a] / grid.cell_size;
+            let q = x[a] * inverse_cell_size;
             own[a] = (q.max(0.0) as usize).min(n - 1);
             let u = (q - 0.5).clamp(0.0, (n - 1) as f64);
             let i0 = (u as usize).min(n.saturating_sub(2));
@@ -622,14 +637,22 @@ impl Trilinear {
 
     /// The 8 neighbours, x fastest then y then z (the order of [`Trilinear::weights`]; a
     /// neighbour appears twice where the point is past the outermost centres).
-    #[inline]
+    #[inline(always)]
     pub fn cells(&self) -> [usize; 8] {
-        std::array::from_fn(|k| {
-            let (dx, dy, dz) = (k & 1, (k >> 1) & 1, k >> 2);
-            self.index[0][dx]
-                + self.index[1][dy] * self.strides[1]
-                + self.index[2][dz] * self.strides[2]
-        })
+        // Written out: the array combinators are not always inlined in the march.
+        let [x0, x1] = self.index[0];
+        let [y0, y1] = self.index[1].map(|j| j * self.strides[1]);
+        let [z0, z1] = self.index[2].map(|k| k * self.strides[2]);
+        [
+            x0 + y0 + z0,
+            x1 + y0 + z0,
+            x0 + y1 + z0,
+            x1 + y1 + z0,
+            x0 + y0 + z1,
+            x1 + y0 + z1,
+            x0 + y1 + z1,
+            x1 + y1 + z1,
+        ]
     }
 
     /// The trilinear weights of [`Trilinear::cells`].
@@ -637,12 +660,6 @@ impl Trilinear {
     pub fn weights(&self) -> [f64; 8] {
         let w = self.frac.map(|f| [1.0 - f, f]);
         std::array::from_fn(|k| w[0][k & 1] * w[1][(k >> 1) & 1] * w[2][k >> 2])
-    }
-
-    /// The largest `value` of the 8 neighbours (weight 0 or not).
-    #[inline]
-    pub fn max(&self, mut value: impl FnMut(usize) -> f64) -> f64 {
-        self.cells().into_iter().map(&mut value).fold(0.0, f64::max)
     }
 
     /// Calls `f(cell, weight)` for each neighbour of non-zero weight.
@@ -681,8 +698,49 @@ impl Trilinear {
     /// The trilinear interpolation of the per-cell `value`.
     #[inline]
     pub fn sample(&self, mut value: impl FnMut(usize) -> f64) -> f64 {
+        let c = self.cells();
+        self.dot(&[
+            value(c[0]),
+            value(c[1]),
+            value(c[2]),
+            value(c[3]),
+            value(c[4]),
+            value(c[5]),
+            value(c[6]),
+            value(c[7]),
+        ])
+    }
+
+    /// The 8 neighbours' `values` (in the order of [`Trilinear::cells`]), read once for both
+    /// an interpolation ([`Trilinear::dot`]) and a bound.
+    #[inline(always)]
+    pub fn gather(&self, values: &[f32]) -> [f64; 8] {
+        let c = self.cells();
+        [
+            values[c[0]] as f64,
+            values[c[1]] as f64,
+            values[c[2]] as f64,
+            values[c[3]] as f64,
+            values[c[4]] as f64,
+            values[c[5]] as f64,
+            values[c[6]] as f64,
+            values[c[7]] as f64,
+        ]
+    }
+
+    /// The interpolation of the neighbours' `values` (in the order of [`Trilinear::cells`]).
+    #[inline(always)]
+    pub fn dot(&self, values: &[f64; 8]) -> f64 {
+        // Branch-free: weight-0 neighbours are in range (clamped) and add 0.
+        let w = self.frac.map(|f| [1.0 - f, f]);
         let mut sum = 0.0;
-        self.for_each(|c, w| sum += w * value(c));
+        for dz in 0..2 {
+            for dy in 0..2 {
+                let k = 4 * dz + 2 * dy;
+                let row = w[0][0] * values[k] + w[0][1] * values[k + 1];
+                sum += w[1][dy] * w[2][dz] * row;
+            }
+        }
         sum
     }
 }
