@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 
 use anyhow::{Context, Result};
+use medium::environment::EnvironmentSpec;
 use scene::Scene;
 use serde_json::{json, Value};
 
@@ -778,6 +779,22 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
     }
     if let Some(scene) = &job.scene {
         v["method"] = json!(scene.solve.method.name());
+    }
+    // The sky's keys, for the viewer's light controls (`relight` changes them).
+    let environment = job
+        .solution
+        .as_ref()
+        .map(|s| s.environment)
+        .or_else(|| job.scene.as_ref().map(|s| s.environment))
+        .flatten();
+    if let Some(EnvironmentSpec::Sky(sky)) = environment.map(|e| e.spec()) {
+        v["sky"] = json!({
+            "sun_elevation_degrees": sky.sun_elevation_degrees,
+            "sun_azimuth_degrees": sky.sun_azimuth_degrees,
+            "turbidity": sky.turbidity,
+            "sky_fraction": sky.sky_fraction,
+            "ground_albedo": sky.ground_albedo,
+        });
     }
     if let Some(sol) = &job.solution {
         let channels: Vec<Value> = sol

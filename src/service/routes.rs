@@ -63,6 +63,7 @@ pub fn router(service: Service) -> Router {
         .route("/v1/scenes", post(post_scene).get(list_scenes))
         .route("/v1/scenes/{id}", get(get_scene).delete(delete_scene))
         .route("/v1/scenes/{id}/cancel", post(cancel_scene))
+        .route("/v1/scenes/{id}/relight", post(relight))
         .route("/v1/scenes/{id}/render", get(render))
         .route("/v1/scenes/{id}/slice", get(slice))
         .route("/v1/volumes", post(post_volume))
@@ -188,6 +189,17 @@ async fn post_scene(
             }
         }
     };
+    submit_table(&service, table, name).await
+}
+
+/// Checks, parses and submits a scene given as a TOML table (what `POST /v1/scenes` and
+/// `relight` share): 202 with the scene's description, or the error naming what was wrong.
+async fn submit_table(
+    service: &Service,
+    table: toml::Table,
+    name: Option<String>,
+) -> ApiResult<Response> {
+    let service = service.clone();
     check_scene_limits(&service, &table)?;
     let canonical = toml::to_string(&table)
         .map_err(|e| ApiError::bad(format!("cannot re-encode the scene: {e}")))?;
@@ -424,6 +436,113 @@ async fn cancel_scene(
         .unwrap_or(json!({}));
     v["cancelled"] = json!(cancelled);
     Ok(Json(v))
+}
+
+/// The sky keys `relight` may change (`[[light]] kind = "sky"`; docs/scene-format.md).
+pub const RELIGHT_KEYS: [&str; 5] = [
+    "sun_elevation_degrees",
+    "sun_azimuth_degrees",
+    "turbidity",
+    "sky_fraction",
+    "ground_albedo",
+];
+
+/// `POST /v1/scenes/{id}/relight[?name=NAME]`: a new scene, made from this one's text with its
+/// sky changed by the JSON body (any of [`RELIGHT_KEYS`], numbers), posted and solved like any
+/// scene. The original stays as it is. Without `name` the new scene is called after the
+/// original and its sun.
+async fn relight(
+    State(service): State<Service>,
+    Path(id): Path<String>,
+    q: RawQuery,
+    body: Result<Bytes, BytesRejection>,
+) -> ApiResult<Response> {
+    let q = query_map(q)?;
+    refuse_unknown_parameters(&q, &["name"])?;
+    let name = q
+        .get("name")
+        .map(|n| check_scene_name(n).map_err(ApiError::bad))
+        .transpose()?;
+    let id = resolve(&service, &id)?;
+    let body = body_bytes(body)?;
+    let changes: serde_json::Map<String, Value> = serde_json::from_slice(&body)
+        .map_err(|e| ApiError::bad(format!("the body is not a JSON object: {e}")))?;
+    let mut numbers = Vec::with_capacity(changes.len());
+    for (key, value) in &changes {
+        if !RELIGHT_KEYS.contains(&key.as_str()) {
+            return Err(ApiError::bad(format!(
+                "unknown key `{key}`: relight changes {}",
+                RELIGHT_KEYS.join(", ")
+            )));
+        }
+        let v = value
+            .as_f64()
+            .ok_or_else(|| ApiError::bad(format!("`{key}` must be a number, not {value}")))?;
+        numbers.push((key.clone(), v));
+    }
+    if numbers.is_empty() {
+        return Err(ApiError::bad(format!(
+            "nothing to change: give any of {}",
+            RELIGHT_KEYS.join(", ")
+        )));
+    }
+    let (text, base_name) = {
+        let jobs = service.lock();
+        let job = jobs.get(&id).ok_or_else(|| ApiError::not_found(&id))?;
+        let base_name = job.name.clone();
+        drop(jobs);
+        let text = std::fs::read_to_string(service.inner.cache.scene_path(&id)).map_err(|_| {
+            ApiError::new(
+                StatusCode::CONFLICT,
+                format!(
+                    "scene `{id}`'s text is not kept here (only its solution): post the scene \
+                     again to relight it"
+                ),
+            )
+        })?;
+        (text, base_name)
+    };
+    let mut table: toml::Table = text.parse().map_err(|e| {
+        ApiError::new(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            format!("scene `{id}`'s stored text does not parse: {e}"),
+        )
+    })?;
+    let sky = table
+        .get_mut("light")
+        .and_then(|l| l.as_array_mut())
+        .and_then(|lights| {
+            lights.iter_mut().find_map(|l| {
+                l.as_table_mut()
+                    .filter(|t| t.get("kind").and_then(|k| k.as_str()) == Some("sky"))
+            })
+        })
+        .ok_or_else(|| {
+            ApiError::bad(format!(
+                "scene `{id}` has no sky ([[light]] kind = \"sky\"): only a sky can be relit"
+            ))
+        })?;
+    for (key, v) in &numbers {
+        sky.insert(key.clone(), toml::Value::Float(*v));
+    }
+    let number = |key: &str| {
+        sky.get(key)
+            .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
+    };
+    let sun = match (
+        number("sun_elevation_degrees"),
+        number("sun_azimuth_degrees"),
+    ) {
+        (Some(el), az) => format!("sun {el}°, {}°", az.unwrap_or(0.0)),
+        _ => "relit".to_string(),
+    };
+    let name = name.or_else(|| {
+        let base = base_name.unwrap_or_else(|| id[..12.min(id.len())].to_string());
+        // Relighting a relit scene names it after the first.
+        let base = base.split(" · ").next().unwrap_or_default().to_string();
+        check_scene_name(&format!("{base} · {sun}")).ok()
+    });
+    submit_table(&service, table, name).await
 }
 
 /// The file names uploaded volumes are stored under: `SHA256.EXT`, by format.

@@ -3,7 +3,7 @@
 // the scene's cameras can be picked; the URL holds scene and camera and opens the same view;
 // exposure (automatic, then by hand); save; the bounding box and axes; a slice of the fluence;
 // dragging to a free view and back with reset; an upload under a name with its solve report
-// and residual plot.
+// and residual plot; the sun and sky controls of a sky scene, and relighting it.
 // Prints "N passed, M failed".
 //
 //   VOLRAD_BIN=target/debug/volrad CHROMIUM=/usr/bin/chromium node tests/e2e/viewer.mjs [screenshot.png]
@@ -65,6 +65,33 @@ height = 300
 const UPLOADED = PRELOADED.replace("seed = 7", "seed = 3").replace("albedo = 0.95", "albedo = 0.9")
   .replace('phase = { kind = "henyey-greenstein", g = 0.6 }', 'phase = { kind = "isotropic" }')
   .replace('method = "discrete-ordinates"', 'method = "zonal"');
+
+// Uploaded through the page and relit: a small cloud under a sky.
+const SKY = `[volume]
+generator = { kind = "cloud", seed = 5 }
+dims = [12, 12, 9]
+
+[medium]
+albedo = 0.9
+phase = { kind = "isotropic" }
+
+[[light]]
+kind = "sky"
+sun_elevation_degrees = 40.0
+
+[solve]
+method = "discrete-ordinates"
+bins = 24
+
+[[camera]]
+name = "front"
+eye = [6.0, -18.0, 4.5]
+target = [6.0, 6.0, 4.5]
+up = [0.0, 0.0, 1.0]
+fov_y = 40.0
+width = 320
+height = 240
+`;
 
 let passed = 0, failed = 0;
 function check(name, ok, detail = "") {
@@ -216,16 +243,36 @@ try {
   const plot = await page.evaluate(() => ({ curve: document.querySelectorAll("#plot path.curve").length, axes: document.querySelectorAll("#plot line.axis").length, ticks: document.querySelectorAll("#plot text.tick").length }));
   check("residual plot with axes and ticks", plot.curve === 1 && plot.axes === 2 && plot.ticks >= 3, JSON.stringify(plot));
   await nextImage(page, s.n);
+  check("no sun and sky controls without a sky", await page.evaluate(() => document.getElementById("lightBox").hidden));
+
+  // A scene under a sky: its sun and sky controls; relighting solves a copy with the sun
+  // moved, which the viewer then shows from the same camera.
+  await page.fill("#name", "sky puff");
+  await page.fill("#text", SKY);
+  await page.click("#upload");
+  await page.waitForFunction(() => document.getElementById("status").textContent.startsWith("sky puff") &&
+    document.getElementById("status").textContent.includes("state done"), null, { timeout: 60000 });
+  const light = await page.evaluate(() => ({ hidden: document.getElementById("lightBox").hidden,
+    elevation: document.getElementById("sunElevation").value, text: document.getElementById("sunElevationText").textContent }));
+  check("a sky scene shows its sun and sky", !light.hidden && light.elevation === "40" && light.text === "40°", JSON.stringify(light));
+  s = await shown(page);
+  await page.evaluate(() => { const r = document.getElementById("sunElevation"); r.value = "15"; r.dispatchEvent(new Event("input")); });
+  await page.click("#relight");
+  await page.waitForFunction(() => document.getElementById("status").textContent.startsWith("sky puff · sun 15°") &&
+    document.getElementById("status").textContent.includes("state done"), null, { timeout: 60000 });
+  const { scenes: all } = await (await fetch(`${base}/v1/scenes`)).json();
+  const described = all.find((d) => (d.name || "").startsWith("sky puff · sun 15°")) || {};
+  await page.waitForFunction((id) => (document.getElementById("view").dataset.url || "").includes(id) &&
+    location.hash.includes(id), described.id || "none", { timeout: 60000 }).catch(() => {});
+  const relit = await shown(page);
+  const relitScene = await page.evaluate(() => document.getElementById("scenes").selectedOptions[0].textContent);
+  check("relighting solves and shows a copy with the sun moved", relitScene.startsWith("sky puff · sun 15°") && relit.camera === "front" &&
+    described.sky && described.sky.sun_elevation_degrees === 15 && relit.url.includes(described.id) && relit.hash.includes(described.id),
+    JSON.stringify({ relitScene, relit, described }));
 
   if (screenshot) {
-    // The README's picture: the preloaded scene's front view, the panel from its top.
-    await page.evaluate(() => { document.getElementById("uploadBox").open = false; });
-    await page.selectOption("#scenes", { label: (await page.evaluate(() => [...document.getElementById("scenes").options].map((o) => o.textContent).find((t) => t.startsWith("puff")))) });
-    await nextImage(page, (await shown(page)).n);
-    const n = await page.evaluate(() => Number(document.getElementById("slice").dataset.slices || 0));
-    await page.selectOption("#sliceField", "fluence");
-    await page.waitForFunction((n) => Number(document.getElementById("slice").dataset.slices || 0) > n, n, { timeout: 30000 });
-    await page.evaluate(() => { document.getElementById("side").scrollTop = 0; });
+    // The README's picture: the relit sky scene's front view, its sun and sky controls.
+    await page.evaluate(() => { document.getElementById("uploadBox").open = false; document.getElementById("side").scrollTop = 0; });
     await page.screenshot({ path: screenshot });
   }
   check("no script errors", errors.length === 0, errors.join("; "));

@@ -206,6 +206,7 @@ fn solve_poll_render_and_same_scene_is_one_job() {
         "/v1/scenes/{id}",
         "/v1/scenes/{id}/render",
         "/v1/scenes/{id}/cancel",
+        "/v1/scenes/{id}/relight",
         "/v1/scenes/{id}/slice",
         "/v1/volumes",
     ] {
@@ -881,4 +882,128 @@ fn slices_of_solved_fields() {
     ] {
         assert_error(&slice(query), 400, mentions);
     }
+}
+
+/// A small cloud under a sky, by discrete ordinates (fast on 8×8×6 cells).
+fn sky_scene() -> String {
+    r#"
+[volume]
+generator = { kind = "cloud", seed = 3 }
+dims = [8, 8, 6]
+
+[medium]
+albedo = 0.9
+phase = { kind = "isotropic" }
+
+[[light]]
+kind = "sky"
+sun_elevation_degrees = 60.0
+
+[solve]
+method = "discrete-ordinates"
+bins = 24
+
+[[camera]]
+name = "front"
+eye = [4.0, -16.0, 3.0]
+target = [4.0, 4.0, 3.0]
+up = [0.0, 0.0, 1.0]
+fov_y = 40.0
+width = 32
+height = 24
+"#
+    .to_string()
+}
+
+/// `relight` makes a new scene from a stored one with its sky's keys changed and solves it;
+/// the original stays; more skylight makes a brighter picture; bad bodies and scenes without
+/// a sky are refused naming what was wrong.
+#[test]
+fn relighting_a_sky_makes_a_new_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let r = request(
+        addr,
+        "POST",
+        "/v1/scenes?name=sky%20cloud",
+        Some("application/toml"),
+        sky_scene().as_bytes(),
+    )
+    .unwrap();
+    assert_eq!(r.status, 202, "{}", r.text());
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    let first = wait_finished(addr, &id);
+    assert_eq!(first["sky"]["sun_elevation_degrees"], 60.0, "{first}");
+    let relight = |id: &str, body: &str| {
+        request(
+            addr,
+            "POST",
+            &format!("/v1/scenes/{id}/relight"),
+            Some("application/json"),
+            body.as_bytes(),
+        )
+        .unwrap()
+    };
+    let relit = |body: &str| {
+        let r = relight(&id, body);
+        assert_eq!(r.status, 202, "{}", r.text());
+        let new = r.json()["id"].as_str().unwrap().to_string();
+        assert_ne!(new, id);
+        (new.clone(), wait_finished(addr, &new))
+    };
+    let (low, low_v) = relit(r#"{"sun_elevation_degrees": 20, "sun_azimuth_degrees": 90}"#);
+    assert_eq!(low_v["state"], "done", "{low_v}");
+    assert_eq!(low_v["sky"]["sun_elevation_degrees"], 20.0, "{low_v}");
+    assert_eq!(low_v["sky"]["sun_azimuth_degrees"], 90.0, "{low_v}");
+    assert_eq!(low_v["name"], "sky cloud · sun 20°, 90°", "{low_v}");
+    let original = get(addr, &format!("/v1/scenes/{id}")).unwrap().json();
+    assert_eq!(original["sky"]["sun_elevation_degrees"], 60.0, "{original}");
+    // Relighting the relit scene changes its sky again (and names it after the first).
+    let r = relight(&low, r#"{"sun_elevation_degrees": 45}"#);
+    assert_eq!(r.status, 202, "{}", r.text());
+    let again = wait_finished(addr, r.json()["id"].as_str().unwrap());
+    assert_eq!(again["sky"]["sun_azimuth_degrees"], 90.0, "{again}");
+    assert_eq!(again["name"], "sky cloud · sun 45°, 90°", "{again}");
+
+    // The same sun with no skylight and with a bright sky: the second is brighter.
+    let mean = |id: &str| {
+        let r = get(
+            addr,
+            &format!("/v1/scenes/{id}/render?width=32&height=24&exposure=2"),
+        )
+        .unwrap();
+        assert_eq!(r.status, 200, "{}", r.text());
+        let img = image::load_from_memory(&r.body).unwrap().to_rgb8();
+        img.pixels()
+            .map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>())
+            .sum::<f64>()
+            / (3 * img.width() * img.height()) as f64
+    };
+    let (dark, _) = relit(r#"{"sky_fraction": 0}"#);
+    let (bright, _) = relit(r#"{"sky_fraction": 0.6}"#);
+    let (d, b) = (mean(&dark), mean(&bright));
+    assert!(d > 1.0, "the sun alone still lights the cloud: {d}");
+    assert!(b > 1.5 * d, "more skylight, brighter: {b} vs {d}");
+
+    for (body, status, mentions) in [
+        (r#"{"sun_elevation": 10}"#, 400, "sun_elevation"),
+        (r#"{"turbidity": "hazy"}"#, 400, "turbidity"),
+        (
+            r#"{"sun_elevation_degrees": 95}"#,
+            400,
+            "sun_elevation_degrees",
+        ),
+        (r#"{}"#, 400, "nothing to change"),
+        ("[1, 2]", 400, "JSON object"),
+    ] {
+        assert_error(&relight(&id, body), status, mentions);
+    }
+    assert_error(
+        &relight("0123456789ab", r#"{"turbidity": 4}"#),
+        404,
+        "0123456789ab",
+    );
+    let plain = submit(addr, &scene(5, 0.9));
+    assert_error(&relight(&plain, r#"{"turbidity": 4}"#), 400, "no sky");
 }
