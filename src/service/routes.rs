@@ -153,6 +153,15 @@ pub fn query_from_str(query: &str) -> ApiResult<HashMap<String, String>> {
         .map_err(|e| ApiError::bad(format!("malformed query string: {e}")))
 }
 
+/// The `?name=` of a request that posts a scene (the only parameter it reads), checked.
+fn name_parameter(q: RawQuery) -> ApiResult<Option<String>> {
+    let q = query_map(q)?;
+    refuse_unknown_parameters(&q, &["name"])?;
+    q.get("name")
+        .map(|n| check_scene_name(n).map_err(ApiError::bad))
+        .transpose()
+}
+
 /// `POST /v1/scenes[?name=NAME]`: TOML (default) or JSON (`Content-Type: application/json`)
 /// scene text; `name` is what lists and the viewer call it.
 async fn post_scene(
@@ -161,12 +170,7 @@ async fn post_scene(
     q: RawQuery,
     body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Response> {
-    let q = query_map(q)?;
-    refuse_unknown_parameters(&q, &["name"])?;
-    let name = q
-        .get("name")
-        .map(|n| check_scene_name(n).map_err(ApiError::bad))
-        .transpose()?;
+    let name = name_parameter(q)?;
     let body = body_bytes(body)?;
     let is_json = headers
         .get(header::CONTENT_TYPE)
@@ -457,12 +461,7 @@ async fn relight(
     q: RawQuery,
     body: Result<Bytes, BytesRejection>,
 ) -> ApiResult<Response> {
-    let q = query_map(q)?;
-    refuse_unknown_parameters(&q, &["name"])?;
-    let name = q
-        .get("name")
-        .map(|n| check_scene_name(n).map_err(ApiError::bad))
-        .transpose()?;
+    let name = name_parameter(q)?;
     let id = resolve(&service, &id)?;
     let body = body_bytes(body)?;
     let changes: serde_json::Map<String, Value> = serde_json::from_slice(&body)
