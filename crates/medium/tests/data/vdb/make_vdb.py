@@ -5,6 +5,11 @@ the library's writer and the library's reader.
 
     make_vdb.py OUTDIR [--seed N] [--quick] [--large]
     make_vdb.py --from-raw RAW NX NY NZ OUT.vdb [--voxel-size H] [--name density]
+    make_vdb.py --describe FILE.vdb OUTDIR
+
+`--describe` writes the manifest and values of an existing file (say, a sample model from
+openvdb.org) into OUTDIR, beside a link to the file, so that volrad's reader is checked on
+files other programs wrote (`VOLRAD_REAL_VDB` in crates/medium/tests/it/vdb.rs).
 
 For every case `NAME` it writes `NAME.vdb` and `NAME.json`:
     {"file": "NAME.vdb", "grids": [{"name", "dims", "bbox_min", "bbox_max", "voxel_size",
@@ -224,6 +229,8 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--from-raw", nargs=5, metavar=("RAW", "NX", "NY", "NZ", "OUT"),
                    help="write one raw f32 volume as a .vdb instead of the test files")
+    p.add_argument("--describe", metavar="FILE",
+                   help="write the manifest of an existing .vdb into OUTDIR instead")
     p.add_argument("--voxel-size", type=float, default=1.0)
     p.add_argument("--name", default="density")
     p.add_argument("outdir", nargs="?")
@@ -241,6 +248,13 @@ def main():
         p.error("OUTDIR is required")
     os.makedirs(args.outdir, exist_ok=True)
     vdb.initialize() if hasattr(vdb, "initialize") else None
+    if args.describe:
+        stem = os.path.splitext(os.path.basename(args.describe))[0]
+        link = os.path.join(args.outdir, stem + ".vdb")
+        if not os.path.exists(link):
+            os.symlink(os.path.abspath(args.describe), link)
+        manifest(args.outdir, stem)
+        return
     rng = np.random.default_rng(args.seed)
     quick_cases(args.outdir, rng)
     if args.large:
