@@ -226,7 +226,7 @@ impl SceneInfo {
                 .fold(0.0, f32::max),
             phase: scene::phase_spelling(&m.phase()),
             lights: scene.lights.len(),
-            environment: scene.environment.map(|e| match e.spec() {
+            environment: scene.environment.as_ref().map(|e| match e.spec() {
                 medium::environment::EnvironmentSpec::Uniform {
                     radiance: [r, g, b],
                 } => {
@@ -240,6 +240,15 @@ impl SceneInfo {
                     "Preetham sky, turbidity {}, sun at {}° elevation, {}° azimuth (the sun is \
                      one of the lights), ground albedo {}",
                     s.turbidity, s.sun_elevation_degrees, s.sun_azimuth_degrees, s.ground_albedo
+                ),
+                medium::environment::EnvironmentSpec::Map(m) => format!(
+                    "map of {} × {} texels, scale {}, turned {}° about up {:?} (peak radiance {:.4})",
+                    m.width(),
+                    m.height(),
+                    m.scale(),
+                    m.rotation_degrees(),
+                    m.up().to_array(),
+                    m.max_rgb().into_iter().fold(0.0, f64::max)
                 ),
             }),
             cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),

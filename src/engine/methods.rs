@@ -72,7 +72,7 @@ pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
 /// Refuses, before any work, a solve method that cannot carry the scene's environment light:
 /// its first bounce lives in the solved field, which `single-scatter` and `none` do not build.
 pub fn check_environment(scene: &Scene, settings: &SolveSettings) -> Result<()> {
-    if scene.environment.is_none_or(|e| e.is_dark()) {
+    if scene.environment.as_ref().is_none_or(|e| e.is_dark()) {
         return Ok(());
     }
     match settings.method {
@@ -320,6 +320,40 @@ pub fn solve_zonal(
     ))
 }
 
+/// The radiance `env` sends along each bin of `bins` in channel `c` of `channels`: at the
+/// bin's centre, or, for a map, its mean over the bin (every texel's power put in the bin its
+/// light travels through, so a small bright source keeps its power whatever the bins; a
+/// smooth sky is well sampled at the centres).
+pub fn environment_bin_radiance(
+    env: &Environment,
+    bins: &DirectionBins,
+    c: usize,
+    channels: usize,
+) -> Vec<f64> {
+    let Some(map) = env.as_map() else {
+        return bins
+            .centres()
+            .iter()
+            .map(|&d| env.radiance_along(d, c, channels))
+            .collect();
+    };
+    let mut power = vec![0.0; bins.len()];
+    map.for_each_sample(|from, omega, rgb| {
+        let radiance = if channels == 1 {
+            medium::environment::luminance(&rgb)
+        } else {
+            rgb[c.min(2)]
+        };
+        // Light from `from` travels along −from.
+        power[bins.bin_of(-from)] += omega * radiance;
+    });
+    power
+        .iter()
+        .zip(bins.solid_angles())
+        .map(|(p, omega)| p / omega)
+        .collect()
+}
+
 /// Adds the environment's first-collision source to the zonal `source` of channel `c`.
 fn add_zonal_environment(
     source: &mut [f64],
@@ -346,15 +380,14 @@ fn add_zonal_environment(
     }
     // A sky: its uncollided fluence over ENVIRONMENT_BINS directions, scattered isotropically.
     let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
-    let fluence = env
-        .uncollided_fluence(
-            medium.grid(),
-            &channel.sigma_t,
-            (c, channels),
-            bins.centres(),
-            bins.solid_angles(),
-        )
-        .context("the environment's uncollided light")?;
+    let fluence = Environment::uncollided_fluence(
+        medium.grid(),
+        &channel.sigma_t,
+        bins.centres(),
+        bins.solid_angles(),
+        &environment_bin_radiance(env, &bins, c, channels),
+    )
+    .context("the environment's uncollided light")?;
     for (i, (s, phi)) in source.iter_mut().zip(fluence).enumerate() {
         *s += channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * phi / (4.0 * PI);
     }
@@ -421,7 +454,8 @@ pub fn solve_ordinates(
     let uncollided = match environment.filter(|e| !e.is_dark()) {
         Some(env) => {
             let channels = medium.channels().len();
-            let psi = op.inflow_radiance(|d| env.radiance_along(d, c, channels));
+            let along = environment_bin_radiance(env, op.bins(), c, channels);
+            let psi = op.inflow_radiance(&along)?;
             let mut scattered = vec![0.0; op.len()];
             op.apply(&psi, &mut scattered);
             for (s, k) in source.iter_mut().zip(&scattered) {
@@ -471,7 +505,7 @@ pub fn solve_two_pass(
         photons_per_light: settings.photons,
         bins,
         include_first_bounce: false,
-        environment: scene.environment,
+        environment: scene.environment.clone(),
         ..EnergetizeOptions::default()
     };
     if hooks.control.is_cancelled() {

@@ -146,7 +146,7 @@ pub fn solve_scene(
         method: settings.method,
         medium: scene.medium.clone(),
         lights: scene.lights.clone(),
-        environment: scene.environment,
+        environment: scene.environment.clone(),
         background: scene.background,
         render: scene.render.clone(),
         cameras: scene.cameras.clone(),
@@ -219,7 +219,7 @@ pub fn render_view_through(
     }
     let camera = Camera::from_spec(camera)?;
     let mut options = RenderOptions::from_settings(&solution.render, solution.background);
-    options.environment = solution.environment;
+    options.environment = solution.environment.clone();
     if let Some(spp) = spp {
         options.spp = spp;
     }

@@ -784,9 +784,8 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
     let environment = job
         .solution
         .as_ref()
-        .map(|s| s.environment)
-        .or_else(|| job.scene.as_ref().map(|s| s.environment))
-        .flatten();
+        .and_then(|s| s.environment.clone())
+        .or_else(|| job.scene.as_ref().and_then(|s| s.environment.clone()));
     if let Some(EnvironmentSpec::Sky(sky)) = environment.map(|e| e.spec()) {
         v["sky"] = json!({
             "sun_elevation_degrees": sky.sun_elevation_degrees,

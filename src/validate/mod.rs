@@ -653,7 +653,7 @@ pub fn path_traced(
         &scene.lights,
         Surroundings {
             background: scene.background,
-            environment: scene.environment,
+            environment: scene.environment.clone(),
         },
         camera,
         &PathTraceOptions {

@@ -65,7 +65,7 @@ pub fn path_traced(scene: &scene::Scene, c: usize, spp: u32) -> montecarlo::path
         &scene.lights,
         Surroundings {
             background: scene.background,
-            environment: scene.environment,
+            environment: scene.environment.clone(),
         },
         &camera,
         &PathTraceOptions {

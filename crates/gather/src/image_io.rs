@@ -389,11 +389,75 @@ fn write_atomic(
     medium::atomic_file::write_with(path, write, |e| GatherError::io(path, e))
 }
 
+/// Reads a linear image by its extension: `.pfm` ([`read_pfm`]) or `.exr` ([`read_exr`]);
+/// only regular files are opened (a FIFO or a device is refused, never waited on).
+pub fn read_image(path: &Path) -> Result<Image, GatherError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("pfm") => read_pfm(path),
+        Some("exr") => read_exr(path),
+        _ => Err(GatherError::format(
+            path,
+            "unknown image extension (expected .exr or .pfm, linear radiance)",
+        )),
+    }
+}
+
+/// Reads an OpenEXR file's first layer: its R, G and B channels (A ignored), or its Y
+/// channel alone (grey), as f32, top row first.
+pub fn read_exr(path: &Path) -> Result<Image, GatherError> {
+    use exr::prelude::*;
+    let bytes = medium::regular_file::read(path).map_err(|e| GatherError::io(path, e))?;
+    let bad = |e: exr::error::Error| GatherError::format(path, format!("not a readable EXR: {e}"));
+    let rgb = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgba_channels(
+            |size, _| (size.width(), vec![0.0f32; size.width() * size.height() * 3]),
+            |(w, px): &mut (usize, Vec<f32>), Vec2(x, y), (r, g, b, _a): (f32, f32, f32, f32)| {
+                let i = (y * *w + x) * 3;
+                px[i..i + 3].copy_from_slice(&[r, g, b]);
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(&bytes));
+    let (size, channels, pixels) = match rgb {
+        Ok(image) => {
+            let layer = image.layer_data;
+            (layer.size, 3, layer.channel_data.pixels.1)
+        }
+        Err(_) => {
+            let grey = read()
+                .no_deep_data()
+                .largest_resolution_level()
+                .specific_channels()
+                .required("Y")
+                .collect_pixels(
+                    |size, _| (size.width(), vec![0.0f32; size.width() * size.height()]),
+                    |(w, px): &mut (usize, Vec<f32>), Vec2(x, y), (v,): (f32,)| {
+                        px[y * *w + x] = v;
+                    },
+                )
+                .first_valid_layer()
+                .all_attributes()
+                .from_buffered(std::io::Cursor::new(&bytes))
+                .map_err(bad)?;
+            let layer = grey.layer_data;
+            (layer.size, 1, layer.channel_data.pixels.1)
+        }
+    };
+    self::Image::new(size.width() as u32, size.height() as u32, channels, pixels)
+}
+
 /// Reads a PFM file ("Pf" grey or "PF" RGB, either byte order) into an [`Image`] with the top
 /// row first. Refuses malformed headers, non-positive sizes, a zero or non-finite scale and
 /// data of the wrong length, saying which.
 pub fn read_pfm(path: &Path) -> Result<Image, GatherError> {
-    let bytes = fs::read(path).map_err(|e| GatherError::io(path, e))?;
+    let bytes = medium::regular_file::read(path).map_err(|e| GatherError::io(path, e))?;
     parse_pfm(&bytes).map_err(|m| GatherError::format(path, format!("not a valid PFM: {m}")))
 }
 

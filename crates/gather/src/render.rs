@@ -105,7 +105,7 @@ pub struct RenderSettings {
 pub const MAX_SPP: u32 = 4096;
 
 /// What to render and how.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
     /// Which of Max's optical models.
     pub model: OpticalModel,
@@ -289,6 +289,7 @@ impl<'a> RayIntegrator<'a> {
             },
             environment: options
                 .environment
+                .clone()
                 .map(|e| (e, index.channel, medium.channels().len())),
             scattering_max,
             emission_max: index.emission_max,

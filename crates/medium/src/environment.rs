@@ -16,9 +16,12 @@
 
 use std::f64::consts::PI;
 
+use std::sync::Arc;
+
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use crate::environment_map::EnvironmentMap;
 use crate::light_pass::directional_cell_transmittance;
 use crate::{Grid, MediumError};
 
@@ -31,7 +34,7 @@ const RAYS_PER_CELL: usize = 4;
 /// Radiances are finite and ≥ 0; a sky's parameters are in range and its normalisation is
 /// finite (checked by [`Environment::uniform`], [`Environment::uniform_rgb`] and
 /// [`Environment::sky`]).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Environment {
     kind: Kind,
 }
@@ -39,19 +42,25 @@ pub struct Environment {
 // One per scene, copied only into render settings: the sky's size (its coefficients kept
 // ready to evaluate) does not matter.
 #[allow(clippy::large_enum_variant)]
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
 enum Kind {
-    Uniform { radiance: [f64; 3] },
+    Uniform {
+        radiance: [f64; 3],
+    },
     Sky(Sky),
+    /// Shared: renders and solves copy the environment, not its texels.
+    Map(Arc<EnvironmentMap>),
 }
 
 /// What an environment is made from (what a scene says; [`Environment::new`] checks it).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum EnvironmentSpec {
     /// The same radiance (linear RGB) from every direction.
     Uniform { radiance: [f64; 3] },
     /// Preetham's sky with a ground below the horizon.
     Sky(SkySpec),
+    /// An equirectangular map (checked when it was made).
+    Map(Arc<EnvironmentMap>),
 }
 
 /// What a sky is made from (scene keys of `[[light]] kind = "sky"`).
@@ -115,6 +124,7 @@ impl Environment {
         match spec {
             EnvironmentSpec::Uniform { radiance } => Self::uniform_rgb(radiance),
             EnvironmentSpec::Sky(sky) => Self::sky(sky),
+            EnvironmentSpec::Map(map) => Ok(Self::map(map)),
         }
     }
 
@@ -125,6 +135,7 @@ impl Environment {
                 radiance: *radiance,
             },
             Kind::Sky(s) => EnvironmentSpec::Sky(s.spec),
+            Kind::Map(m) => EnvironmentSpec::Map(m.clone()),
         }
     }
 
@@ -155,21 +166,30 @@ impl Environment {
         })
     }
 
+    /// An environment map (`crate::environment_map`).
+    pub fn map(map: Arc<EnvironmentMap>) -> Self {
+        Environment {
+            kind: Kind::Map(map),
+        }
+    }
+
     /// The uniform radiance per channel, when the environment is uniform.
     pub fn uniform_radiance(&self) -> Option<[f64; 3]> {
-        match self.kind {
-            Kind::Uniform { radiance } => Some(radiance),
+        match &self.kind {
+            Kind::Uniform { radiance } => Some(*radiance),
+            Kind::Map(m) => m.uniform_rgb(),
             Kind::Sky(_) => None,
         }
     }
 
     /// Whether the channels differ (a grey medium is then solved in three channels).
     pub fn is_coloured(&self) -> bool {
-        match self.kind {
+        match &self.kind {
             Kind::Uniform {
                 radiance: [r, g, b],
             } => r != g || g != b,
             Kind::Sky(_) => true,
+            Kind::Map(m) => m.is_coloured(),
         }
     }
 
@@ -178,7 +198,7 @@ impl Environment {
     pub fn sun(&self) -> Option<(DVec3, f64)> {
         match &self.kind {
             Kind::Sky(s) => Some((s.to_sun, s.spec.sun_irradiance)),
-            Kind::Uniform { .. } => None,
+            Kind::Uniform { .. } | Kind::Map(_) => None,
         }
     }
 
@@ -189,6 +209,16 @@ impl Environment {
         match &self.kind {
             Kind::Uniform { radiance } => pick(radiance, channel, channels),
             Kind::Sky(s) => pick(&s.rgb_from(-direction), channel, channels),
+            Kind::Map(m) => pick(&m.rgb_from(-direction), channel, channels),
+        }
+    }
+
+    /// The environment's map, when it is one (the solvers splat its texels onto their
+    /// direction bins rather than sample it at their centres).
+    pub fn as_map(&self) -> Option<&EnvironmentMap> {
+        match &self.kind {
+            Kind::Map(m) => Some(m),
+            _ => None,
         }
     }
 
@@ -198,42 +228,45 @@ impl Environment {
             Kind::Uniform { radiance } => pick(radiance, channel, channels),
             // (For one channel the luminance of the per-channel maxima: a bound as well.)
             Kind::Sky(s) => pick(&s.max_rgb, channel, channels),
+            Kind::Map(m) => pick(&m.max_rgb(), channel, channels),
         }
     }
 
     /// Whether it sends no light at all.
     pub fn is_dark(&self) -> bool {
-        match self.kind {
-            Kind::Uniform { radiance } => radiance == [0.0; 3],
+        match &self.kind {
+            Kind::Uniform { radiance } => *radiance == [0.0; 3],
             Kind::Sky(_) => false,
+            Kind::Map(m) => m.max_rgb() == [0.0; 3],
         }
     }
 
-    /// The uncollided fluence `Σ_k Ω_k L(ω_k) ⟨T(ω_k)⟩_i` per cell in channel `channel` of
-    /// `channels`, over the quadrature of travel `directions` with solid angles
-    /// `solid_angles` (which should add up to 4π); `σt` per cell, one transmittance pass per
-    /// direction.
+    /// The uncollided fluence `Σ_k Ω_k L_k ⟨T(ω_k)⟩_i` per cell, over the quadrature of
+    /// travel `directions` with solid angles `solid_angles` (which should add up to 4π) and
+    /// the radiance `radiances[k]` arriving along each (the environment's in one channel: at
+    /// the direction, or its mean over the direction's bin); `σt` per cell, one
+    /// transmittance pass per direction with light.
     pub fn uncollided_fluence(
-        &self,
         grid: &Grid,
         sigma_t: &[f32],
-        (channel, channels): (usize, usize),
         directions: &[DVec3],
         solid_angles: &[f64],
+        radiances: &[f64],
     ) -> Result<Vec<f64>, MediumError> {
-        if directions.len() != solid_angles.len() {
+        if directions.len() != solid_angles.len() || directions.len() != radiances.len() {
             return Err(MediumError::invalid(
                 "environment quadrature",
                 format!(
-                    "{} directions but {} solid angles",
+                    "{} directions, {} solid angles and {} radiances",
                     directions.len(),
-                    solid_angles.len()
+                    solid_angles.len(),
+                    radiances.len()
                 ),
             ));
         }
         let mut fluence = vec![0.0; grid.cell_count()];
-        for (&direction, &omega) in directions.iter().zip(solid_angles) {
-            let radiance = self.radiance_along(direction, channel, channels);
+        for ((&direction, &omega), &radiance) in directions.iter().zip(solid_angles).zip(radiances)
+        {
             if radiance == 0.0 {
                 continue;
             }
@@ -461,25 +494,28 @@ mod tests {
         // A column of 4 cells of σt = 0.5 along z, light travelling ±z: the cell average over
         // cell k is e^{−0.5 k} (1 − e^{−0.5}) / 0.5 going up.
         let grid = Grid::new([1, 1, 4], 1.0).unwrap();
-        let env = Environment::uniform(2.0).unwrap();
         let mean = (1.0 - (-0.5f64).exp()) / 0.5;
-        let fluence = env
-            .uncollided_fluence(
-                &grid,
-                &[0.5; 4],
-                (0, 1),
-                &[DVec3::Z, -DVec3::Z],
-                &[1.0, 3.0],
-            )
-            .unwrap();
+        let fluence = Environment::uncollided_fluence(
+            &grid,
+            &[0.5; 4],
+            &[DVec3::Z, -DVec3::Z],
+            &[1.0, 3.0],
+            &[2.0, 2.0],
+        )
+        .unwrap();
         for (k, f) in fluence.iter().enumerate() {
             let up = 2.0 * (-0.5 * k as f64).exp() * mean;
             let down = 2.0 * (-0.5 * (3 - k) as f64).exp() * mean;
             assert!((f - (up + 3.0 * down)).abs() < 1e-9, "cell {k}: {f}");
         }
-        assert!(env
-            .uncollided_fluence(&grid, &[0.5; 4], (0, 1), &[DVec3::Z], &[1.0, 3.0])
-            .is_err());
+        assert!(Environment::uncollided_fluence(
+            &grid,
+            &[0.5; 4],
+            &[DVec3::Z],
+            &[1.0, 3.0],
+            &[2.0]
+        )
+        .is_err());
     }
 
     fn sky(spec: SkySpec) -> (Environment, Sky) {

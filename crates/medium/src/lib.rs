@@ -34,6 +34,7 @@ pub mod blackbody;
 pub mod coarsening;
 pub mod emitter_pass;
 pub mod environment;
+pub mod environment_map;
 pub mod error;
 pub mod fma;
 pub mod generators;

@@ -89,7 +89,7 @@ pub struct PathTracer<'a> {
 }
 
 /// What a path meets where it leaves the grid.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Surroundings {
     /// Radiance `I0` a camera ray sees where it leaves the grid without scattering, when
     /// there is no environment.
@@ -384,9 +384,15 @@ pub fn path_trace_image_with_progress(
     let mut pixels = vec![0.0f32; camera.width as usize * camera.height as usize * n];
     for c in 0..n {
         let before = c as u64 * camera.height as u64;
-        let ch = path_trace_rows(medium, c, lights, surroundings, camera, options, &|rows| {
-            progress(before + rows)
-        })?
+        let ch = path_trace_rows(
+            medium,
+            c,
+            lights,
+            surroundings.clone(),
+            camera,
+            options,
+            &|rows| progress(before + rows),
+        )?
         .mean;
         for (i, &v) in ch.pixels.iter().enumerate() {
             pixels[i * n + c] = v;

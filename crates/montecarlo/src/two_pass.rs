@@ -65,7 +65,7 @@ const BATCH: u64 = 4096;
 const GROUPS: usize = 4;
 
 /// How to run the energetization pass.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct EnergetizeOptions {
     /// Photons sent from each light (and as many from the environment, and from the medium's
     /// emission, each counted as one more light).

@@ -3,10 +3,12 @@
 //! Every failure names the file and the dotted key of the value.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use gather::{CameraSpec, Projection};
 use glam::DVec3;
 use medium::environment::SkySpec;
+use medium::environment_map::EnvironmentMap;
 use medium::transfer::{PiecewiseLinear, Transfer};
 use medium::{Environment, Light, PhaseFunction};
 
@@ -433,12 +435,77 @@ impl Ctx<'_> {
         })
     }
 
+    /// `[[light]] kind = "environment"` with `file`: an equirectangular map (`.exr` or `.pfm`,
+    /// linear RGB or grey) with `scale`, `up` and `rotation_degrees`.
+    fn environment_map(&self, t: &toml::Table, key: &str) -> Result<SceneLight, SceneError> {
+        let fk = join(key, "file");
+        let Some(file) = t.get("file") else {
+            return Err(self.err(
+                key,
+                "an environment needs `radiance` (uniform) or `file` (a map)",
+            ));
+        };
+        if t.get("radiance").is_some() {
+            return Err(self.err(
+                join(key, "radiance"),
+                "give `radiance` (uniform) or `file` (a map), not both",
+            ));
+        }
+        let path = self.base_dir.join(self.string(file, &fk)?);
+        let image =
+            gather::image_io::read_image(&path).map_err(|e| self.err(&fk, e.to_string()))?;
+        let texels = match image.channels {
+            1 => image.pixels.iter().map(|&v| [v; 3]).collect(),
+            3 => image
+                .pixels
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect(),
+            n => return Err(self.err(&fk, format!("{n} channels: expected 1 or 3"))),
+        };
+        let scale = match t.get("scale") {
+            Some(v) => self.non_negative(v, &join(key, "scale"))?,
+            None => 1.0,
+        };
+        let up = match t.get("up") {
+            Some(v) => self.vec3(v, &join(key, "up"))?,
+            None => DVec3::Z,
+        };
+        let rotation = match t.get("rotation_degrees") {
+            Some(v) => self.number(v, &join(key, "rotation_degrees"))?,
+            None => 0.0,
+        };
+        let map = EnvironmentMap::new(
+            image.width as usize,
+            image.height as usize,
+            texels,
+            up,
+            rotation,
+            scale,
+        )
+        .map_err(|e| {
+            let param = match &e {
+                medium::MediumError::Invalid { what, .. } => what.strip_prefix("environment "),
+                _ => None,
+            };
+            match param {
+                Some(p) if p != "map" => self.err(join(key, p), e.to_string()),
+                _ => self.err(&fk, format!("{}: {e}", path.display())),
+            }
+        })?;
+        Ok(SceneLight::Environment(Environment::map(Arc::new(map))))
+    }
+
     pub(crate) fn light(&self, v: &toml::Value, key: &str) -> Result<SceneLight, SceneError> {
         let (kind, t) = self.kind_table(
             v,
             key,
             &[
-                ("environment", &["radiance"], &[]),
+                (
+                    "environment",
+                    &[],
+                    &["radiance", "file", "scale", "up", "rotation_degrees"],
+                ),
                 (
                     "sky",
                     &["sun_elevation_degrees"],
@@ -469,7 +536,18 @@ impl Ctx<'_> {
             Ok(d.normalize())
         };
         let light = match kind {
+            "environment" if t.get("file").is_some() || t.get("radiance").is_none() => {
+                return self.environment_map(t, key);
+            }
             "environment" => {
+                for extra in ["scale", "up", "rotation_degrees"] {
+                    if t.get(extra).is_some() {
+                        return Err(self.err(
+                            join(key, extra),
+                            "belongs to an environment map (`file`), not a uniform `radiance`",
+                        ));
+                    }
+                }
                 let k = join(key, "radiance");
                 let values = self.grey_or_rgb(&t["radiance"], &k, &|x| {
                     if x.is_finite() && x >= 0.0 {

@@ -338,6 +338,13 @@ impl Solution {
         if let Some(d) = self.medium.data() {
             arrays.push(("data".into(), d.to_vec()));
         }
+        if let Some(map) = self
+            .environment
+            .as_ref()
+            .and_then(records::environment_map_array)
+        {
+            arrays.push(("environment/map".into(), map));
+        }
         Container {
             meta: MetaRecord {
                 volrad_version: env!("CARGO_PKG_VERSION").into(),
@@ -518,7 +525,11 @@ impl Solution {
             lights,
             environment: meta
                 .environment
-                .map(|e| e.into_library())
+                .map(|e| {
+                    e.into_library(|len| {
+                        take("environment/map".into(), len).map_err(|e| e.to_string())
+                    })
+                })
                 .transpose()
                 .map_err(bad)?,
             background: meta.background,

@@ -81,6 +81,15 @@ pub enum EnvironmentRecord {
         sky_fraction: f64,
         ground_albedo: f64,
     },
+    /// An environment map; its texels (linear RGB, row 0 the zenith) are the array
+    /// `environment/map`, `width × height × 3` values.
+    Map {
+        width: u64,
+        height: u64,
+        up: [f64; 3],
+        rotation_degrees: f64,
+        scale: f64,
+    },
 }
 
 impl From<&Environment> for EnvironmentRecord {
@@ -96,14 +105,61 @@ impl From<&Environment> for EnvironmentRecord {
                 sky_fraction: s.sky_fraction,
                 ground_albedo: s.ground_albedo,
             },
+            EnvironmentSpec::Map(m) => EnvironmentRecord::Map {
+                width: m.width() as u64,
+                height: m.height() as u64,
+                up: vec3(m.up()),
+                rotation_degrees: m.rotation_degrees(),
+                scale: m.scale(),
+            },
         }
     }
 }
 
+/// The texels of an environment map as the array `environment/map` stores them.
+pub fn environment_map_array(e: &Environment) -> Option<Vec<f32>> {
+    match e.spec() {
+        EnvironmentSpec::Map(m) => Some(m.texels().iter().flatten().copied().collect()),
+        _ => None,
+    }
+}
+
 impl EnvironmentRecord {
-    /// Through [`Environment::new`].
-    pub fn into_library(self) -> Result<Environment, String> {
+    /// Through [`Environment::new`]; `map_array(len)` gives a map's texels (the array
+    /// `environment/map`, checked to hold `len` values).
+    pub fn into_library(
+        self,
+        map_array: impl FnOnce(usize) -> Result<Vec<f32>, String>,
+    ) -> Result<Environment, String> {
         Environment::new(match self {
+            EnvironmentRecord::Map {
+                width,
+                height,
+                up,
+                rotation_degrees,
+                scale,
+            } => {
+                let (w, h) = (
+                    to_usize(width, "map width")?,
+                    to_usize(height, "map height")?,
+                );
+                let len = w
+                    .checked_mul(h)
+                    .filter(|&n| n <= medium::environment_map::MAX_TEXELS)
+                    .ok_or_else(|| format!("an environment map of {w} × {h} texels"))?;
+                let values = map_array(3 * len)?;
+                let texels = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+                let map = medium::environment_map::EnvironmentMap::new(
+                    w,
+                    h,
+                    texels,
+                    DVec3::from_array(up),
+                    rotation_degrees,
+                    scale,
+                )
+                .map_err(|e| e.to_string())?;
+                EnvironmentSpec::Map(std::sync::Arc::new(map))
+            }
             EnvironmentRecord::Uniform { radiance } => EnvironmentSpec::Uniform { radiance },
             EnvironmentRecord::Sky {
                 turbidity,

@@ -1514,28 +1514,35 @@ impl OrdinatesOperator {
     }
 
     /// The uncollided radiance, cell- and bin-averaged (`ψ[c·M + l]`), of light entering the
-    /// grid from outside with radiance `inflow(ω_l)` along each bin centre `ω_l` (an
-    /// environment), in the sweep's own discretisation: the source `σt* L_l` with that inflow
-    /// keeps `L_l` everywhere, so `ψ = L_l − T(σt* L_l)`. A non-absorbing medium in a uniform
-    /// inflow then holds it everywhere (the white furnace) to the solver's tolerance.
-    pub fn inflow_radiance(&self, inflow: impl Fn(DVec3) -> f64) -> Vec<f64> {
+    /// grid from outside with radiance `along[l]` in each bin `l` (an environment: at the bin
+    /// centre, or its mean over the bin), in the sweep's own discretisation: the source
+    /// `σt* L_l` with that inflow keeps `L_l` everywhere, so `ψ = L_l − T(σt* L_l)`. A
+    /// non-absorbing medium in a uniform inflow then holds it everywhere (the white furnace)
+    /// to the solver's tolerance.
+    pub fn inflow_radiance(&self, along: &[f64]) -> Result<Vec<f64>, OrdinatesError> {
         let m = self.bins.len();
-        let along: Vec<f64> = self.bins.centres().iter().map(|&d| inflow(d)).collect();
+        if along.len() != m {
+            return Err(OrdinatesError::Length {
+                what: "inflow radiances",
+                got: along.len(),
+                expected: m,
+            });
+        }
         let mut density = vec![0.0; self.len()];
         for ((d, &st), &ss) in density.chunks_mut(m).zip(&self.sigma_t).zip(&self.sigma_s) {
             let sweep_sigma = (st - self.truncation * ss).max(0.0);
-            for (dl, l) in d.iter_mut().zip(&along) {
+            for (dl, l) in d.iter_mut().zip(along) {
                 *dl = sweep_sigma * l;
             }
         }
         let mut psi = vec![0.0; self.len()];
         self.transport(&density, &mut psi);
         for p in psi.chunks_mut(m) {
-            for (pl, l) in p.iter_mut().zip(&along) {
+            for (pl, l) in p.iter_mut().zip(along) {
                 *pl = (l - *pl).max(0.0);
             }
         }
-        psi
+        Ok(psi)
     }
 
     /// Angular integral `Σ_l I_l Ω_l` per cell (the zonal `4π ×` mean radiance).

@@ -600,22 +600,25 @@ fn bad_render_inputs_are_refused() {
         "channel out of range"
     );
     for bad in [
-        RenderOptions { spp: 0, ..base },
+        RenderOptions {
+            spp: 0,
+            ..base.clone()
+        },
         RenderOptions {
             background: f64::NAN,
-            ..base
+            ..base.clone()
         },
         RenderOptions {
             background: -1.0,
-            ..base
+            ..base.clone()
         },
         RenderOptions {
             trilinear_step: 0.0,
-            ..base
+            ..base.clone()
         },
         RenderOptions {
             termination: 1.0,
-            ..base
+            ..base.clone()
         },
     ] {
         assert!(render(&medium, 0, &cam, &bad, &()).is_err(), "{bad:?}");

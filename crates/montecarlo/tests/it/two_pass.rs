@@ -310,14 +310,14 @@ fn bad_inputs_are_refused() {
     assert!(matches!(
         run(EnergetizeOptions {
             photons_per_light: 0,
-            ..base
+            ..base.clone()
         }),
         Err(MonteCarloError::Options(_))
     ));
     assert!(matches!(
         run(EnergetizeOptions {
             storage_factor: 0,
-            ..base
+            ..base.clone()
         }),
         Err(MonteCarloError::Options(_))
     ));
@@ -326,7 +326,7 @@ fn bad_inputs_are_refused() {
             n_theta: 0,
             n_phi: 4
         },
-        ..base
+        ..base.clone()
     })
     .is_err());
     assert!(matches!(
