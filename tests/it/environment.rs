@@ -473,3 +473,74 @@ fn environment_map_keys_are_checked() {
         .to_string();
     assert!(e.contains("light[0].scale"), "{e}");
 }
+
+/// An EXR whose light comes from one bright texel over a dim sky gives the image of a
+/// directional light of the same irradiance under a uniform sky (issue #20: to 1 %): the
+/// texel is split off the map as that light, whose first bounce the render takes exactly.
+#[test]
+fn a_map_with_one_bright_texel_is_a_directional_light() {
+    let (w, h, x0, y0) = (256usize, 128usize, 32usize, 40usize);
+    let (t0, t1) = (
+        std::f64::consts::PI * y0 as f64 / h as f64,
+        std::f64::consts::PI * (y0 + 1) as f64 / h as f64,
+    );
+    let omega = (t0.cos() - t1.cos()) * std::f64::consts::TAU / w as f64;
+    let (theta, phi) = (
+        0.5 * (t0 + t1),
+        std::f64::consts::TAU * (x0 as f64 + 0.5) / w as f64,
+    );
+    let to_texel = glam::DVec3::new(
+        theta.sin() * phi.cos(),
+        theta.sin() * phi.sin(),
+        theta.cos(),
+    );
+    let dir = tempfile::tempdir().unwrap();
+    write_map(dir.path(), "sun.exr", (w, h), |from| {
+        if from.dot(to_texel) > 1.0 - 1e-12 {
+            [(1.0 / omega) as f32; 3]
+        } else {
+            [0.05; 3]
+        }
+    });
+    for (method, phase) in [
+        ("discrete-ordinates", FORWARD),
+        ("zonal-hierarchical", ISOTROPIC),
+    ] {
+        let text = scene_text_at([24, 24, 20], 0.5, 0.9, phase, method, "")
+            .replace("eye = [6.0, -20.0, 14.0]", "eye = [6.0, -20.0, 8.0]");
+        let mapped = Scene::from_toml_str(
+            &text.replace(
+                "kind = \"environment\"\nradiance = 0.5",
+                "kind = \"environment\"\nfile = \"sun.exr\"",
+            ),
+            dir.path(),
+            Path::new("sun-map.toml"),
+        )
+        .unwrap();
+        assert_eq!(mapped.lights.len(), 1, "the texel is a light");
+        let lit = parse(&text.replace(
+            "kind = \"environment\"\nradiance = 0.5",
+            &format!(
+                "kind = \"environment\"\nradiance = 0.05\n\n[[light]]\nkind = \"directional\"\n\
+                 direction = {:?}\nirradiance = 1.0",
+                (-to_texel).to_array()
+            ),
+        ));
+        let want = render_view(&solve(&lit), &lit.cameras[0], Some(4)).unwrap();
+        let got = render_view(&solve(&mapped), &mapped.cameras[0], Some(4)).unwrap();
+        let (mut err2, mut ref2, mut diff, mut sum) = (0.0, 0.0, 0.0, 0.0);
+        for (g, r) in got.pixels.iter().zip(&want.pixels) {
+            let (g, r) = (*g as f64, *r as f64);
+            err2 += (g - r) * (g - r);
+            ref2 += r * r;
+            diff += g - r;
+            sum += r;
+        }
+        let (rms, mean) = ((err2 / ref2).sqrt(), diff / sum);
+        println!("one bright texel, {method}: relative RMS {rms:.5}, mean {mean:+.5}");
+        assert!(
+            rms < 0.01 && mean.abs() < 0.01,
+            "{method}: RMS {rms:.4}, mean {mean:+.4}"
+        );
+    }
+}

@@ -8,6 +8,8 @@
 //! from the same horizontal reference axis as the sky's (the projection of +x, of +y when `up`
 //! is along x). Lookups are bilinear between texel centres, wrapping in azimuth.
 //!
+//! Small bright sources (a sun disc) are split off as directional lights by the scene
+//! ([`EnvironmentMap::split_bright_sources`]), whose first bounce renders take exactly.
 //! The solvers integrate an environment over a few hundred directions; sampling a detailed map
 //! at so few points would alias (a small bright source would be missed or counted many times),
 //! so they take each direction bin's mean over the texels in it
@@ -22,6 +24,28 @@ use crate::MediumError;
 
 /// Most texels a map may hold (a 16k × 8k panorama).
 pub const MAX_TEXELS: usize = 1 << 27;
+
+/// A texel is a small bright source, split off as a light by
+/// [`EnvironmentMap::split_bright_sources`], when its luminance is over this many times the
+/// map's mean (a sun in a sky capture is 10⁴–10⁵ times).
+pub const BRIGHT_SOURCE_RATIO: f64 = 100.0;
+
+/// Bright texels within this angle (degrees) of a source's first texel join it (a sun disc
+/// spans half a degree).
+pub const BRIGHT_SOURCE_RADIUS_DEGREES: f64 = 2.0;
+
+/// Most bright sources split off one map; the rest stay in the map.
+pub const MAX_BRIGHT_SOURCES: usize = 8;
+
+/// A small bright source split off a map: the light it sends, as a directional light's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BrightSource {
+    /// The unit vector toward the source (its texels' power-weighted mean direction).
+    pub to_source: DVec3,
+    /// Its irradiance on a plane facing it (the grey part of its texels' radiance × solid
+    /// angle, summed).
+    pub irradiance: f64,
+}
 
 /// Largest angular size of the pieces [`EnvironmentMap::for_each_sample`] splits texels into
 /// (degrees): small next to a direction bin, so each piece lies in one.
@@ -217,6 +241,75 @@ impl EnvironmentMap {
         self.texels.iter().any(|t| t[0] != t[1] || t[1] != t[2])
     }
 
+    /// The map without its small bright sources, and those sources as directional lights: every
+    /// texel brighter (luminance) than [`BRIGHT_SOURCE_RATIO`] times the map's mean, grouped
+    /// into sources of texels within [`BRIGHT_SOURCE_RADIUS_DEGREES`] of each source's
+    /// brightest (at most [`MAX_BRIGHT_SOURCES`]). A source takes the grey part of its texels,
+    /// the least of their three channels, which leaves the rest of their colour (≥ 0) in the
+    /// map: no light is lost or counted twice, and a white sun leaves nothing. A light's first
+    /// bounce is exact in the render, where a map's is spread over a solver's direction bin,
+    /// which is why a sun disc should be a light.
+    pub fn split_bright_sources(&self) -> (EnvironmentMap, Vec<BrightSource>) {
+        let (dtheta, dphi) = (PI / self.height as f64, 2.0 * PI / self.width as f64);
+        let solid_angle = |y: usize| (dtheta * y as f64).cos() - (dtheta * (y + 1) as f64).cos();
+        let lum = |t: &[f32; 3]| crate::environment::luminance(&t.map(|v| v as f64));
+        let mut mean = 0.0;
+        for (i, t) in self.texels.iter().enumerate() {
+            mean += lum(t) * solid_angle(i / self.width) * dphi;
+        }
+        mean /= 4.0 * PI;
+        let threshold = BRIGHT_SOURCE_RATIO * mean;
+        let mut bright: Vec<usize> = (0..self.texels.len())
+            .filter(|&i| mean > 0.0 && lum(&self.texels[i]) > threshold)
+            .collect();
+        // Brightest first: each source starts at its brightest texel.
+        bright.sort_by(|&a, &b| lum(&self.texels[b]).total_cmp(&lum(&self.texels[a])));
+        let centre = |i: usize| {
+            let (x, y) = (i % self.width, i / self.width);
+            self.direction(dtheta * (y as f64 + 0.5), dphi * (x as f64 + 0.5))
+        };
+        let cos_radius = BRIGHT_SOURCE_RADIUS_DEGREES.to_radians().cos();
+        let mut seeds: Vec<DVec3> = Vec::new();
+        let mut sums: Vec<(DVec3, f64)> = Vec::new();
+        let mut texels = self.texels.clone();
+        for i in bright {
+            let d = centre(i);
+            let k = match seeds.iter().position(|s| s.dot(d) >= cos_radius) {
+                Some(k) => k,
+                None if seeds.len() < MAX_BRIGHT_SOURCES => {
+                    seeds.push(d);
+                    sums.push((DVec3::ZERO, 0.0));
+                    seeds.len() - 1
+                }
+                None => continue,
+            };
+            let grey = texels[i].iter().copied().fold(f32::INFINITY, f32::min);
+            let power = grey as f64 * self.scale * solid_angle(i / self.width) * dphi;
+            sums[k].0 += d * power;
+            sums[k].1 += power;
+            for v in &mut texels[i] {
+                *v -= grey;
+            }
+        }
+        let sources = sums
+            .into_iter()
+            .filter(|(_, e)| *e > 0.0)
+            .map(|(d, e)| BrightSource {
+                to_source: d.normalize(),
+                irradiance: e,
+            })
+            .collect();
+        let mut rest = self.clone();
+        rest.max_rgb = [0.0; 3];
+        for t in &texels {
+            for (m, v) in rest.max_rgb.iter_mut().zip(t) {
+                *m = m.max(*v as f64 * self.scale);
+            }
+        }
+        rest.texels = texels;
+        (rest, sources)
+    }
+
     /// Radiance (linear RGB) arriving from unit direction `from` (pointing at the sky).
     pub fn rgb_from(&self, from: DVec3) -> [f64; 3] {
         let cos_theta = from.dot(self.up).clamp(-1.0, 1.0);
@@ -297,6 +390,41 @@ mod tests {
         assert!((omega - 4.0 * PI).abs() < 1e-9, "{omega}");
         assert!((bright - texel).abs() < 1e-12, "{bright} vs {texel}");
         assert!((power - (4.0 * PI + 4.0 * texel)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_bright_texel_becomes_a_light_of_its_power() {
+        // A grey sky of 0.2 with one warm texel of (3000, 2000, 1000) and its dimmer
+        // neighbour: one source, the grey part (1000 and 500) of both; their colour stays.
+        let (w, h, x, y) = (1024, 512, 300, 100);
+        let m = map(w, h, |_, _| 0.2);
+        let mut texels = m.texels().to_vec();
+        texels[y * w + x] = [3000.0, 2000.0, 1000.0];
+        texels[y * w + x + 1] = [500.0; 3];
+        let m = EnvironmentMap::new(w, h, texels, DVec3::Z, 0.0, 2.0).unwrap();
+        let (rest, sources) = m.split_bright_sources();
+        assert_eq!(sources.len(), 1, "{sources:?}");
+        let (yf, wf, hf) = (y as f64, w as f64, h as f64);
+        let band = ((PI * yf / hf).cos() - (PI * (yf + 1.0) / hf).cos()) * 2.0 * PI / wf;
+        let want = 2.0 * 1500.0 * band;
+        assert!(
+            (sources[0].irradiance - want).abs() < 1e-9 * want,
+            "{sources:?} vs {want}"
+        );
+        assert_eq!(rest.texels()[y * w + x], [2000.0, 1000.0, 0.0]);
+        assert_eq!(rest.texels()[y * w + x + 1], [0.0; 3]);
+        assert_eq!(rest.texels()[0], [0.2; 3]);
+        assert_eq!(rest.max_rgb()[0], 4000.0);
+        // Toward the two texels' power-weighted centre: between their azimuths.
+        let d = sources[0].to_source;
+        let phi = d.y.atan2(d.x).to_degrees();
+        let column = |c: f64| c * 360.0 / wf;
+        assert!(phi > column(300.5) && phi < column(301.5), "{phi}");
+        // A smooth map keeps everything.
+        let (same, none) = map(16, 8, |x, y| 1.0 + (x + y) as f32).split_bright_sources();
+        assert!(
+            none.is_empty() && same.texels() == map(16, 8, |x, y| 1.0 + (x + y) as f32).texels()
+        );
     }
 
     #[test]

@@ -21,7 +21,9 @@ use crate::SceneError;
 #[allow(clippy::large_enum_variant)]
 pub(crate) enum SceneLight {
     Light(Light),
-    Environment(Environment),
+    /// An environment and the directional lights it places: a sky's sun, a map's small bright
+    /// sources.
+    Environment(Environment, Vec<Light>),
 }
 
 pub(crate) struct Ctx<'a> {
@@ -493,7 +495,19 @@ impl Ctx<'_> {
                 _ => self.err(&fk, format!("{}: {e}", path.display())),
             }
         })?;
-        Ok(SceneLight::Environment(Environment::map(Arc::new(map))))
+        // Its suns become lights, whose first bounce the render takes exactly.
+        let (rest, sources) = map.split_bright_sources();
+        let lights = sources
+            .into_iter()
+            .map(|s| Light::Directional {
+                direction: -s.to_source,
+                irradiance: s.irradiance,
+            })
+            .collect();
+        Ok(SceneLight::Environment(
+            Environment::map(Arc::new(rest)),
+            lights,
+        ))
     }
 
     pub(crate) fn light(&self, v: &toml::Value, key: &str) -> Result<SceneLight, SceneError> {
@@ -558,7 +572,7 @@ impl Ctx<'_> {
                 })?;
                 let rgb = [0, 1, 2].map(|c| values[c.min(values.len() - 1)]);
                 return Environment::uniform_rgb(rgb)
-                    .map(SceneLight::Environment)
+                    .map(|e| SceneLight::Environment(e, Vec::new()))
                     .map_err(|e| self.err(k, e.to_string()));
             }
             "sky" => {
@@ -581,7 +595,7 @@ impl Ctx<'_> {
                 };
                 // The library names the parameter ("sky turbidity"): point at its key.
                 return Environment::sky(spec)
-                    .map(SceneLight::Environment)
+                    .map(|e| SceneLight::Environment(e, Vec::new()))
                     .map_err(|e| {
                         let param = match &e {
                             medium::MediumError::Invalid { what, .. } => what.strip_prefix("sky "),

@@ -633,20 +633,22 @@ impl Ctx<'_> {
         for (i, light) in lights.into_iter().enumerate() {
             match light {
                 SceneLight::Light(l) => kept.push(l),
-                SceneLight::Environment(_) if environment.is_some() => {
+                SceneLight::Environment(..) if environment.is_some() => {
                     return Err(self.err(
                         format!("light[{i}].kind"),
                         "a second environment light: a scene has at most one",
                     ))
                 }
-                SceneLight::Environment(e) => {
-                    // A sky brings its sun: the directional light the model is lit by.
+                SceneLight::Environment(e, placed) => {
+                    // A sky brings its sun: the directional light the model is lit by; a map
+                    // the small bright sources split off it.
                     if let Some((to_sun, irradiance)) = e.sun() {
                         kept.push(Light::Directional {
                             direction: -to_sun,
                             irradiance,
                         });
                     }
+                    kept.extend(placed);
                     environment = Some(e)
                 }
             }
