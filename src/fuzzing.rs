@@ -145,6 +145,39 @@ pub fn nifti(bytes: &[u8]) {
     }
 }
 
+/// An environment map, as OpenEXR and as PFM: read, then checked as a scene's map is.
+pub fn environment_map(bytes: &[u8]) {
+    for (image, label) in [
+        (gather::image_io::parse_exr(bytes), "EXR"),
+        (gather::image_io::parse_pfm(bytes), "PFM"),
+    ] {
+        match image {
+            Ok(image) => {
+                let n = image.width as usize * image.height as usize * image.channels as usize;
+                assert_eq!(image.pixels.len(), n, "{label}");
+                let texels = image
+                    .pixels
+                    .chunks_exact(image.channels.max(1) as usize)
+                    .map(|c| [c[0], c[c.len() / 2], c[c.len() - 1]])
+                    .collect();
+                let map = medium::environment_map::EnvironmentMap::new(
+                    image.width as usize,
+                    image.height as usize,
+                    texels,
+                    glam::DVec3::Z,
+                    0.0,
+                    1.0,
+                );
+                if let Ok(map) = map {
+                    let (_, sources) = map.split_bright_sources();
+                    assert!(sources.iter().all(|s| s.irradiance.is_finite()));
+                }
+            }
+            Err(e) => check_error(&e, None),
+        }
+    }
+}
+
 /// A solution file (`Solution::from_bytes`), as given and with its fixed header made valid
 /// (magic, version, length, checksum), so that mutations reach the decoder behind the
 /// checksum. A solution read is written again without a panic.

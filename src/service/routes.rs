@@ -315,19 +315,32 @@ fn json_to_toml(v: &Value, key: &str) -> ApiResult<toml::Value> {
 }
 
 /// Limits that must hold before the scene is built (a generator on huge dims would allocate),
-/// and the rule that volume files are only uploaded volumes.
+/// and the rule that the files a scene names (its volume, an environment map) are uploads.
 fn check_scene_limits(service: &Service, table: &toml::Table) -> ApiResult<()> {
     let limits = &service.inner.limits;
+    let lights = table.get("light").and_then(|l| l.as_array());
+    for (i, light) in lights.into_iter().flatten().enumerate() {
+        let Some(file) = light.as_table().and_then(|t| t.get("file")) else {
+            continue;
+        };
+        let name = file.as_str().unwrap_or("");
+        if !is_upload_name(name, &MAP_EXTENSIONS) {
+            return Err(ApiError::bad(format!(
+                "light[{i}].file: the service only reads uploaded maps: POST the map (OpenEXR \
+                 or PFM) to /v1/volumes and use the `file` it returns"
+            )));
+        }
+        if !service.inner.cache.volume_path(name).exists() {
+            return Err(ApiError::bad(format!(
+                "light[{i}].file: no uploaded map `{name}` (upload it to /v1/volumes first)"
+            )));
+        }
+    }
     let volume = table.get("volume").and_then(|v| v.as_table());
     if let Some(volume) = volume {
         if let Some(file) = volume.get("file") {
             let name = file.as_str().unwrap_or("");
-            let ok = UPLOAD_EXTENSIONS.iter().any(|ext| {
-                name.strip_suffix(ext)
-                    .and_then(|stem| stem.strip_suffix('.'))
-                    .is_some_and(|stem| stem.len() == 64 && is_id(stem))
-            });
-            if !ok {
+            if !is_upload_name(name, &UPLOAD_EXTENSIONS) {
                 return Err(ApiError::bad(
                     "volume.file: the service only reads uploaded volumes: POST the volume file \
                      (NRRD, Mitsuba .vol, OpenVDB, NIfTI, or raw f32 with ?dims=NX,NY,NZ) to \
@@ -547,6 +560,18 @@ async fn relight(
 /// The file names uploaded volumes are stored under: `SHA256.EXT`, by format.
 const UPLOAD_EXTENSIONS: [&str; 6] = ["f32", "nrrd", "vol", "vdb", "nii", "nii.gz"];
 
+/// The file names uploaded environment maps are stored under: `SHA256.EXT`.
+const MAP_EXTENSIONS: [&str; 2] = ["exr", "pfm"];
+
+/// Whether `name` is what an upload of one of `extensions` is stored under.
+fn is_upload_name(name: &str, extensions: &[&str]) -> bool {
+    extensions.iter().any(|ext| {
+        name.strip_suffix(ext)
+            .and_then(|stem| stem.strip_suffix('.'))
+            .is_some_and(|stem| stem.len() == 64 && is_id(stem))
+    })
+}
+
 /// `POST /v1/volumes`: a volume in any format the command line reads — NRRD (data attached),
 /// Mitsuba `.vol`, OpenVDB, NIfTI (`.nii`, gzip or not), told apart by their magic numbers —
 /// or raw little-endian f32 (x fastest) with `?dims=NX,NY,NZ`. Read with the command line's
@@ -673,6 +698,9 @@ fn read_uploaded_volume(
     max_cells: u64,
 ) -> ApiResult<([usize; 3], &'static str, &'static str)> {
     use medium::volume_io::{read_volume_bytes_capped, VolumeFormat};
+    if let Some(map) = read_uploaded_map(body)? {
+        return Ok(map);
+    }
     let format = VolumeFormat::sniff(body).ok_or_else(|| {
         ApiError::bad(
             "volume: not a format volrad reads (NRRD, Mitsuba .vol, OpenVDB, NIfTI); for raw \
@@ -684,6 +712,43 @@ fn read_uploaded_volume(
     let data = read_volume_bytes_capped(body, format, std::path::Path::new(&label), max_cells)
         .map_err(|e| ApiError::bad(format!("volume: {e}")))?;
     Ok((data.dims, extension, format.name()))
+}
+
+/// An environment map upload (OpenEXR or PFM, told by their magic numbers), read and checked
+/// as a scene's `[[light]] file` would be: `([width, height, 1], extension, format)`, or
+/// `None` for anything else.
+fn read_uploaded_map(body: &[u8]) -> ApiResult<Option<([usize; 3], &'static str, &'static str)>> {
+    let (extension, format, image) = if body.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        (
+            "exr",
+            "OpenEXR environment map",
+            gather::image_io::parse_exr(body),
+        )
+    } else if body.len() > 3
+        && (body.starts_with(b"PF") || body.starts_with(b"Pf"))
+        && body[2].is_ascii_whitespace()
+    {
+        (
+            "pfm",
+            "PFM environment map",
+            gather::image_io::parse_pfm(body),
+        )
+    } else {
+        return Ok(None);
+    };
+    let image = image.map_err(|e| ApiError::bad(format!("environment map: {e}")))?;
+    let (w, h) = (image.width as usize, image.height as usize);
+    let texels = match image.channels {
+        1 => image.pixels.iter().map(|&v| [v; 3]).collect(),
+        _ => image
+            .pixels
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+    };
+    medium::environment_map::EnvironmentMap::new(w, h, texels, DVec3::Z, 0.0, 1.0)
+        .map_err(|e| ApiError::bad(format!("environment map: {e}")))?;
+    Ok(Some(([w, h, 1], extension, format)))
 }
 
 fn parse_f64(q: &HashMap<String, String>, key: &str) -> ApiResult<Option<f64>> {

@@ -183,6 +183,7 @@ proptest! {
         fuzzing::nifti(&bytes);
         fuzzing::solution(&bytes);
         fuzzing::render_query(&bytes);
+        fuzzing::environment_map(&bytes);
     }
 
     /// Bytes behind each binary format's magic number, so the parser reads past it.
@@ -194,6 +195,9 @@ proptest! {
             fuzzing::mitsuba_vol(&bytes);
             fuzzing::vdb(&bytes);
             fuzzing::nifti(&bytes);
+        }
+        for magic in [&b"\x76\x2f\x31\x01\x02\0\0\0"[..], b"PF\n2 2\n-1.0\n", b"Pf\n3 1\n1.0\n"] {
+            fuzzing::environment_map(&[magic, &tail].concat());
         }
         fuzzing::solution(&tail);
     }

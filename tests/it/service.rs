@@ -1007,3 +1007,44 @@ fn relighting_a_sky_makes_a_new_scene() {
     let plain = submit(addr, &scene(5, 0.9));
     assert_error(&relight(&plain, r#"{"turbidity": 4}"#), 400, "no sky");
 }
+
+/// An environment map is uploaded like a volume (OpenEXR or PFM) and named by what the
+/// upload returns; a scene naming any other file as its map is refused before anything is
+/// read.
+#[test]
+fn environment_maps_are_uploads() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    // A 4 × 2 grey PFM: a bright upper row, a dark lower one.
+    let mut pfm = b"Pf\n4 2\n-1.0\n".to_vec();
+    for v in [0.1f32, 0.1, 0.1, 0.1, 0.8, 0.8, 0.8, 0.8] {
+        pfm.extend(v.to_le_bytes());
+    }
+    let r = request(addr, "POST", "/v1/volumes", None, &pfm).unwrap();
+    assert_eq!(r.status, 201, "{}", r.text());
+    let v = r.json();
+    assert_eq!(v["format"], "PFM environment map", "{v}");
+    assert_eq!(v["dims"], serde_json::json!([4, 2, 1]), "{v}");
+    let file = v["file"].as_str().unwrap().to_string();
+    assert!(file.ends_with(".pfm"), "{file}");
+    let with_map = |name: &str| {
+        scene(5, 0.9).replace(
+            "kind = \"directional\"\ndirection = [0.5, -1.0, 0.35]\nirradiance = 1.0",
+            &format!("kind = \"environment\"\nfile = \"{name}\""),
+        )
+    };
+    let id = submit(addr, &with_map(&file));
+    assert_eq!(wait_finished(addr, &id)["state"], "done");
+    let img = get(addr, &format!("/v1/scenes/{id}/render?width=16&height=12")).unwrap();
+    assert_eq!(img.status, 200, "{}", img.text());
+    for name in ["/etc/passwd", "../x.exr", &file.replace(".pfm", ".exr")] {
+        assert_error(&post_scene(addr, &with_map(name)), 400, "light[0].file");
+    }
+    // A map with a negative texel is refused at upload, naming it.
+    let mut bad = b"Pf\n2 1\n-1.0\n".to_vec();
+    bad.extend(1.0f32.to_le_bytes());
+    bad.extend((-1.0f32).to_le_bytes());
+    let r = request(addr, "POST", "/v1/volumes", None, &bad).unwrap();
+    assert_error(&r, 400, "texel (1, 0)");
+}

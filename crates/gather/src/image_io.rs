@@ -409,22 +409,50 @@ pub fn read_image(path: &Path) -> Result<Image, GatherError> {
 /// Reads an OpenEXR file's first layer: its R, G and B channels (A ignored), or its Y
 /// channel alone (grey), as f32, top row first.
 pub fn read_exr(path: &Path) -> Result<Image, GatherError> {
-    use exr::prelude::*;
     let bytes = medium::regular_file::read(path).map_err(|e| GatherError::io(path, e))?;
-    let bad = |e: exr::error::Error| GatherError::format(path, format!("not a readable EXR: {e}"));
+    parse_exr(&bytes).map_err(|m| GatherError::format(path, m))
+}
+
+/// Parses OpenEXR bytes (see [`read_exr`]); the error says what was wrong.
+pub fn parse_exr(bytes: &[u8]) -> Result<Image, String> {
+    // The decoder is a dependency's: should it panic on a malformed file, that is this file's
+    // error, not the program's end.
+    std::panic::catch_unwind(|| decode_exr(bytes))
+        .unwrap_or_else(|_| Err("not a readable EXR (the decoder failed on it)".into()))
+}
+
+/// [`parse_exr`] without the guard.
+fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
+    use exr::prelude::*;
+    let bad = |e: exr::error::Error| format!("not a readable EXR: {e}");
+    // The size a header declares is checked before anything that large is allocated.
+    let fits = |size: Vec2<usize>| {
+        size.width()
+            .checked_mul(size.height())
+            .is_some_and(|n| n <= MAX_READ_PIXELS)
+    };
     let rgb = read()
         .no_deep_data()
         .largest_resolution_level()
         .rgba_channels(
-            |size, _| (size.width(), vec![0.0f32; size.width() * size.height() * 3]),
+            |size, _| {
+                let n = if fits(size) {
+                    size.width() * size.height()
+                } else {
+                    0
+                };
+                (size.width(), vec![0.0f32; n * 3])
+            },
             |(w, px): &mut (usize, Vec<f32>), Vec2(x, y), (r, g, b, _a): (f32, f32, f32, f32)| {
                 let i = (y * *w + x) * 3;
-                px[i..i + 3].copy_from_slice(&[r, g, b]);
+                if let Some(p) = px.get_mut(i..i + 3) {
+                    p.copy_from_slice(&[r, g, b]);
+                }
             },
         )
         .first_valid_layer()
         .all_attributes()
-        .from_buffered(std::io::Cursor::new(&bytes));
+        .from_buffered(std::io::Cursor::new(bytes));
     let (size, channels, pixels) = match rgb {
         Ok(image) => {
             let layer = image.layer_data;
@@ -437,21 +465,42 @@ pub fn read_exr(path: &Path) -> Result<Image, GatherError> {
                 .specific_channels()
                 .required("Y")
                 .collect_pixels(
-                    |size, _| (size.width(), vec![0.0f32; size.width() * size.height()]),
+                    |size, _| {
+                        let n = if fits(size) {
+                            size.width() * size.height()
+                        } else {
+                            0
+                        };
+                        (size.width(), vec![0.0f32; n])
+                    },
                     |(w, px): &mut (usize, Vec<f32>), Vec2(x, y), (v,): (f32,)| {
-                        px[y * *w + x] = v;
+                        if let Some(p) = px.get_mut(y * *w + x) {
+                            *p = v;
+                        }
                     },
                 )
                 .first_valid_layer()
                 .all_attributes()
-                .from_buffered(std::io::Cursor::new(&bytes))
+                .from_buffered(std::io::Cursor::new(bytes))
                 .map_err(bad)?;
             let layer = grey.layer_data;
             (layer.size, 1, layer.channel_data.pixels.1)
         }
     };
+    if !fits(size) {
+        return Err(format!(
+            "{} × {} pixels: at most {MAX_READ_PIXELS}",
+            size.width(),
+            size.height()
+        ));
+    }
     self::Image::new(size.width() as u32, size.height() as u32, channels, pixels)
+        .map_err(|e| e.to_string())
 }
+
+/// Most pixels [`read_exr`] reads (a 16k × 8k panorama), checked against the header before
+/// the pixels are allocated.
+pub const MAX_READ_PIXELS: usize = 1 << 27;
 
 /// Reads a PFM file ("Pf" grey or "PF" RGB, either byte order) into an [`Image`] with the top
 /// row first. Refuses malformed headers, non-positive sizes, a zero or non-finite scale and
