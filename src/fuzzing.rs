@@ -155,15 +155,11 @@ pub fn environment_map(bytes: &[u8]) {
             Ok(image) => {
                 let n = image.width as usize * image.height as usize * image.channels as usize;
                 assert_eq!(image.pixels.len(), n, "{label}");
-                let texels = image
-                    .pixels
-                    .chunks_exact(image.channels.max(1) as usize)
-                    .map(|c| [c[0], c[c.len() / 2], c[c.len() - 1]])
-                    .collect();
-                let map = medium::environment_map::EnvironmentMap::new(
+                let map = medium::environment_map::EnvironmentMap::from_interleaved(
                     image.width as usize,
                     image.height as usize,
-                    texels,
+                    image.channels as usize,
+                    &image.pixels,
                     glam::DVec3::Z,
                     0.0,
                     1.0,

@@ -339,13 +339,8 @@ pub fn environment_bin_radiance(
     };
     let mut power = vec![0.0; bins.len()];
     map.for_each_sample(|from, omega, rgb| {
-        let radiance = if channels == 1 {
-            medium::environment::luminance(&rgb)
-        } else {
-            rgb[c.min(2)]
-        };
         // Light from `from` travels along −from.
-        power[bins.bin_of(-from)] += omega * radiance;
+        power[bins.bin_of(-from)] += omega * medium::environment::pick(&rgb, c, channels);
     });
     power
         .iter()

@@ -738,16 +738,17 @@ fn read_uploaded_map(body: &[u8]) -> ApiResult<Option<([usize; 3], &'static str,
     };
     let image = image.map_err(|e| ApiError::bad(format!("environment map: {e}")))?;
     let (w, h) = (image.width as usize, image.height as usize);
-    let texels = match image.channels {
-        1 => image.pixels.iter().map(|&v| [v; 3]).collect(),
-        _ => image
-            .pixels
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect(),
-    };
-    medium::environment_map::EnvironmentMap::new(w, h, texels, DVec3::Z, 0.0, 1.0)
-        .map_err(|e| ApiError::bad(format!("environment map: {e}")))?;
+    let channels = image.channels as usize;
+    medium::environment_map::EnvironmentMap::from_interleaved(
+        w,
+        h,
+        channels,
+        &image.pixels,
+        DVec3::Z,
+        0.0,
+        1.0,
+    )
+    .map_err(|e| ApiError::bad(format!("environment map: {e}")))?;
     Ok(Some(([w, h, 1], extension, format)))
 }
 

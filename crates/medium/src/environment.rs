@@ -279,9 +279,17 @@ impl Environment {
     }
 }
 
+/// The horizontal frame about unit `up` that skies and maps measure azimuth in: the
+/// projection of +x (of +y when `up` is along x), and `up ×` it.
+pub(crate) fn horizontal_frame(up: DVec3) -> (DVec3, DVec3) {
+    let reference = if up.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };
+    let e1 = (reference - up * reference.dot(up)).normalize();
+    (e1, up.cross(e1))
+}
+
 /// Channel `c` of an RGB triple for a `channels`-channel medium: the luminance for one.
 #[inline]
-fn pick(rgb: &[f64; 3], c: usize, channels: usize) -> f64 {
+pub fn pick(rgb: &[f64; 3], c: usize, channels: usize) -> f64 {
     if channels == 1 {
         luminance(rgb)
     } else {
@@ -355,10 +363,7 @@ impl Sky {
             return bad("sky up", format!("{:?} has no direction", spec.up));
         }
         let up = spec.up / len;
-        // The horizontal frame: the projection of +x (of +y when up is along x), and up × it.
-        let reference = if up.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };
-        let e1 = (reference - up * reference.dot(up)).normalize();
-        let e2 = up.cross(e1);
+        let (e1, e2) = horizontal_frame(up);
         let (el, az) = (
             elevation.to_radians(),
             spec.sun_azimuth_degrees.to_radians(),

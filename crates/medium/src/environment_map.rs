@@ -134,18 +134,11 @@ impl EnvironmentMap {
             return bad("environment up", format!("{up:?} has no direction"));
         }
         let up = up / len;
-        let reference = if up.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };
-        let r1 = (reference - up * reference.dot(up)).normalize();
-        let r2 = up.cross(r1);
+        let (r1, r2) = crate::environment::horizontal_frame(up);
         let turn = rotation_degrees.to_radians();
         let e1 = r1 * turn.cos() + r2 * turn.sin();
         let e2 = up.cross(e1);
-        let mut max_rgb = [0.0f64; 3];
-        for t in &texels {
-            for (m, v) in max_rgb.iter_mut().zip(t) {
-                *m = m.max(*v as f64 * scale);
-            }
-        }
+        let max_rgb = max_rgb(&texels, scale);
         Ok(EnvironmentMap {
             width,
             height,
@@ -157,6 +150,30 @@ impl EnvironmentMap {
             e2,
             max_rgb,
         })
+    }
+
+    /// [`new`](Self::new) from `width × height` pixels of `channels` interleaved values
+    /// (1: grey, 3: RGB), as image files and the solution file hold them.
+    pub fn from_interleaved(
+        width: usize,
+        height: usize,
+        channels: usize,
+        values: &[f32],
+        up: DVec3,
+        rotation_degrees: f64,
+        scale: f64,
+    ) -> Result<Self, MediumError> {
+        let texels = match channels {
+            1 => values.iter().map(|&v| [v; 3]).collect(),
+            3 => values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            n => {
+                return Err(MediumError::invalid(
+                    "environment map",
+                    format!("{n} channels: expected 1 (grey) or 3 (RGB)"),
+                ))
+            }
+        };
+        Self::new(width, height, texels, up, rotation_degrees, scale)
     }
 
     /// The unit direction toward polar angle `theta` from `up` and azimuth `phi` (map space).
@@ -249,21 +266,22 @@ impl EnvironmentMap {
     /// map: no light is lost or counted twice, and a white sun leaves nothing. A light's first
     /// bounce is exact in the render, where a map's is spread over a solver's direction bin,
     /// which is why a sun disc should be a light.
-    pub fn split_bright_sources(&self) -> (EnvironmentMap, Vec<BrightSource>) {
+    pub fn split_bright_sources(mut self) -> (EnvironmentMap, Vec<BrightSource>) {
+        let mut texels = std::mem::take(&mut self.texels);
         let (dtheta, dphi) = (PI / self.height as f64, 2.0 * PI / self.width as f64);
         let solid_angle = |y: usize| (dtheta * y as f64).cos() - (dtheta * (y + 1) as f64).cos();
         let lum = |t: &[f32; 3]| crate::environment::luminance(&t.map(|v| v as f64));
         let mut mean = 0.0;
-        for (i, t) in self.texels.iter().enumerate() {
+        for (i, t) in texels.iter().enumerate() {
             mean += lum(t) * solid_angle(i / self.width) * dphi;
         }
         mean /= 4.0 * PI;
         let threshold = BRIGHT_SOURCE_RATIO * mean;
-        let mut bright: Vec<usize> = (0..self.texels.len())
-            .filter(|&i| mean > 0.0 && lum(&self.texels[i]) > threshold)
+        let mut bright: Vec<usize> = (0..texels.len())
+            .filter(|&i| mean > 0.0 && lum(&texels[i]) > threshold)
             .collect();
         // Brightest first: each source starts at its brightest texel.
-        bright.sort_by(|&a, &b| lum(&self.texels[b]).total_cmp(&lum(&self.texels[a])));
+        bright.sort_by(|&a, &b| lum(&texels[b]).total_cmp(&lum(&texels[a])));
         let centre = |i: usize| {
             let (x, y) = (i % self.width, i / self.width);
             self.direction(dtheta * (y as f64 + 0.5), dphi * (x as f64 + 0.5))
@@ -271,7 +289,6 @@ impl EnvironmentMap {
         let cos_radius = BRIGHT_SOURCE_RADIUS_DEGREES.to_radians().cos();
         let mut seeds: Vec<DVec3> = Vec::new();
         let mut sums: Vec<(DVec3, f64)> = Vec::new();
-        let mut texels = self.texels.clone();
         for i in bright {
             let d = centre(i);
             let k = match seeds.iter().position(|s| s.dot(d) >= cos_radius) {
@@ -299,15 +316,9 @@ impl EnvironmentMap {
                 irradiance: e,
             })
             .collect();
-        let mut rest = self.clone();
-        rest.max_rgb = [0.0; 3];
-        for t in &texels {
-            for (m, v) in rest.max_rgb.iter_mut().zip(t) {
-                *m = m.max(*v as f64 * self.scale);
-            }
-        }
-        rest.texels = texels;
-        (rest, sources)
+        self.max_rgb = max_rgb(&texels, self.scale);
+        self.texels = texels;
+        (self, sources)
     }
 
     /// Radiance (linear RGB) arriving from unit direction `from` (pointing at the sky).
@@ -336,6 +347,17 @@ impl EnvironmentMap {
         }
         rgb
     }
+}
+
+/// The largest radiance per channel of `texels` times `scale`.
+fn max_rgb(texels: &[[f32; 3]], scale: f64) -> [f64; 3] {
+    let mut max = [0.0f64; 3];
+    for t in texels {
+        for (m, v) in max.iter_mut().zip(t) {
+            *m = m.max(*v as f64 * scale);
+        }
+    }
+    max
 }
 
 #[cfg(test)]

@@ -456,15 +456,6 @@ impl Ctx<'_> {
         let path = self.base_dir.join(self.string(file, &fk)?);
         let image =
             gather::image_io::read_image(&path).map_err(|e| self.err(&fk, e.to_string()))?;
-        let texels = match image.channels {
-            1 => image.pixels.iter().map(|&v| [v; 3]).collect(),
-            3 => image
-                .pixels
-                .chunks_exact(3)
-                .map(|c| [c[0], c[1], c[2]])
-                .collect(),
-            n => return Err(self.err(&fk, format!("{n} channels: expected 1 or 3"))),
-        };
         let scale = match t.get("scale") {
             Some(v) => self.non_negative(v, &join(key, "scale"))?,
             None => 1.0,
@@ -477,10 +468,11 @@ impl Ctx<'_> {
             Some(v) => self.number(v, &join(key, "rotation_degrees"))?,
             None => 0.0,
         };
-        let map = EnvironmentMap::new(
+        let map = EnvironmentMap::from_interleaved(
             image.width as usize,
             image.height as usize,
-            texels,
+            image.channels as usize,
+            &image.pixels,
             up,
             rotation,
             scale,

@@ -148,11 +148,11 @@ impl EnvironmentRecord {
                     .filter(|&n| n <= medium::environment_map::MAX_TEXELS)
                     .ok_or_else(|| format!("an environment map of {w} × {h} texels"))?;
                 let values = map_array(3 * len)?;
-                let texels = values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-                let map = medium::environment_map::EnvironmentMap::new(
+                let map = medium::environment_map::EnvironmentMap::from_interleaved(
                     w,
                     h,
-                    texels,
+                    3,
+                    &values,
                     DVec3::from_array(up),
                     rotation_degrees,
                     scale,
