@@ -698,9 +698,23 @@ impl Trilinear {
 
     /// The trilinear interpolation of the per-cell `value`.
     #[inline]
-    pub fn sample(&self, mut value: impl FnMut(usize) -> f64) -> f64 {
+    pub fn sample(&self, value: impl FnMut(usize) -> f64) -> f64 {
+        self.dot(&self.gather_with(value))
+    }
+
+    /// The 8 neighbours' `values` (in the order of [`Trilinear::cells`]), read once for both
+    /// an interpolation ([`Trilinear::dot`]) and a bound.
+    #[inline(always)]
+    pub fn gather(&self, values: &[f32]) -> [f64; 8] {
+        self.gather_with(|c| values[c] as f64)
+    }
+
+    /// `value` of the 8 neighbours, in the order of [`Trilinear::cells`].
+    #[inline(always)]
+    fn gather_with(&self, mut value: impl FnMut(usize) -> f64) -> [f64; 8] {
+        // Written out: the array combinators are not always inlined in the march.
         let c = self.cells();
-        self.dot(&[
+        [
             value(c[0]),
             value(c[1]),
             value(c[2]),
@@ -709,23 +723,6 @@ impl Trilinear {
             value(c[5]),
             value(c[6]),
             value(c[7]),
-        ])
-    }
-
-    /// The 8 neighbours' `values` (in the order of [`Trilinear::cells`]), read once for both
-    /// an interpolation ([`Trilinear::dot`]) and a bound.
-    #[inline(always)]
-    pub fn gather(&self, values: &[f32]) -> [f64; 8] {
-        let c = self.cells();
-        [
-            values[c[0]] as f64,
-            values[c[1]] as f64,
-            values[c[2]] as f64,
-            values[c[3]] as f64,
-            values[c[4]] as f64,
-            values[c[5]] as f64,
-            values[c[6]] as f64,
-            values[c[7]] as f64,
         ]
     }
 
