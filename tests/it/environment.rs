@@ -69,6 +69,15 @@ fn solve(scene: &Scene) -> Solution {
     solve_scene(scene, &scene.solve, &SolveHooks::default()).unwrap()
 }
 
+/// The largest relative difference of a pixel of `image` from `radiance`.
+fn worst_relative_pixel(image: &gather::Image, radiance: f64) -> f64 {
+    image
+        .pixels
+        .iter()
+        .map(|&v| (v as f64 / radiance - 1.0).abs())
+        .fold(0.0, f64::max)
+}
+
 const ISOTROPIC: &str = r#"{ kind = "isotropic" }"#;
 const FORWARD: &str = r#"{ kind = "henyey-greenstein", g = 0.6 }"#;
 
@@ -84,11 +93,7 @@ fn a_non_absorbing_medium_in_a_uniform_environment_vanishes_in_every_method() {
     ] {
         let scene = parse(&scene_text(1.0, phase, method, ""));
         let image = render_view(&solve(&scene), &scene.cameras[0], Some(4)).unwrap();
-        let worst = image
-            .pixels
-            .iter()
-            .map(|&v| (v as f64 / 0.5 - 1.0).abs())
-            .fold(0.0, f64::max);
+        let worst = worst_relative_pixel(&image, 0.5);
         assert!(
             worst < 0.005,
             "{method} with {phase}: a pixel is {:.2} % off the environment's radiance",
@@ -379,11 +384,7 @@ fn a_map_of_one_radiance_is_the_uniform_environment() {
         let scene = map_scene(dir.path(), file, 1.0, phase, method);
         assert!(!scene.environment.as_ref().unwrap().is_coloured(), "{file}");
         let image = render_view(&solve(&scene), &scene.cameras[0], Some(4)).unwrap();
-        let worst = image
-            .pixels
-            .iter()
-            .map(|&v| (v as f64 / 0.5 - 1.0).abs())
-            .fold(0.0, f64::max);
+        let worst = worst_relative_pixel(&image, 0.5);
         assert!(
             worst < 0.005,
             "{method} from {file}: a pixel is {:.2} % off",
