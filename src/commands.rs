@@ -290,6 +290,7 @@ fn render_path_traced(args: &RenderArgs, quiet: bool, max_memory: Option<u64>) -
                 Surroundings {
                     background: scene.background,
                     environment: scene.environment,
+                    ground: scene.ground,
                 },
                 scene.cameras,
                 scene.render.exposure,
@@ -303,6 +304,7 @@ fn render_path_traced(args: &RenderArgs, quiet: bool, max_memory: Option<u64>) -
                 Surroundings {
                     background: s.background,
                     environment: s.environment,
+                    ground: s.ground.as_ref().map(|g| *g.ground()),
                 },
                 s.cameras,
                 s.render.exposure,

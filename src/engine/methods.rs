@@ -19,12 +19,17 @@ use scene::{Scene, SolveMethod, SolveSettings};
 use serde::Serialize;
 use solver::{Method, SolveOptions, SolveReport, TransportOperator};
 
+use crate::engine::ground::{relative_change, ChannelGround, GROUND_TOLERANCE, MAX_GROUND_ROUNDS};
 use crate::engine::solution::{ChannelSolution, ScatteredField, Solution, StoredBins};
 use crate::engine::SolveHooks;
 
 /// Direction bins of a sky's uncollided fluence in the zonal methods (one transmittance pass
 /// each, 6 · 8² = 384; a uniform environment needs none, see `solve_zonal`).
 pub const ENVIRONMENT_BINS: usize = 384;
+
+/// Rays per cell of the transmittance passes that bring light from outside into the zonal
+/// methods (the environment's, the ground's).
+const ZONAL_INFLOW_RAYS_PER_CELL: usize = 4;
 
 /// Link tolerance of the hierarchical zonal operator. 1e-4 keeps the solved source terms of
 /// the cloud24 reference within 1 % (relative L2) of the exact operator's (0.77 % measured;
@@ -101,6 +106,7 @@ fn solve_options(settings: &SolveSettings) -> SolveOptions {
 fn run_solver(
     op: &dyn TransportOperator,
     source: &[f64],
+    initial: Option<&[f64]>,
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<(Vec<f64>, SolveReport)> {
@@ -108,7 +114,7 @@ fn run_solver(
     hooks
         .control
         .phase(&format!("iterating ({})", options.method));
-    let (g, report) = solver::solve(op, source, None, &options, &hooks.control)
+    let (g, report) = solver::solve(op, source, initial, &options, &hooks.control)
         .with_context(|| format!("solving with {}", options.method))?;
     tracing::info!(
         method = %report.method,
@@ -217,13 +223,17 @@ pub fn grid_text(grid: &medium::Grid) -> String {
 /// `g_s = S₁ + σs φ_e / 4π + K g_s` instead of `g = S₁ + e + K g`.
 pub fn solve_zonal(
     medium: &Medium,
-    environment: Option<&Environment>,
+    outside: OutsideLight,
     c: usize,
     light_pass: &LightPass,
     emitters: Option<&EmitterPass>,
     settings: &SolveSettings,
     hooks: &SolveHooks,
-) -> Result<(ScatteredField, Option<SolveReport>)> {
+) -> Result<ChannelSolve> {
+    let OutsideLight {
+        environment,
+        ground,
+    } = outside;
     let channel = &medium.channels()[c];
     // The lights' first bounce is the render's exact single scattering; the environment's is
     // smooth in direction and stays in the solved source (`higher_order` keeps it).
@@ -234,6 +244,16 @@ pub fn solve_zonal(
         // Nothing scatters: the source is the answer (g = E), whatever the iteration — the
         // symmetrised methods' weights (σt/σs) do not even exist here.
         tracing::info!("no scattering in channel {c}: the first pass is the solution");
+        // The ground: lit by what reaches it unscattered and by the emission.
+        let ground_radiance = match ground {
+            Some(gr) => {
+                let e_scat = gr.scattered_irradiance(medium, c, &|cell, _| {
+                    channel.emission.get(cell) as f64
+                })?;
+                Some(gr.radiance(Some(&e_scat)))
+            }
+            None => None,
+        };
         return Ok((
             ScatteredField::Isotropic {
                 source: light_source.iter().map(|&v| v as f32).collect(),
@@ -242,6 +262,7 @@ pub fn solve_zonal(
             Some(SolveReport::without_iterations(
                 settings.iteration.to_string(),
             )),
+            ground_radiance,
         ));
     }
     let channels = medium.channels().len();
@@ -297,15 +318,50 @@ pub fn solve_zonal(
             *s += channel.sigma_s(i) as f64 * phi / (4.0 * PI) - channel.emission.get(i) as f64;
         }
     }
-    if let Some(env) = environment.filter(|e| !e.is_dark()) {
-        add_zonal_environment(&mut source, env, medium, c, op.as_ref())?;
-    }
-    let (mut g, report) = run_solver(op.as_ref(), &source, settings, hooks)?;
-    if emitters.is_some() {
-        for (i, g) in g.iter_mut().enumerate() {
-            *g += channel.emission.get(i) as f64;
+    let environment = environment.filter(|e| !e.is_dark());
+    let (g, report, ground_radiance) = match ground {
+        None => {
+            if let Some(env) = environment {
+                add_zonal_environment(&mut source, env, medium, c, op.as_ref())?;
+            }
+            let (mut g, report) = run_solver(op.as_ref(), &source, None, settings, hooks)?;
+            if emitters.is_some() {
+                for (i, g) in g.iter_mut().enumerate() {
+                    *g += channel.emission.get(i) as f64;
+                }
+            }
+            (g, report, None)
         }
-    }
+        Some(gr) => {
+            // Below the horizon the ground, not the environment, sends light up.
+            if let Some(env) = environment {
+                add_zonal_inflow(&mut source, medium, c, Some(env), None)?;
+            }
+            let mut round =
+                |ground_source: &[f32], initial: Option<&[f64]>, settings: &SolveSettings| {
+                    let looked_up = gr.lookup(ground_source.to_vec())?;
+                    let mut s = source.clone();
+                    add_zonal_inflow(&mut s, medium, c, None, Some(&looked_up))?;
+                    let (mut g, report) = run_solver(op.as_ref(), &s, initial, settings, hooks)?;
+                    let without_emission = emitters.is_some().then(|| g.clone());
+                    if emitters.is_some() {
+                        for (i, g) in g.iter_mut().enumerate() {
+                            *g += channel.emission.get(i) as f64;
+                        }
+                    }
+                    // The ground sees every order, the emission and the first bounce included.
+                    let e_scat = gr.scattered_irradiance(medium, c, &|cell, _| g[cell])?;
+                    let next = gr.radiance(Some(&e_scat));
+                    Ok::<_, anyhow::Error>((
+                        without_emission.unwrap_or_else(|| g.clone()),
+                        g,
+                        report,
+                        next,
+                    ))
+                };
+            couple_ground(gr, settings, hooks, c, medium.channels().len(), &mut round)?
+        }
+    };
     let higher_order = g
         .iter()
         .zip(&light_source)
@@ -317,7 +373,152 @@ pub fn solve_zonal(
             higher_order,
         },
         Some(report),
+        ground_radiance,
     ))
+}
+
+/// The light that enters a channel's solve from outside the grid: the environment's and,
+/// with a ground, the ground's (which the solve couples with the medium).
+#[derive(Clone, Copy, Default)]
+pub struct OutsideLight<'a> {
+    pub environment: Option<&'a Environment>,
+    pub ground: Option<&'a ChannelGround<'a>>,
+}
+
+/// A channel's solve: the scattered field, the iteration's report and, with a ground, the
+/// ground's reflected radiance per patch.
+pub type ChannelSolve = (ScatteredField, Option<SolveReport>, Option<Vec<f32>>);
+
+/// One ground–medium round: from the ground's radiance per patch, the solution to start
+/// from and the solve's settings for the round, the solution to start the next round from,
+/// the solved vector, the report and the ground's next radiance.
+type GroundRound<'a> = dyn FnMut(
+        &[f32],
+        Option<&[f64]>,
+        &SolveSettings,
+    ) -> Result<(Vec<f64>, Vec<f64>, SolveReport, Vec<f32>)>
+    + 'a;
+
+/// Iterates ground and medium by blocks until the ground's radiance settles (see
+/// [`crate::engine::ground`]); the report counts the iterations of every round.
+fn couple_ground(
+    gr: &ChannelGround,
+    settings: &SolveSettings,
+    hooks: &SolveHooks,
+    c: usize,
+    channels: usize,
+    round: &mut GroundRound<'_>,
+) -> Result<(Vec<f64>, SolveReport, Option<Vec<f32>>)> {
+    let mut ground = gr.radiance(None);
+    let mut warm: Option<Vec<f64>> = None;
+    let mut iterations = 0;
+    // Early rounds need the medium only as well as the ground is known: each is solved to a
+    // hundredth of the ground's last change, and once the ground has settled one last round
+    // is solved to the scene's tolerance.
+    let mut change = 1.0f64;
+    let mut last = false;
+    for k in 1.. {
+        hooks.control.phase(&channel_phase(
+            &format!("coupling the ground, round {k}"),
+            c,
+            channels,
+        ));
+        let round_settings = SolveSettings {
+            tolerance: if last {
+                settings.tolerance
+            } else {
+                settings.tolerance.max(0.01 * change)
+            },
+            ..settings.clone()
+        };
+        let (next_warm, solved, mut report, next) =
+            round(&ground, warm.as_deref(), &round_settings)?;
+        if hooks.control.is_cancelled() {
+            bail!("solve cancelled");
+        }
+        iterations += report.iterations;
+        change = relative_change(&ground, &next);
+        ground = next;
+        tracing::info!(
+            round = k,
+            change,
+            iterations = report.iterations,
+            tolerance = round_settings.tolerance,
+            "ground and medium"
+        );
+        let settled = change <= GROUND_TOLERANCE;
+        if (settled && round_settings.tolerance <= settings.tolerance) || k >= MAX_GROUND_ROUNDS {
+            if !settled {
+                tracing::warn!(
+                    change,
+                    "the ground's light had not settled after {MAX_GROUND_ROUNDS} rounds"
+                );
+            }
+            report.iterations = iterations;
+            return Ok((solved, report, Some(ground)));
+        }
+        last = settled;
+        warm = Some(next_warm);
+    }
+    unreachable!("the loop returns by its last round")
+}
+
+/// Adds to the zonal `source` of channel `c` the first-collision source of light entering
+/// from outside: the environment's (`env`) and, with a ground, the ground's light from below
+/// (`ground`, looked up along each bin's lines) — each bin's uncollided fluence from one
+/// transmittance pass. With a ground only the ground sends light up; without `ground` the
+/// upward bins are skipped too (the ground's part is added round by round).
+fn add_zonal_inflow(
+    source: &mut [f64],
+    medium: &Medium,
+    c: usize,
+    env: Option<&Environment>,
+    ground: Option<&medium::ground::GroundRadiance>,
+) -> Result<()> {
+    let channel = &medium.channels()[c];
+    let channels = medium.channels().len();
+    let grid = medium.grid();
+    let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
+    let along = env.map(|e| environment_bin_radiance(e, &bins, c, channels));
+    let mut fluence = vec![0.0; grid.cell_count()];
+    for (k, (&d, &omega)) in bins.centres().iter().zip(bins.solid_angles()).enumerate() {
+        let up = d.z > 0.0;
+        let uniform = match (&along, up) {
+            (Some(a), false) if a[k] > 0.0 => Some(a[k]),
+            _ => None,
+        };
+        let from_ground = up && ground.is_some();
+        if uniform.is_none() && !from_ground {
+            continue;
+        }
+        let t = medium::light_pass::directional_cell_transmittance(
+            grid,
+            &channel.sigma_t,
+            d,
+            ZONAL_INFLOW_RAYS_PER_CELL,
+        )
+        .context("the uncollided light from outside")?;
+        match (uniform, ground) {
+            (Some(l), _) => fluence
+                .par_iter_mut()
+                .zip(&t)
+                .for_each(|(f, ti)| *f += omega * l * ti),
+            (None, Some(g)) => {
+                fluence
+                    .par_iter_mut()
+                    .zip(&t)
+                    .enumerate()
+                    .for_each(|(i, (f, ti))| {
+                        *f += omega * ChannelGround::along_line(g, grid.cell_center(i), d) * ti
+                    })
+            }
+            (None, None) => {}
+        }
+    }
+    for (i, (s, phi)) in source.iter_mut().zip(fluence).enumerate() {
+        *s += channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * phi / (4.0 * PI);
+    }
+    Ok(())
 }
 
 /// The radiance `env` sends along each bin of `bins` in channel `c` of `channels`: at the
@@ -410,13 +611,17 @@ pub fn ordinates_options(
 /// what the render adds as its first scattering.
 pub fn solve_ordinates(
     medium: &Medium,
-    environment: Option<&Environment>,
+    outside: OutsideLight,
     c: usize,
     light_pass: &LightPass,
     emitters: Option<&EmitterPass>,
     settings: &SolveSettings,
     hooks: &SolveHooks,
-) -> Result<(ScatteredField, Option<SolveReport>)> {
+) -> Result<ChannelSolve> {
+    let OutsideLight {
+        environment,
+        ground,
+    } = outside;
     let bins = DirectionBins::with_count(settings.bins)?;
     let options = ordinates_options(settings, &bins, &medium.phase());
     let channels = medium.channels().len();
@@ -442,31 +647,97 @@ pub fn solve_ordinates(
     };
     let mut source = vec![0.0; op.len()];
     op.transport(&external, &mut source);
-    // The environment's uncollided radiance ψ on the bins, in the sweep's own discretisation
-    // (so a non-absorbing medium holds L everywhere: the white furnace). Its scattering K ψ
-    // joins the source, and ψ what the render's final bounce scatters: its first bounce is
-    // smooth in direction, so the bins carry it rather than the render's single scattering.
-    let uncollided = match environment.filter(|e| !e.is_dark()) {
-        Some(env) => {
-            let channels = medium.channels().len();
-            let along = environment_bin_radiance(env, op.bins(), c, channels);
-            let psi = op.inflow_radiance(&along)?;
-            let mut scattered = vec![0.0; op.len()];
-            op.apply(&psi, &mut scattered);
-            for (s, k) in source.iter_mut().zip(&scattered) {
-                *s += k;
+    let environment = environment.filter(|e| !e.is_dark());
+    let (radiance, report, ground_radiance) = match ground {
+        None => {
+            // The environment's uncollided radiance ψ on the bins, in the sweep's own
+            // discretisation (so a non-absorbing medium holds L everywhere: the white
+            // furnace). Its scattering K ψ joins the source, and ψ what the render's final
+            // bounce scatters: its first bounce is smooth in direction, so the bins carry it
+            // rather than the render's single scattering.
+            let uncollided = match environment {
+                Some(env) => {
+                    let along = environment_bin_radiance(env, op.bins(), c, channels);
+                    let psi = op.inflow_radiance(&along)?;
+                    let mut scattered = vec![0.0; op.len()];
+                    op.apply(&psi, &mut scattered);
+                    for (s, k) in source.iter_mut().zip(&scattered) {
+                        *s += k;
+                    }
+                    Some(psi)
+                }
+                None => None,
+            };
+            let (mut radiance, report) = run_solver(&op, &source, None, settings, hooks)?;
+            // The bins hold everything but the lights' unscattered beams.
+            if let Some(psi) = &uncollided {
+                for (r, p) in radiance.iter_mut().zip(psi) {
+                    *r += p;
+                }
             }
-            Some(psi)
+            (radiance, report, None)
         }
-        None => None,
+        Some(gr) => {
+            // Light enters from the environment above the horizon and from the ground below,
+            // each constant along a bin's lines: ψ from one sweep, as for the environment.
+            let m = op.bins().len();
+            let along = match environment {
+                Some(env) => environment_bin_radiance(env, op.bins(), c, channels),
+                None => vec![0.0; m],
+            };
+            let centres = op.bins().centres().to_vec();
+            let grid = *medium.grid();
+            let channel = &medium.channels()[c];
+            let mut round =
+                |ground_source: &[f32], initial: Option<&[f64]>, settings: &SolveSettings| {
+                    let looked_up = gr.lookup(ground_source.to_vec())?;
+                    let mut field = vec![0.0; op.len()];
+                    field.par_chunks_mut(m).enumerate().for_each(|(cell, f)| {
+                        let x = grid.cell_center(cell);
+                        for (l, fl) in f.iter_mut().enumerate() {
+                            let d = centres[l];
+                            *fl = if d.z > 0.0 {
+                                ChannelGround::along_line(&looked_up, x, d)
+                            } else {
+                                along[l]
+                            };
+                        }
+                    });
+                    let psi = op.inflow_field(&field)?;
+                    drop(field);
+                    let mut s = vec![0.0; op.len()];
+                    op.apply(&psi, &mut s);
+                    for (s, b) in s.iter_mut().zip(&source) {
+                        *s += b;
+                    }
+                    let (solved, report) = run_solver(&op, &s, initial, settings, hooks)?;
+                    drop(s);
+                    let mut total = solved.clone();
+                    for (r, p) in total.iter_mut().zip(&psi) {
+                        *r += p;
+                    }
+                    drop(psi);
+                    // What the ground sees: every scattering toward it (the first bounce, from the
+                    // external density, and the higher orders) and the emission.
+                    let mut toward = vec![0.0; op.len()];
+                    op.gather_density(&total, &mut toward);
+                    let emission = emitters.is_some();
+                    let bins = op.bins();
+                    let e_scat = gr.scattered_irradiance(medium, c, &|cell, travel| {
+                        let i = cell * m + bins.bin_of(travel);
+                        let e = if emission {
+                            channel.emission.get(cell) as f64
+                        } else {
+                            0.0
+                        };
+                        (toward[i] + external[i]).max(0.0) + e
+                    })?;
+                    let next = gr.radiance(Some(&e_scat));
+                    Ok::<_, anyhow::Error>((solved, total, report, next))
+                };
+            couple_ground(gr, settings, hooks, c, channels, &mut round)?
+        }
     };
-    let (mut radiance, report) = run_solver(&op, &source, settings, hooks)?;
-    // The bins hold everything but the lights' unscattered beams.
-    if let Some(psi) = &uncollided {
-        for (r, p) in radiance.iter_mut().zip(psi) {
-            *r += p;
-        }
-    }
     // What the render adds to the exact first bounce: scattering of the bins' radiance (the
     // lights' once-scattered light and beyond), i.e. second and higher orders, by the true
     // phase function towards each bin centre (the final directional bounce; the render
@@ -483,6 +754,7 @@ pub fn solve_ordinates(
             higher_order: higher.iter().map(|&v| v.max(0.0) as f32).collect(),
         },
         Some(report),
+        ground_radiance,
     ))
 }
 
@@ -493,7 +765,7 @@ pub fn solve_two_pass(
     c: usize,
     settings: &SolveSettings,
     hooks: &SolveHooks,
-) -> Result<(ScatteredField, Option<SolveReport>)> {
+) -> Result<ChannelSolve> {
     use montecarlo::two_pass::{energetize, EnergetizeOptions};
     let bins = two_pass_bins(&scene.medium.phase());
     let options = EnergetizeOptions {
@@ -518,7 +790,7 @@ pub fn solve_two_pass(
         imbalance = solution.energy.relative_imbalance(),
         "two-pass energetization done"
     );
-    Ok((ScatteredField::TwoPass(Box::new(solution)), None))
+    Ok((ScatteredField::TwoPass(Box::new(solution)), None, None))
 }
 
 /// One line per channel whose iteration stopped before its tolerance (what `volrad solve`

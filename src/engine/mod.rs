@@ -5,6 +5,7 @@
 //! (`cli`, `commands`, `service`, `validate`, `bench_albedo`) sit above it.
 
 pub mod budget;
+pub mod ground;
 pub mod methods;
 pub mod pipeline;
 pub mod solution;

@@ -2,6 +2,7 @@
 //! solve → [`Solution`]; solution + camera → image.
 
 use std::borrow::Cow;
+use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use gather::{Camera, Image, InScattering, RenderOptions};
@@ -10,6 +11,8 @@ use medium::light_pass::LightPass;
 use medium::Medium;
 use scene::{CameraSpec, Scene, SceneOrigin, SolveMethod, SolveSettings};
 
+use crate::engine::ground::GroundSetup;
+use crate::engine::methods::OutsideLight;
 use crate::engine::solution::{ChannelSolution, ScatteredField, Solution};
 use crate::engine::SolveHooks;
 
@@ -46,6 +49,9 @@ pub fn scene_hash(scene: &Scene) -> String {
         .into_bytes(),
     );
     feed(scene.background.to_le_bytes().to_vec());
+    if let Some(g) = &scene.ground {
+        feed(format!("ground {} {:?}", g.height(), g.albedo_rgb()).into_bytes());
+    }
     let digest = h.finalize();
     digest.iter().take(16).map(|b| format!("{b:02x}")).collect()
 }
@@ -66,6 +72,7 @@ pub fn solve_scene(
     // Before any light pass or operator: an iteration the method cannot run is refused now.
     crate::engine::methods::check_iteration(settings)?;
     crate::engine::methods::check_environment(scene, settings)?;
+    crate::engine::ground::check_ground(scene, settings.method)?;
     crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let medium = &scene.medium;
     // Multiple scattering is solved on the transport grid (the data grid itself at scale 1);
@@ -86,6 +93,13 @@ pub fn solve_scene(
     };
     let transport_medium = coarse_medium.as_ref().unwrap_or(medium);
     let environment = scene.environment.as_ref();
+    let ground_setup = if scene.ground.is_some() {
+        hooks.control.phase("the ground's unscattered light");
+        GroundSetup::new(scene)?
+    } else {
+        None
+    };
+    let mut ground_radiance = Vec::new();
     let mut channels = Vec::with_capacity(medium.channels().len());
     for c in 0..medium.channels().len() {
         let span = tracing::info_span!("channel", c);
@@ -106,12 +120,20 @@ pub fn solve_scene(
         };
         let transport_pass = coarse_pass.as_ref().unwrap_or(&light_pass);
         let emitters = crate::engine::methods::emitter_pass(transport_medium, c, settings, hooks)?;
-        let (scattered, report) = match settings.method {
-            SolveMethod::None | SolveMethod::SingleScatter => (ScatteredField::None, None),
+        let ground = ground_setup.as_ref().map(|g| g.channel(c));
+        let (scattered, report, ground_solved) = match settings.method {
+            SolveMethod::None | SolveMethod::SingleScatter => (
+                ScatteredField::None,
+                None,
+                ground.as_ref().map(|g| g.radiance(None)),
+            ),
             SolveMethod::Zonal | SolveMethod::ZonalHierarchical => {
                 crate::engine::methods::solve_zonal(
                     transport_medium,
-                    environment,
+                    OutsideLight {
+                        environment,
+                        ground: ground.as_ref(),
+                    },
                     c,
                     transport_pass,
                     emitters.as_ref(),
@@ -121,7 +143,10 @@ pub fn solve_scene(
             }
             SolveMethod::DiscreteOrdinates => crate::engine::methods::solve_ordinates(
                 transport_medium,
-                environment,
+                OutsideLight {
+                    environment,
+                    ground: ground.as_ref(),
+                },
                 c,
                 transport_pass,
                 emitters.as_ref(),
@@ -132,6 +157,7 @@ pub fn solve_scene(
                 crate::engine::methods::solve_two_pass(scene, c, settings, hooks)?
             }
         };
+        ground_radiance.extend(ground_solved);
         channels.push(ChannelSolution {
             light_pass,
             scattered,
@@ -148,6 +174,10 @@ pub fn solve_scene(
         lights: scene.lights.clone(),
         environment: scene.environment.clone(),
         background: scene.background,
+        ground: match &ground_setup {
+            Some(setup) => Some(Arc::new(setup.finish(ground_radiance)?)),
+            None => None,
+        },
         render: scene.render.clone(),
         cameras: scene.cameras.clone(),
         bins: crate::engine::methods::stored_bins(settings),
@@ -220,6 +250,7 @@ pub fn render_view_through(
     let camera = Camera::from_spec(camera)?;
     let mut options = RenderOptions::from_settings(&solution.render, solution.background);
     options.environment = solution.environment.clone();
+    options.ground = solution.ground.clone();
     if let Some(spp) = spp {
         options.spp = spp;
     }

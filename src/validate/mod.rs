@@ -654,6 +654,7 @@ pub fn path_traced(
         Surroundings {
             background: scene.background,
             environment: scene.environment.clone(),
+            ground: scene.ground,
         },
         camera,
         &PathTraceOptions {

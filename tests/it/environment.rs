@@ -110,6 +110,7 @@ fn a_non_absorbing_medium_in_a_uniform_environment_vanishes_in_every_method() {
         Surroundings {
             background: scene.background,
             environment: scene.environment,
+            ground: None,
         },
         &camera,
         &PathTraceOptions {

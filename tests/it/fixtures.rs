@@ -57,8 +57,18 @@ pub fn masked_error(
 /// The path tracer's view of channel `c` of `scene` through its first camera (`spp` paths per
 /// pixel), with its per-pixel standard error.
 pub fn path_traced(scene: &scene::Scene, c: usize, spp: u32) -> montecarlo::path_trace::PathTraced {
+    path_traced_view(scene, &scene.cameras[0], c, spp)
+}
+
+/// [`path_traced`] through `camera`.
+pub fn path_traced_view(
+    scene: &scene::Scene,
+    camera: &scene::CameraSpec,
+    c: usize,
+    spp: u32,
+) -> montecarlo::path_trace::PathTraced {
     use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions, Surroundings};
-    let camera = gather::Camera::from_spec(&scene.cameras[0]).unwrap();
+    let camera = gather::Camera::from_spec(camera).unwrap();
     path_trace_with_error(
         &scene.medium,
         c,
@@ -66,6 +76,7 @@ pub fn path_traced(scene: &scene::Scene, c: usize, spp: u32) -> montecarlo::path
         Surroundings {
             background: scene.background,
             environment: scene.environment.clone(),
+            ground: scene.ground,
         },
         &camera,
         &PathTraceOptions {

@@ -9,6 +9,7 @@ mod cli;
 mod emitters;
 mod environment;
 mod fuzz;
+mod ground;
 mod interpolation;
 mod readme;
 mod reference_cloud24;

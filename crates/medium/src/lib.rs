@@ -9,7 +9,9 @@
 //! - [`Light`]: directional, point and spot lights; [`light_pass`] propagates them through
 //!   the grid (the first pass of Kajiya & Von Herzen), which is the source term `E` of
 //!   every multiple-scattering solve. [`Environment`]: light from every direction at
-//!   infinity (a uniform sky), with its uncollided radiance inside the grid.
+//!   infinity (a uniform sky), with its uncollided radiance inside the grid. [`ground`]: a
+//!   Lambertian plane under the volume ([`ground::Ground`]) and the light it reflects
+//!   ([`ground::GroundRadiance`], per patch, as a solve leaves it).
 //! - [`coarsening`]: a coarser transport grid over the data grid ([`coarsening::Coarsening`]:
 //!   the medium and light pass carried to blocks of `s³` cells), where large volumes solve
 //!   their multiple scattering.
@@ -39,6 +41,7 @@ pub mod error;
 pub mod fma;
 pub mod generators;
 pub mod grid;
+pub mod ground;
 pub mod light;
 pub mod light_pass;
 pub mod nifti;

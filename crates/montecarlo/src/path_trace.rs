@@ -20,6 +20,10 @@
 //!   throughput: the environment light along the path's direction (none by default), or,
 //!   without one, the background `I0` for camera rays that never scattered. The
 //!   environment is not importance-sampled: it is smooth, and escaping paths find it.
+//! - A ground ([`Surroundings::ground`]) is met by paths that leave the grid going down: a
+//!   Lambertian bounce (the throughput times the albedo), next-event estimation toward each
+//!   light from the hit point (`E cos θ T / π`), and a cosine-distributed new direction up.
+//!   Below a ground no environment is seen.
 //!
 //! Each pixel is the mean of `spp` paths through uniformly jittered positions in its area, on
 //! its own PCG stream seeded from `(seed, pixel index)`: deterministic for a seed, whatever the
@@ -27,6 +31,7 @@
 
 use gather::{Camera, Image, ImageChannel};
 use glam::DVec3;
+use medium::ground::Ground;
 use medium::traversal::Ray;
 use medium::{CellValues, Environment, Grid, Light, Medium, PhaseFunction};
 use rand::Rng;
@@ -97,6 +102,8 @@ pub struct Surroundings {
     /// Light from every direction at infinity, picked up by every path that leaves (camera
     /// rays see it as the background).
     pub environment: Option<Environment>,
+    /// A Lambertian plane under the grid that paths going down bounce off.
+    pub ground: Option<Ground>,
 }
 
 impl Surroundings {
@@ -105,6 +112,7 @@ impl Surroundings {
         Surroundings {
             background,
             environment: None,
+            ground: None,
         }
     }
 }
@@ -194,6 +202,32 @@ impl<'a> PathTracer<'a> {
         sum
     }
 
+    /// Radiance a Lambertian ground of albedo 1 at `x` reflects from the lights (NEE):
+    /// `Σ_L E_L cos θ_L T_L / π`.
+    #[inline]
+    fn direct_on_ground(&self, x: DVec3) -> f64 {
+        let mut sum = 0.0;
+        for light in self.lights {
+            let (flow, irradiance) = light.arriving_at(x);
+            let cos = -flow.z;
+            if irradiance <= 0.0 || cos <= 0.0 {
+                continue;
+            }
+            let t_max = match *light {
+                Light::Directional { .. } => f64::INFINITY,
+                Light::Point { position, .. } | Light::Spot { position, .. } => {
+                    (position - x).length()
+                }
+            };
+            let shadow = Ray {
+                origin: x,
+                direction: -flow,
+            };
+            sum += irradiance * cos * transmittance(&self.grid, self.sigma_t, &shadow, t_max);
+        }
+        sum / std::f64::consts::PI
+    }
+
     /// One path's estimate of the radiance arriving at `ray.origin` from `−ray.direction`
     /// (the medium behind the origin is not seen).
     pub fn radiance<R: Rng + ?Sized>(&self, ray: &Ray, rng: &mut R) -> f64 {
@@ -215,6 +249,40 @@ impl<'a> PathTracer<'a> {
             radiance += throughput * emitted;
             let (t, cell) = match flight {
                 Flight::Escaped => {
+                    let hit = self.surroundings.ground.as_ref().and_then(|g| {
+                        let t = g.hit(ray.origin, ray.direction)?;
+                        Some((g.albedo(self.channel.0, self.channel.1), ray.at(t)))
+                    });
+                    if let Some((albedo, x)) = hit {
+                        depth += 1;
+                        if depth > self.max_depth || albedo <= 0.0 {
+                            break;
+                        }
+                        throughput *= albedo;
+                        radiance += throughput * self.direct_on_ground(x);
+                        if depth >= self.rr_start_depth && throughput < 1.0 {
+                            let q = (1.0 - throughput).max(0.05);
+                            if rng.random::<f64>() < q {
+                                break;
+                            }
+                            throughput /= 1.0 - q;
+                        }
+                        // Cosine-distributed about +z: the Lambertian BRDF's sampling.
+                        let (r2, phi) = (
+                            rng.random::<f64>(),
+                            std::f64::consts::TAU * rng.random::<f64>(),
+                        );
+                        let r = r2.sqrt();
+                        ray = Ray {
+                            origin: x,
+                            direction: DVec3::new(
+                                r * phi.cos(),
+                                r * phi.sin(),
+                                (1.0 - r2).max(0.0).sqrt(),
+                            ),
+                        };
+                        continue;
+                    }
                     radiance += throughput
                         * match (depth, &self.surroundings.environment) {
                             (0, None) => self.surroundings.background,

@@ -52,6 +52,7 @@ use std::path::{Path, PathBuf};
 
 pub use gather::{CameraSpec, OpticalModel, Projection, RenderSettings};
 use medium::generators::Generator;
+use medium::ground::Ground;
 pub use medium::vdb::VdbPlacement;
 use medium::volume_io::VolumeData;
 use medium::{Environment, Light, Medium};
@@ -73,6 +74,9 @@ pub struct Scene {
     pub environment: Option<Environment>,
     /// Background radiance `I0` seen through the volume (0 with an environment).
     pub background: f64,
+    /// A Lambertian plane under the volume (`[ground]`), lit by the lights, the environment
+    /// and the medium, and lighting the medium from below; camera rays going down see it.
+    pub ground: Option<Ground>,
     pub solve: SolveSettings,
     pub render: RenderSettings,
     pub cameras: Vec<CameraSpec>,

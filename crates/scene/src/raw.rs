@@ -12,6 +12,7 @@ pub(crate) struct RawScene {
     pub(crate) medium: Option<toml::Value>,
     pub(crate) light: Option<toml::Value>,
     pub(crate) background: Option<toml::Value>,
+    pub(crate) ground: Option<toml::Value>,
     pub(crate) solve: Option<toml::Value>,
     pub(crate) render: Option<toml::Value>,
     pub(crate) camera: Option<toml::Value>,
@@ -43,6 +44,13 @@ pub(crate) struct RawMedium {
 #[serde(deny_unknown_fields)]
 pub(crate) struct RawBackground {
     pub(crate) radiance: toml::Value,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct RawGround {
+    pub(crate) height: Option<toml::Value>,
+    pub(crate) albedo: Option<toml::Value>,
 }
 
 #[derive(Deserialize)]

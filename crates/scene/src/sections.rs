@@ -6,6 +6,7 @@ use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
 use medium::blackbody::RgbTable;
 use medium::coarsening::MAX_TRANSPORT_SCALE;
 use medium::generators::Generator;
+use medium::ground::Ground;
 use medium::light_pass::MAX_LIGHTS;
 use medium::transfer::{PiecewiseLinear, SigmaTransfer, Transfer};
 use medium::vdb::VdbPlacement;
@@ -19,7 +20,7 @@ use montecarlo::two_pass::PHOTON_RANGE;
 use solver::ParseMethodError;
 
 use crate::check::{broadcast, join, Channels, Ctx, SceneLight};
-use crate::raw::{RawBackground, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
+use crate::raw::{RawBackground, RawGround, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
 use crate::settings::{TransportScale, UnknownSolveMethod};
 use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
 use glam::DVec3;
@@ -79,6 +80,18 @@ impl Blackbody {
     }
 }
 
+/// `[ground] albedo` when not given: a typical grass or soil.
+pub const DEFAULT_GROUND_ALBEDO: f64 = 0.2;
+
+/// The up direction of a sky or an environment map (a uniform environment has none).
+fn environment_up(environment: &Environment) -> Option<DVec3> {
+    match environment.spec() {
+        medium::environment::EnvironmentSpec::Sky(s) => Some(s.up),
+        medium::environment::EnvironmentSpec::Map(m) => Some(m.up()),
+        medium::environment::EnvironmentSpec::Uniform { .. } => None,
+    }
+}
+
 /// What `[volume]` gives: the data values on their grid and the σt transfer per channel.
 struct Volume {
     source: VolumeSource,
@@ -105,12 +118,15 @@ impl Ctx<'_> {
         let (placement, file_origin) = (volume.placement.clone(), volume.file_origin);
         let medium = self.medium(raw.medium.ok_or_else(|| self.missing("medium"))?, volume)?;
         let (mut lights, environment) = self.lights(raw.light, &medium)?;
-        // Coloured light needs coloured transport: a grey medium is solved in three channels.
-        let medium = match &environment {
-            Some(e) if e.is_coloured() => medium.in_colour(),
-            _ => medium,
-        };
         let background = self.background(raw.background, environment.as_ref())?;
+        let ground = raw
+            .ground
+            .map(|g| self.ground(g, medium.grid(), environment.as_ref(), file_origin))
+            .transpose()?;
+        // Coloured light needs coloured transport: a grey medium is solved in three channels.
+        let coloured = environment.as_ref().is_some_and(|e| e.is_coloured())
+            || ground.is_some_and(|g| g.is_coloured());
+        let medium = if coloured { medium.in_colour() } else { medium };
         let solve = self.solve(raw.solve, &medium.phase())?;
         let render = self.render(raw.render, solve.method)?;
         let mut cameras = self.cameras(raw.camera)?;
@@ -132,6 +148,7 @@ impl Ctx<'_> {
             lights,
             environment,
             background,
+            ground,
             solve,
             render,
             cameras,
@@ -685,6 +702,59 @@ impl Ctx<'_> {
                 self.non_negative(&b.radiance, "background.radiance")?
             }
         })
+    }
+
+    /// `[ground] height, albedo`: a Lambertian plane under the grid (its height at most the
+    /// grid's bottom, 0 by default; in the file's world with `coordinates = "file"`), seen
+    /// from above; the world's up is +z, so an environment must have that up too.
+    fn ground(
+        &self,
+        ground: toml::Value,
+        grid: &Grid,
+        environment: Option<&Environment>,
+        file_origin: Option<DVec3>,
+    ) -> Result<Ground, SceneError> {
+        let g: RawGround = self.raw(ground, "ground")?;
+        let mut height = match &g.height {
+            Some(v) => self.number(v, "ground.height")?,
+            None => file_origin.map_or(0.0, |o| o.z),
+        };
+        if let Some(o) = file_origin {
+            height -= o.z;
+        }
+        if height > 1e-9 * grid.cell_size {
+            return Err(self.err(
+                "ground.height",
+                format!(
+                    "{height}: the ground lies under the volume, at most at the grid's bottom                      (z = 0{})",
+                    file_origin.map_or(String::new(), |o| format!(", {} in the file's world", o.z))
+                ),
+            ));
+        }
+        let albedo = match &g.albedo {
+            Some(v) => {
+                let values = self.grey_or_rgb(v, "ground.albedo", &|x| {
+                    if (0.0..=1.0).contains(&x) {
+                        Ok(())
+                    } else {
+                        Err("expected an albedo in [0, 1]".into())
+                    }
+                })?;
+                [0, 1, 2].map(|c| values[c.min(values.len() - 1)])
+            }
+            None => [DEFAULT_GROUND_ALBEDO; 3],
+        };
+        if let Some(up) = environment.and_then(environment_up) {
+            if (up - DVec3::Z).length() > 1e-9 {
+                return Err(self.err(
+                    "ground",
+                    format!(
+                        "the environment's up is {up:?}: a ground is the plane z = height, so                          give the environment up = [0, 0, 1]"
+                    ),
+                ));
+            }
+        }
+        Ground::new(height.min(0.0), albedo).map_err(|e| self.err("ground", e.to_string()))
     }
 
     fn solve(

@@ -31,7 +31,7 @@ pub const MAGIC: &[u8; 8] = b"VOLRADSL";
 /// metadata; 7: the emitters' uncollided fluence, and discrete ordinates' radiance without
 /// it). Bumping it means refreshing the golden files in
 /// `tests/data/solution-golden/` (`VOLRAD_BLESS=1 cargo test --test it solution_file`).
-pub const FORMAT_VERSION: u32 = 8;
+pub const FORMAT_VERSION: u32 = 9;
 const FIXED_HEADER: usize = 24;
 /// The largest metadata (records and array table, without the arrays) a solution file may
 /// hold. The reader decodes with this limit, so a length inside hostile metadata cannot make

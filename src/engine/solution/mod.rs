@@ -9,10 +9,12 @@ pub mod container;
 pub mod records;
 
 use std::path::Path;
+use std::sync::Arc;
 
 use gather::light_depth::{LightDepth, LightDepthModel};
 use gather::RenderIndex;
 use medium::coarsening::Coarsening;
+use medium::ground::GroundRadiance;
 use medium::light_pass::{LightField, LightPass};
 use medium::{CellValues, ChannelMedium, Environment, Light, Medium};
 use rayon::prelude::*;
@@ -227,6 +229,8 @@ pub struct Solution {
     /// The scene's environment light, which the solved field already contains.
     pub environment: Option<Environment>,
     pub background: f64,
+    /// The ground and the light it reflects, per patch and channel, as the solve left it.
+    pub ground: Option<Arc<GroundRadiance>>,
     pub render: RenderSettings,
     pub cameras: Vec<CameraSpec>,
     pub bins: Option<StoredBins>,
@@ -345,6 +349,11 @@ impl Solution {
         {
             arrays.push(("environment/map".into(), map));
         }
+        if let Some(g) = &self.ground {
+            for (c, values) in g.radiance().iter().enumerate() {
+                arrays.push((format!("ground/{c}"), values.clone()));
+            }
+        }
         Container {
             meta: MetaRecord {
                 volrad_version: env!("CARGO_PKG_VERSION").into(),
@@ -358,6 +367,7 @@ impl Solution {
                 lights: self.lights.iter().map(Into::into).collect(),
                 environment: self.environment.as_ref().map(Into::into),
                 background: self.background,
+                ground: self.ground.as_deref().map(Into::into),
                 render: (&self.render).into(),
                 cameras: self.cameras.iter().map(Into::into).collect(),
                 bins: self.bins.as_ref().map(Into::into),
@@ -517,6 +527,16 @@ impl Solution {
             data,
         )
         .map_err(|e| bad(e.to_string()))?;
+        let ground = meta
+            .ground
+            .map(|g| {
+                g.into_library(&lights, |c, len| {
+                    take(format!("ground/{c}"), len).map_err(|e| e.to_string())
+                })
+                .map(Arc::new)
+            })
+            .transpose()
+            .map_err(bad)?;
         Ok(Solution {
             scene_hash: meta.scene_hash,
             scene_origin: meta.scene_origin,
@@ -533,6 +553,7 @@ impl Solution {
                 .transpose()
                 .map_err(bad)?,
             background: meta.background,
+            ground,
             render,
             cameras,
             bins,

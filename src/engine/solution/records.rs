@@ -21,6 +21,7 @@
 
 use glam::DVec3;
 use medium::environment::{EnvironmentSpec, SkySpec};
+use medium::ground::{Ground, GroundPatches, GroundRadiance};
 use medium::light_pass::LightEnergy;
 use medium::{Environment, Grid, Interpolation, Light, PhaseFunction};
 use montecarlo::two_pass::{PhotonEnergy, TwoPassSolution};
@@ -56,6 +57,9 @@ pub struct MetaRecord {
     /// The scene's environment light, when it has one.
     pub environment: Option<EnvironmentRecord>,
     pub background: f64,
+    /// The ground, when the scene has one; its reflected radiance per patch is the array
+    /// `ground/{c}` of each channel.
+    pub ground: Option<GroundRecord>,
     pub render: RenderRecord,
     pub cameras: Vec<CameraRecord>,
     pub bins: Option<BinsRecord>,
@@ -121,6 +125,68 @@ pub fn environment_map_array(e: &Environment) -> Option<Vec<f32>> {
     match e.spec() {
         EnvironmentSpec::Map(m) => Some(m.texels().iter().flatten().copied().collect()),
         _ => None,
+    }
+}
+
+/// [`GroundRadiance`] without its per-patch values (the arrays `ground/{c}`) and lights (the
+/// solution's).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GroundRecord {
+    pub height: f64,
+    pub albedo: [f64; 3],
+    pub origin: [f64; 2],
+    pub patch_size: f64,
+    pub dims: [u64; 2],
+    /// The environment's irradiance beyond the patches, per channel.
+    pub sky_irradiance: Vec<f64>,
+}
+
+impl From<&GroundRadiance> for GroundRecord {
+    fn from(g: &GroundRadiance) -> Self {
+        let p = g.patches();
+        GroundRecord {
+            height: g.ground().height(),
+            albedo: g.ground().albedo_rgb(),
+            origin: p.origin(),
+            patch_size: p.size(),
+            dims: p.dims().map(|d| d as u64),
+            sky_irradiance: g.sky_irradiance().to_vec(),
+        }
+    }
+}
+
+impl GroundRecord {
+    /// Through [`GroundRadiance::new`]; `patch_array(c, len)` gives channel `c`'s values
+    /// (checked to hold `len`).
+    pub fn into_library(
+        self,
+        lights: &[Light],
+        mut patch_array: impl FnMut(usize, usize) -> Result<Vec<f32>, String>,
+    ) -> Result<GroundRadiance, String> {
+        let ground = Ground::new(self.height, self.albedo).map_err(|e| e.to_string())?;
+        let dims = [
+            to_usize(self.dims[0], "ground patches")?,
+            to_usize(self.dims[1], "ground patches")?,
+        ];
+        let patches =
+            GroundPatches::new(self.origin, self.patch_size, dims).map_err(|e| e.to_string())?;
+        if !matches!(self.sky_irradiance.len(), 1 | 3) {
+            return Err(format!(
+                "the ground has {} channels (1 or 3)",
+                self.sky_irradiance.len()
+            ));
+        }
+        let radiance = (0..self.sky_irradiance.len())
+            .map(|c| patch_array(c, patches.count()))
+            .collect::<Result<Vec<_>, _>>()?;
+        GroundRadiance::new(
+            ground,
+            patches,
+            radiance,
+            lights.to_vec(),
+            self.sky_irradiance,
+        )
+        .map_err(|e| e.to_string())
     }
 }
 

@@ -1528,21 +1528,51 @@ impl OrdinatesOperator {
                 expected: m,
             });
         }
+        Ok(self.uncollided_inflow(|_, l| along[l]))
+    }
+
+    /// The uncollided radiance of light that enters through the boundary with radiance
+    /// `field[c·M + l]` along bin `l` on the line through cell `c`'s centre: a field that is
+    /// constant along each bin's lines (what enters stays what it is, as a uniform
+    /// environment's light, or a ground's seen back along the line). Along a line the
+    /// uncollided radiance is `f − u`, where `u` is the light the line's cells extinguish,
+    /// `u' = −σ u + σ f` from zero at the boundary: one transport sweep of the density `σ f`,
+    /// so a non-absorbing medium stays at `f` in the sweep's own discretisation.
+    pub fn inflow_field(&self, field: &[f64]) -> Result<Vec<f64>, OrdinatesError> {
+        let m = self.bins.len();
+        if field.len() != self.len() {
+            return Err(OrdinatesError::Length {
+                what: "inflow field",
+                got: field.len(),
+                expected: self.len(),
+            });
+        }
+        Ok(self.uncollided_inflow(|c, l| field[c * m + l]))
+    }
+
+    /// `ψ = f − T(σt* f)` for the inflow `f(cell, bin)` (see [`Self::inflow_field`]).
+    fn uncollided_inflow(&self, f: impl Fn(usize, usize) -> f64) -> Vec<f64> {
+        let m = self.bins.len();
         let mut density = vec![0.0; self.len()];
-        for ((d, &st), &ss) in density.chunks_mut(m).zip(&self.sigma_t).zip(&self.sigma_s) {
+        for (c, ((d, &st), &ss)) in density
+            .chunks_mut(m)
+            .zip(&self.sigma_t)
+            .zip(&self.sigma_s)
+            .enumerate()
+        {
             let sweep_sigma = (st - self.truncation * ss).max(0.0);
-            for (dl, l) in d.iter_mut().zip(along) {
-                *dl = sweep_sigma * l;
+            for (l, dl) in d.iter_mut().enumerate() {
+                *dl = sweep_sigma * f(c, l);
             }
         }
         let mut psi = vec![0.0; self.len()];
         self.transport(&density, &mut psi);
-        for p in psi.chunks_mut(m) {
-            for (pl, l) in p.iter_mut().zip(along) {
-                *pl = (l - *pl).max(0.0);
+        for (c, p) in psi.chunks_mut(m).enumerate() {
+            for (l, pl) in p.iter_mut().enumerate() {
+                *pl = (f(c, l) - *pl).max(0.0);
             }
         }
-        Ok(psi)
+        psi
     }
 
     /// Angular integral `Σ_l I_l Ω_l` per cell (the zonal `4π ×` mean radiance).
