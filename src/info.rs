@@ -29,6 +29,8 @@ pub struct SceneInfo {
     pub lights: usize,
     /// The environment light, described (none: `None`).
     pub environment: Option<String>,
+    /// The ground, described (none: `None`).
+    pub ground: Option<String>,
     pub cameras: Vec<String>,
     /// The emitting cells and how the solve method carries their light (`None`: nothing
     /// emits).
@@ -251,6 +253,22 @@ impl SceneInfo {
                     m.max_rgb().into_iter().fold(0.0, f64::max)
                 ),
             }),
+            ground: scene.ground.map(|g| {
+                let patches = medium::ground::GroundPatches::covering(&g, m.grid(), &scene.lights);
+                let [r, gr, b] = g.albedo_rgb();
+                let albedo = if g.is_coloured() {
+                    format!("[{r}, {gr}, {b}]")
+                } else {
+                    format!("{r}")
+                };
+                format!(
+                    "Lambertian plane at z = {}, albedo {albedo}; its light solved on {} × {} patches of {} (coupled with the medium)",
+                    g.height(),
+                    patches.dims()[0],
+                    patches.dims()[1],
+                    patches.size()
+                )
+            }),
             cameras: scene.cameras.iter().map(|c| c.name.clone()).collect(),
             emission: emission_info(scene),
             method: scene.solve.method.name().to_string(),
@@ -303,6 +321,9 @@ impl fmt::Display for SceneInfo {
         writeln!(f, "lights           {}", self.lights)?;
         if let Some(e) = &self.environment {
             writeln!(f, "environment      {e}")?;
+        }
+        if let Some(g) = &self.ground {
+            writeln!(f, "ground           {g}")?;
         }
         if self.cameras.is_empty() {
             writeln!(f, "cameras          none (a render frames the whole grid)")?;

@@ -85,6 +85,9 @@ const STORED_BYTES_PER_CELL_BIN: u64 = 18;
 /// Vectors of the system's length an iteration keeps beside the solution and right-hand side.
 /// GMRES's basis grows by one vector per iteration up to its restart length: its figure is
 /// that bound, reached by a solve that runs a whole restart cycle.
+/// Vectors of one per unknown a ground–medium round keeps beside the solve's own.
+const GROUND_VECTORS: u64 = 4;
+
 fn work_vectors(iteration: &solver::Method, max_iterations: usize) -> u64 {
     use solver::Method as M;
     match iteration {
@@ -309,6 +312,27 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                 ),
             });
         }
+    }
+    if let Some(ground) = &scene.ground {
+        // A round keeps the last solution to start the next from, the uncollided light from
+        // outside, the solution with it and the source toward the ground (one vector per
+        // unknown each); the patches hold a few numbers per channel.
+        let unknowns = match settings.method {
+            SolveMethod::DiscreteOrdinates => {
+                s.transport_cells.saturating_mul(settings.bins as u64)
+            }
+            SolveMethod::Zonal | SolveMethod::ZonalHierarchical => s.transport_cells,
+            SolveMethod::None | SolveMethod::SingleScatter | SolveMethod::TwoPass => 0,
+        };
+        let patches =
+            medium::ground::GroundPatches::covering(ground, scene.medium.grid(), &scene.lights)
+                .count() as u64;
+        parts.push(MemoryPart {
+            what: "the ground's coupling with the medium",
+            bytes: unknowns
+                .saturating_mul(8 * GROUND_VECTORS)
+                .saturating_add(patches.saturating_mul(s.channels).saturating_mul(24)),
+        });
     }
     if s.scale > 1 {
         // The light pass's own peak on the data grid comes before the transport solve's.

@@ -786,13 +786,22 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
         .as_ref()
         .and_then(|s| s.environment.clone())
         .or_else(|| job.scene.as_ref().and_then(|s| s.environment.clone()));
+    let ground = job
+        .solution
+        .as_ref()
+        .and_then(|s| s.ground.as_ref().map(|g| *g.ground()))
+        .or_else(|| job.scene.as_ref().and_then(|s| s.ground));
+    if let Some(g) = &ground {
+        v["ground"] = json!({ "height": g.height(), "albedo": g.albedo_rgb() });
+    }
     if let Some(EnvironmentSpec::Sky(sky)) = environment.map(|e| e.spec()) {
         v["sky"] = json!({
             "sun_elevation_degrees": sky.sun_elevation_degrees,
             "sun_azimuth_degrees": sky.sun_azimuth_degrees,
             "turbidity": sky.turbidity,
             "sky_fraction": sky.sky_fraction,
-            "ground_albedo": sky.ground_albedo,
+            // Under a [ground] the sky's own ground is hidden; relight changes the [ground]'s.
+            "ground_albedo": ground.map_or(sky.ground_albedo, |g| medium::environment::luminance(&g.albedo_rgb())),
         });
     }
     if let Some(sol) = &job.solution {

@@ -537,6 +537,10 @@ async fn relight(
     for (key, v) in &numbers {
         sky.insert(key.clone(), toml::Value::Float(*v));
     }
+    // Under a real ground the sky's own ground is hidden: its albedo is the [ground]'s.
+    let ground_albedo = numbers
+        .iter()
+        .find_map(|(k, v)| (k == "ground_albedo").then_some(*v));
     let number = |key: &str| {
         sky.get(key)
             .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
@@ -548,6 +552,12 @@ async fn relight(
         (Some(el), az) => format!("sun {el}°, {}°", az.unwrap_or(0.0)),
         _ => "relit".to_string(),
     };
+    if let (Some(a), Some(ground)) = (
+        ground_albedo,
+        table.get_mut("ground").and_then(|g| g.as_table_mut()),
+    ) {
+        ground.insert("albedo".into(), toml::Value::Float(a));
+    }
     let name = name.or_else(|| {
         let base = base_name.unwrap_or_else(|| id[..12.min(id.len())].to_string());
         // Relighting a relit scene names it after the first.

@@ -1048,3 +1048,55 @@ fn environment_maps_are_uploads() {
     let r = request(addr, "POST", "/v1/volumes", None, &bad).unwrap();
     assert_error(&r, 400, "texel (1, 0)");
 }
+
+/// Under a `[ground]` relight's `ground_albedo` is the ground's (the sky's own ground is
+/// hidden): the description carries it, and a brighter ground makes a brighter picture.
+#[test]
+fn relighting_a_ground_changes_its_albedo() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = start(dir.path());
+    let addr = server.addr;
+    let text = sky_scene().replace("[solve]", "[ground]\nalbedo = 0.1\n\n[solve]");
+    let id = submit(addr, &text);
+    let first = wait_finished(addr, &id);
+    assert_eq!(
+        first["ground"]["albedo"],
+        serde_json::json!([0.1, 0.1, 0.1]),
+        "{first}"
+    );
+    assert!((first["sky"]["ground_albedo"].as_f64().unwrap() - 0.1).abs() < 1e-9);
+    let r = request(
+        addr,
+        "POST",
+        &format!("/v1/scenes/{id}/relight"),
+        Some("application/json"),
+        br#"{"ground_albedo": 0.7}"#,
+    )
+    .unwrap();
+    assert_eq!(r.status, 202, "{}", r.text());
+    let relit = r.json()["id"].as_str().unwrap().to_string();
+    let v = wait_finished(addr, &relit);
+    assert_eq!(
+        v["ground"]["albedo"],
+        serde_json::json!([0.7, 0.7, 0.7]),
+        "{v}"
+    );
+    let mean = |id: &str| {
+        let r = get(
+            addr,
+            &format!("/v1/scenes/{id}/render?width=32&height=24&exposure=1"),
+        )
+        .unwrap();
+        assert_eq!(r.status, 200, "{}", r.text());
+        let img = image::load_from_memory(&r.body).unwrap().to_rgb8();
+        img.pixels()
+            .map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>())
+            .sum::<f64>()
+            / (3 * img.width() * img.height()) as f64
+    };
+    let (dark, bright) = (mean(&id), mean(&relit));
+    assert!(
+        bright > 1.3 * dark,
+        "a brighter ground, a brighter picture: {bright} vs {dark}"
+    );
+}
