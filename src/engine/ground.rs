@@ -62,20 +62,10 @@ impl GroundSetup {
         let channels = medium.channels().len();
         let patches = GroundPatches::covering(&ground, medium.grid(), &scene.lights);
         let environment = scene.environment.as_ref();
-        let uncollided = (0..channels)
-            .map(|c| {
-                patches
-                    .uncollided_irradiance(
-                        &ground,
-                        medium.grid(),
-                        &medium.channels()[c].sigma_t,
-                        &scene.lights,
-                        environment,
-                        (c, channels),
-                    )
-                    .context("the ground's unscattered light")
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let sigma_t: Vec<&[f32]> = medium.channels().iter().map(|c| &c.sigma_t[..]).collect();
+        let uncollided = patches
+            .uncollided_irradiance(&ground, medium.grid(), &sigma_t, &scene.lights, environment)
+            .context("the ground's unscattered light")?;
         Ok(Some(GroundSetup {
             ground,
             patches,

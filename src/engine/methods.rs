@@ -423,11 +423,13 @@ fn couple_ground(
             c,
             channels,
         ));
+        // (Within ten times the scene's tolerance, the scene's: no round for so little.)
+        let loose = 0.01 * change;
         let round_settings = SolveSettings {
-            tolerance: if last {
+            tolerance: if last || loose < 10.0 * settings.tolerance {
                 settings.tolerance
             } else {
-                settings.tolerance.max(0.01 * change)
+                loose
             },
             ..settings.clone()
         };

@@ -217,6 +217,71 @@ impl GroundPatches {
     }
 }
 
+/// Most lattice points a side on which the ground's smooth parts (the environment's light and
+/// the medium's scattered light, both from wide solid angles) are computed; patches between
+/// interpolate bilinearly.
+pub const LATTICE_SIDE: usize = 64;
+
+/// Every `stride`-th patch along each side (and the last), where the smooth parts of the
+/// ground's irradiance are computed.
+struct Lattice {
+    dims: [usize; 2],
+    xs: Vec<usize>,
+    ys: Vec<usize>,
+    stride: usize,
+}
+
+impl Lattice {
+    fn new(dims: [usize; 2]) -> Lattice {
+        let stride = dims[0].max(dims[1]).div_ceil(LATTICE_SIDE).max(1);
+        let axis = |n: usize| {
+            let mut v: Vec<usize> = (0..n).step_by(stride).collect();
+            if v.last() != Some(&(n - 1)) {
+                v.push(n - 1);
+            }
+            v
+        };
+        Lattice {
+            dims,
+            xs: axis(dims[0]),
+            ys: axis(dims[1]),
+            stride,
+        }
+    }
+
+    /// The lattice's patches (x-fastest).
+    fn points(&self) -> Vec<usize> {
+        self.ys
+            .iter()
+            .flat_map(|&j| self.xs.iter().map(move |&i| i + self.dims[0] * j))
+            .collect()
+    }
+
+    /// Values at every patch from `coarse`, one per lattice point in [`Lattice::points`]'s
+    /// order, bilinear between lattice points.
+    fn upsample(&self, coarse: &[f64]) -> Vec<f64> {
+        let bracket = |axis: &[usize], i: usize| -> (usize, f64) {
+            if axis.len() == 1 {
+                return (0, 0.0);
+            }
+            let a = (i / self.stride).min(axis.len() - 2);
+            let t = (i - axis[a]) as f64 / (axis[a + 1] - axis[a]) as f64;
+            (a, t.min(1.0))
+        };
+        let nx = self.xs.len();
+        let at = |a: usize, b: usize| coarse[a.min(nx - 1) + nx * b.min(self.ys.len() - 1)];
+        (0..self.dims[0] * self.dims[1])
+            .map(|index| {
+                let (i, j) = (index % self.dims[0], index / self.dims[0]);
+                let (a, u) = bracket(&self.xs, i);
+                let (b, v) = bracket(&self.ys, j);
+                (1.0 - v) * ((1.0 - u) * at(a, b) + u * at(a + 1, b))
+                    + v * ((1.0 - u) * at(a, b + 1) + u * at(a + 1, b + 1))
+            })
+            .collect()
+    }
+}
+
 /// `n` unit directions over the upper hemisphere (`z > 0`), cosine-weighted: a Fibonacci
 /// lattice on the unit disk lifted to the hemisphere, so `E = π/n Σ L(ω_k)` integrates
 /// radiance into irradiance on a horizontal surface.
@@ -286,52 +351,97 @@ fn light_irradiance(p: DVec3, lights: &[Light], medium: Option<(&Grid, &[f32])>)
 }
 
 impl GroundPatches {
-    /// Per patch, the irradiance of the light that reaches the ground unscattered, in channel
-    /// `channel = (c, channels)`: the `lights` through the medium (σt per cell of `grid`) and the
-    /// environment's light from above the horizon through the medium.
+    /// Per channel and patch, the irradiance of the light that reaches the ground unscattered:
+    /// the `lights` through the medium (`sigma_t[c]` per cell of `grid`, one slice per channel)
+    /// at every patch, and the environment's light from above the horizon through the medium,
+    /// which shadows softly, on a lattice of at most [`LATTICE_SIDE`] patches a side and
+    /// interpolated between. Channels with the same σt share their rays.
     pub fn uncollided_irradiance(
         &self,
         ground: &Ground,
         grid: &Grid,
-        sigma_t: &[f32],
+        sigma_t: &[&[f32]],
         lights: &[Light],
         environment: Option<&Environment>,
-        channel: (usize, usize),
-    ) -> Result<Vec<f64>, MediumError> {
-        check_sigma(grid, sigma_t)?;
-        let (c, channels) = channel;
+    ) -> Result<Vec<Vec<f64>>, MediumError> {
+        for s in sigma_t {
+            check_sigma(grid, s)?;
+        }
+        let channels = sigma_t.len();
         let directions = cosine_directions(GROUND_DIRECTIONS);
         let weight = PI / directions.len() as f64;
-        let sky: Vec<f64> = match environment {
-            Some(env) => directions
-                .iter()
-                .map(|&d| env.radiance_along(-d, c, channels))
-                .collect(),
-            None => Vec::new(),
-        };
-        Ok((0..self.count())
-            .into_par_iter()
-            .map(|index| {
-                let p = self.centre(index, ground.height);
-                let mut e = light_irradiance(p, lights, Some((grid, sigma_t)));
-                for (&d, &l) in directions.iter().zip(&sky) {
-                    if l > 0.0 {
-                        let ray = Ray {
-                            origin: p,
-                            direction: d,
-                        };
-                        e += weight * l * transmittance(grid, sigma_t, &ray, f64::INFINITY);
+        let lattice = Lattice::new(self.dims);
+        let mut out: Vec<Vec<f64>> = Vec::with_capacity(channels);
+        for c in 0..channels {
+            if let Some(same) = (0..c).find(|&o| sigma_t[o] == sigma_t[c]) {
+                // The lights are white: the same σt gives the same light (the sky, coloured,
+                // is added below).
+                let direct = out[same].clone();
+                out.push(direct);
+                continue;
+            }
+            let sigma = sigma_t[c];
+            let direct: Vec<f64> = (0..self.count())
+                .into_par_iter()
+                .map(|index| {
+                    light_irradiance(
+                        self.centre(index, ground.height),
+                        lights,
+                        Some((grid, sigma)),
+                    )
+                })
+                .collect();
+            out.push(direct);
+        }
+        if let Some(env) = environment {
+            // Transmittance along each direction from each lattice point, shared by channels
+            // with the same σt.
+            let mut tables: Vec<(usize, Vec<f32>)> = Vec::new();
+            for c in 0..channels {
+                let t = match tables.iter().find(|(o, _)| sigma_t[*o] == sigma_t[c]) {
+                    Some((_, t)) => t,
+                    None => {
+                        let sigma = sigma_t[c];
+                        let t: Vec<f32> = lattice
+                            .points()
+                            .par_iter()
+                            .flat_map_iter(|&index| {
+                                let p = self.centre(index, ground.height);
+                                directions.iter().map(move |&d| {
+                                    let ray = Ray {
+                                        origin: p,
+                                        direction: d,
+                                    };
+                                    transmittance(grid, sigma, &ray, f64::INFINITY) as f32
+                                })
+                            })
+                            .collect();
+                        tables.push((c, t));
+                        &tables.last().expect("just pushed").1
                     }
+                };
+                let sky: Vec<f64> = directions
+                    .iter()
+                    .map(|&d| weight * env.radiance_along(-d, c, channels))
+                    .collect();
+                let n = directions.len();
+                let coarse: Vec<f64> = t
+                    .chunks(n)
+                    .map(|row| row.iter().zip(&sky).map(|(&t, l)| t as f64 * l).sum())
+                    .collect();
+                for (e, v) in out[c].iter_mut().zip(lattice.upsample(&coarse)) {
+                    *e += v;
                 }
-                e
-            })
-            .collect())
+            }
+        }
+        Ok(out)
     }
 
     /// Per patch, the irradiance of the medium's scattered light: `π/n Σ_k ∫ Q T ds` along
     /// each of [`GROUND_DIRECTIONS`] cosine-weighted directions up from the patch's centre,
     /// with `source(cell, travel)` the radiance per unit length cell `cell` sends along
-    /// `travel` (piecewise constant in each cell, as σt).
+    /// `travel` (piecewise constant in each cell, as σt). Smooth over the ground: computed on a
+    /// lattice of at most [`LATTICE_SIDE`] patches a side and interpolated between.
     pub fn scattered_irradiance(
         &self,
         ground: &Ground,
@@ -342,7 +452,9 @@ impl GroundPatches {
         check_sigma(grid, sigma_t)?;
         let directions = cosine_directions(GROUND_DIRECTIONS);
         let weight = PI / directions.len() as f64;
-        Ok((0..self.count())
+        let lattice = Lattice::new(self.dims);
+        let coarse: Vec<f64> = lattice
+            .points()
             .into_par_iter()
             .map(|index| {
                 let p = self.centre(index, ground.height);
@@ -374,7 +486,8 @@ impl GroundPatches {
                 }
                 e
             })
-            .collect())
+            .collect();
+        Ok(lattice.upsample(&coarse))
     }
 }
 
@@ -575,15 +688,17 @@ mod tests {
         let patches = GroundPatches::covering(&ground, &grid, &[sun]);
         let sigma = vec![0.0f32; 64];
         let e = patches
-            .uncollided_irradiance(&ground, &grid, &sigma, &[sun], Some(&env), (0, 1))
+            .uncollided_irradiance(&ground, &grid, &[&sigma], &[sun], Some(&env))
             .unwrap();
+        let e = &e[0];
         let want = 2.0 * 0.8 + PI * 0.3;
         assert!(e.iter().all(|v| (v - want).abs() < 1e-9 * want));
         // And a dense medium shadows the patch under it.
         let dense = vec![50.0f32; 64];
         let e = patches
-            .uncollided_irradiance(&ground, &grid, &dense, &[sun], None, (0, 1))
+            .uncollided_irradiance(&ground, &grid, &[&dense], &[sun], None)
             .unwrap();
+        let e = &e[0];
         let under = (0..patches.count())
             .find(|&i| {
                 let c = patches.centre(i, -1.0);
@@ -597,6 +712,20 @@ mod tests {
             .unwrap();
         let v = glow[under];
         assert!(v > 0.0 && v <= PI * 0.1 * 1.0001, "{v}");
+    }
+
+    #[test]
+    fn the_lattice_reproduces_linear_fields_exactly() {
+        for dims in [[1, 1], [5, 3], [200, 131]] {
+            let lattice = Lattice::new(dims);
+            assert!(lattice.xs.len() <= LATTICE_SIDE + 1 && lattice.ys.len() <= LATTICE_SIDE + 1);
+            let f = |index: usize| 2.0 * (index % dims[0]) as f64 - 0.5 * (index / dims[0]) as f64;
+            let coarse: Vec<f64> = lattice.points().into_iter().map(f).collect();
+            let fine = lattice.upsample(&coarse);
+            for (index, v) in fine.iter().enumerate() {
+                assert!((v - f(index)).abs() < 1e-9, "{dims:?} patch {index}: {v}");
+            }
+        }
     }
 
     #[test]

@@ -947,6 +947,7 @@ fn builtin_default_is_the_sky_lit_cloud_sample_and_its_camera_sees_all_of_it() {
         s.environment.is_some() && s.lights.len() == 1,
         "a sky and its sun"
     );
+    assert!(s.ground.is_some(), "above a ground");
     assert_eq!(s.medium.channels()[0].albedo, CellValues::Uniform(0.99));
     assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
     assert_eq!(s.render.model, OpticalModel::Scattering);
