@@ -27,6 +27,10 @@ use crate::engine::SolveHooks;
 /// each, 6 · 8² = 384; a uniform environment needs none, see `solve_zonal`).
 pub const ENVIRONMENT_BINS: usize = 384;
 
+/// Direction bins of the ground's light into the zonal methods (the upward half: one
+/// transmittance pass each per ground–medium round).
+pub const GROUND_INFLOW_BINS: usize = 96;
+
 /// Rays per cell of the transmittance passes that bring light from outside into the zonal
 /// methods (the environment's, the ground's).
 const ZONAL_INFLOW_RAYS_PER_CELL: usize = 4;
@@ -480,7 +484,13 @@ fn add_zonal_inflow(
     let channel = &medium.channels()[c];
     let channels = medium.channels().len();
     let grid = medium.grid();
-    let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
+    // The ground's light is smooth in direction (Lambertian) and comes round by round: fewer
+    // bins than a sky's.
+    let bins = DirectionBins::with_count(if ground.is_some() {
+        GROUND_INFLOW_BINS
+    } else {
+        ENVIRONMENT_BINS
+    })?;
     let along = env.map(|e| environment_bin_radiance(e, &bins, c, channels));
     let mut fluence = vec![0.0; grid.cell_count()];
     for (k, (&d, &omega)) in bins.centres().iter().zip(bins.solid_angles()).enumerate() {
