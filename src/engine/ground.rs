@@ -13,7 +13,7 @@
 
 use std::f64::consts::PI;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use glam::DVec3;
 use medium::ground::{cosine_directions, Ground, GroundPatches, GroundRadiance, GROUND_DIRECTIONS};
 use medium::{Environment, Light, Medium};
@@ -191,17 +191,4 @@ pub fn relative_change(old: &[f32], new: &[f32]) -> f64 {
         .zip(new)
         .fold(0.0f64, |m, (&a, &b)| m.max((a as f64 - b as f64).abs()))
         / top
-}
-
-/// Refuses a solve method that cannot carry a ground's light (two-pass: its photons do not
-/// bounce off the ground yet).
-pub fn check_ground(scene: &Scene, method: scene::SolveMethod) -> Result<()> {
-    if scene.ground.is_some() && method == scene::SolveMethod::TwoPass {
-        bail!(
-            "[solve] method `two-pass` cannot carry a [ground] yet (its photons do not bounce \
-             off it); use zonal, zonal-hierarchical or discrete-ordinates, or render with \
-             --path-trace"
-        );
-    }
-    Ok(())
 }

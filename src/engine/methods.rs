@@ -774,11 +774,14 @@ pub fn solve_ordinates(
 /// seeded, deterministic photon pass (the render adds the exact first bounce).
 pub fn solve_two_pass(
     scene: &Scene,
+    ground: Option<&ChannelGround>,
     c: usize,
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<ChannelSolve> {
-    use montecarlo::two_pass::{energetize, EnergetizeOptions};
+    use montecarlo::two_pass::{
+        energetize, energetize_over_ground, EnergetizeOptions, GroundPhotons,
+    };
     let bins = two_pass_bins(&scene.medium.phase());
     let options = EnergetizeOptions {
         photons_per_light: settings.photons,
@@ -795,15 +798,40 @@ pub fn solve_two_pass(
         c,
         scene.medium.channels().len(),
     ));
-    let solution = energetize(&scene.medium, c, &scene.lights, &options, None)
-        .context("two-pass energetization")?;
+    let (solution, ground_radiance) = match ground {
+        None => (
+            energetize(&scene.medium, c, &scene.lights, &options, None)
+                .context("two-pass energetization")?,
+            None,
+        ),
+        Some(gr) => {
+            // The photons carry the ground's unscattered light up and bring the scattered
+            // light down, tallied on coarse patches (enough photons each) and interpolated.
+            let photons = GroundPhotons {
+                unscattered: gr.lookup(gr.radiance(None))?,
+                tally: gr.patches().coarsened(GROUND_TALLY_SIDE),
+            };
+            let (solution, tallied) =
+                energetize_over_ground(&scene.medium, c, &scene.lights, &options, &photons, None)
+                    .context("two-pass energetization")?;
+            let scattered = gr.patches().resample(&photons.tally, &tallied);
+            (solution, Some(gr.radiance(Some(&scattered))))
+        }
+    };
     tracing::info!(
         photons = solution.energy.photons,
         imbalance = solution.energy.relative_imbalance(),
         "two-pass energetization done"
     );
-    Ok((ScatteredField::TwoPass(Box::new(solution)), None, None))
+    Ok((
+        ScatteredField::TwoPass(Box::new(solution)),
+        None,
+        ground_radiance,
+    ))
 }
+
+/// Most patches a side the two-pass method tallies the ground's scattered light on.
+const GROUND_TALLY_SIDE: usize = 32;
 
 /// One line per channel whose iteration stopped before its tolerance (what `volrad solve`
 /// warns and the Python package raises as a `RuntimeWarning`).

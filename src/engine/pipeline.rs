@@ -72,7 +72,6 @@ pub fn solve_scene(
     // Before any light pass or operator: an iteration the method cannot run is refused now.
     crate::engine::methods::check_iteration(settings)?;
     crate::engine::methods::check_environment(scene, settings)?;
-    crate::engine::ground::check_ground(scene, settings.method)?;
     crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let medium = &scene.medium;
     // Multiple scattering is solved on the transport grid (the data grid itself at scale 1);
@@ -154,7 +153,7 @@ pub fn solve_scene(
                 hooks,
             )?,
             SolveMethod::TwoPass => {
-                crate::engine::methods::solve_two_pass(scene, c, settings, hooks)?
+                crate::engine::methods::solve_two_pass(scene, ground.as_ref(), c, settings, hooks)?
             }
         };
         ground_radiance.extend(ground_solved);

@@ -92,6 +92,8 @@ fn a_cloud_over_a_ground_matches_the_path_tracer_from_every_view() {
         ("zonal-hierarchical", ISOTROPIC, 0.02),
         ("discrete-ordinates", ISOTROPIC, 0.02),
         ("discrete-ordinates", FORWARD, 0.03),
+        // Photon noise (2²¹ photons per light, the sky's and the ground's) counts as error.
+        ("two-pass", FORWARD, 0.04),
     ] {
         let scene = &parse(&scene_text(method, phase, GROUND));
         let solution = solve(scene);
@@ -177,8 +179,7 @@ fn the_ground_is_shadowed_by_the_cloud_and_lights_it_from_below() {
 }
 
 /// `[ground]` keys are checked and named: the height must be under the volume, albedos in
-/// [0, 1], the environment's up +z; two-pass cannot carry a ground yet and says so before
-/// any work.
+/// [0, 1], the environment's up +z.
 #[test]
 fn ground_keys_are_checked() {
     let refused = |ground: &str, light: &str, key: &str| {
@@ -211,15 +212,6 @@ fn ground_keys_are_checked() {
         "[ground]\nalbedo = [0.1, 0.3, 0.1]",
     ));
     assert_eq!(scene.medium.channels().len(), 3);
-    let scene = parse(&scene_text("two-pass", ISOTROPIC, GROUND));
-    let err = solve_scene(&scene, &scene.solve, &SolveHooks::default())
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(
-        err.contains("two-pass") && err.contains("[ground]"),
-        "{err}"
-    );
 }
 
 /// A stored solution keeps its ground: read back, it renders the same image.

@@ -200,7 +200,7 @@ impl GroundPatches {
     /// Bilinear interpolation of per-patch `values` between patch centres (clamped at the
     /// outer half patch).
     #[inline]
-    fn bilinear(&self, values: &[f32], x: f64, y: f64) -> f64 {
+    fn bilinear<T: Copy + Into<f64>>(&self, values: &[T], x: f64, y: f64) -> f64 {
         let axis = |p: f64, a: usize| {
             let u = ((p - self.origin[a]) / self.size - 0.5).clamp(0.0, (self.dims[a] - 1) as f64);
             let i = (u as usize).min(self.dims[a].saturating_sub(2));
@@ -211,7 +211,7 @@ impl GroundPatches {
         let nx = self.dims[0];
         let i1 = (i + 1).min(nx - 1);
         let j1 = (j + 1).min(self.dims[1] - 1);
-        let v = |i: usize, j: usize| values[i + nx * j] as f64;
+        let v = |i: usize, j: usize| values[i + nx * j].into();
         (1.0 - fy) * ((1.0 - fx) * v(i, j) + fx * v(i1, j))
             + fy * ((1.0 - fx) * v(i, j1) + fx * v(i1, j1))
     }
@@ -277,6 +277,47 @@ impl Lattice {
                 let (b, v) = bracket(&self.ys, j);
                 (1.0 - v) * ((1.0 - u) * at(a, b) + u * at(a + 1, b))
                     + v * ((1.0 - u) * at(a, b + 1) + u * at(a + 1, b + 1))
+            })
+            .collect()
+    }
+}
+
+impl GroundPatches {
+    /// The same region in patches at most `max_side` a side (each an integer number of this
+    /// grid's patches across), for tallies that need more samples per patch.
+    pub fn coarsened(&self, max_side: usize) -> GroundPatches {
+        let k = self.dims[0]
+            .max(self.dims[1])
+            .div_ceil(max_side.max(1))
+            .max(1);
+        GroundPatches {
+            origin: self.origin,
+            size: self.size * k as f64,
+            dims: self.dims.map(|d| d.div_ceil(k)),
+        }
+    }
+
+    /// The patch under `(x, y)`, if the patches cover it.
+    #[inline]
+    pub fn index_of(&self, x: f64, y: f64) -> Option<usize> {
+        let (u, v) = (
+            (x - self.origin[0]) / self.size,
+            (y - self.origin[1]) / self.size,
+        );
+        if !(u >= 0.0 && v >= 0.0) {
+            return None;
+        }
+        let (i, j) = (u as usize, v as usize);
+        (i < self.dims[0] && j < self.dims[1]).then_some(i + self.dims[0] * j)
+    }
+
+    /// `values` on the patches of `coarse` (per patch), interpolated bilinearly to the
+    /// centres of these patches.
+    pub fn resample(&self, coarse: &GroundPatches, values: &[f64]) -> Vec<f64> {
+        (0..self.count())
+            .map(|index| {
+                let c = self.centre(index, 0.0);
+                coarse.bilinear(values, c.x, c.y)
             })
             .collect()
     }
@@ -712,6 +753,27 @@ mod tests {
             .unwrap();
         let v = glow[under];
         assert!(v > 0.0 && v <= PI * 0.1 * 1.0001, "{v}");
+    }
+
+    #[test]
+    fn coarse_patches_cover_the_same_region_and_resample_linear_fields() {
+        let fine = GroundPatches::new([-3.0, 2.0], 0.5, [100, 70]).unwrap();
+        let coarse = fine.coarsened(16);
+        assert!(coarse.dims()[0] <= 16 && coarse.dims()[1] <= 16);
+        assert_eq!(coarse.index_of(-3.0, 2.0), Some(0));
+        assert_eq!(coarse.index_of(-3.1, 2.0), None);
+        assert_eq!(coarse.index_of(-3.0 + 60.0, 2.0), None);
+        let f = |x: f64, y: f64| 1.0 + 0.5 * x - 0.25 * y;
+        let values: Vec<f64> = (0..coarse.count())
+            .map(|i| {
+                let c = coarse.centre(i, 0.0);
+                f(c.x, c.y)
+            })
+            .collect();
+        let back = fine.resample(&coarse, &values);
+        // Exact between the coarse centres (clamped beyond the outer ones).
+        let c = fine.centre(40 + 100 * 30, 0.0);
+        assert!((back[40 + 100 * 30] - f(c.x, c.y)).abs() < 1e-9);
     }
 
     #[test]

@@ -14,6 +14,13 @@
 //! importance sampling of HG and of their two-lobe mix), with Russian roulette once its
 //! weight falls.
 //!
+//! Over a ground ([`energetize_over_ground`]) the ground's unscattered light enters as photons
+//! from below (drawn as the environment's, with the ground's radiance where each line meets the
+//! plane); a photon that leaves the medium going down after scattering meets the ground, its
+//! power is tallied on the ground's patch there and it goes on reflected (Lambertian, power
+//! times the albedo). A photon that reaches the ground unscattered stops: its reflection is
+//! the ground's own light.
+//!
 //! **Conversion** (end of the pass, §3.2.2): the stored incident power per bin becomes
 //! scattered radiance per bin with the phase function averaged over bin pairs,
 //! `Q_o,l = Σ_b Φ_o,b P_lb / V`, `P` renormalised so that `Σ_l P_lb Ω_l = 1` (no energy is
@@ -41,6 +48,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use gather::{InScattering, RayCarry, ViewSegment};
 use glam::DVec3;
+use medium::ground::{GroundPatches, GroundRadiance};
 use medium::phase::rotate_about;
 use medium::traversal::Ray;
 use medium::{ChannelMedium, Environment, Grid, Light, Medium, PhaseFunction};
@@ -172,6 +180,8 @@ pub struct TwoPassSolution {
 /// Per-group accumulators.
 struct Tally {
     power: Vec<f64>,
+    /// Scattered power arriving on each of the ground's tally patches.
+    ground: Vec<f64>,
     energy: PhotonEnergy,
 }
 
@@ -199,7 +209,9 @@ enum Emitter<'a> {
     },
     /// Uniform directions, each from a uniform point of the bounding sphere's disc across it.
     Environment {
-        environment: &'a Environment,
+        environment: Option<&'a Environment>,
+        /// The ground's light from below, as it leaves the ground unscattered.
+        ground: Option<&'a GroundRadiance>,
         centre: DVec3,
         radius: f64,
         /// This channel and the medium's channel count (the environment's colour).
@@ -285,6 +297,7 @@ impl Emitter<'_> {
             }
             Emitter::Environment {
                 environment,
+                ground,
                 centre,
                 radius,
                 channel: (c, channels),
@@ -297,10 +310,19 @@ impl Emitter<'_> {
                 let a = 2.0 * PI * rng.random::<f64>();
                 let origin =
                     centre - direction * (radius * 1.001) + e1 * (r * a.cos()) + e2 * (r * a.sin());
-                (
-                    Ray { origin, direction },
-                    environment.radiance_along(direction, c, channels),
-                )
+                // Going up under a ground, the light is the ground's where the line meets it.
+                // (The line meets the plane before or after the start point: the radiance is
+                // the same all along it.)
+                let from_ground = ground.filter(|_| direction.z > 0.0).map(|g| {
+                    let to_plane = (g.ground().height() - origin.z) / direction.z;
+                    g.radiance_at(origin + direction * to_plane, 0)
+                });
+                let radiance = match (from_ground, environment) {
+                    (Some(l), _) => l,
+                    (None, Some(env)) => env.radiance_along(direction, c, channels),
+                    (None, None) => 0.0,
+                };
+                (Ray { origin, direction }, radiance)
             }
             Emitter::Square {
                 corner,
@@ -400,6 +422,41 @@ pub fn energetize(
     options: &EnergetizeOptions,
     progress: Option<&(dyn Fn(u64, u64) + Sync)>,
 ) -> Result<TwoPassSolution, MonteCarloError> {
+    Ok(energetize_inner(medium, channel, lights, options, None, progress)?.0)
+}
+
+/// A ground under the medium for [`energetize_over_ground`]: the light it sends up
+/// unscattered (`A E / π` of the light that reaches it unscattered, one channel: look it up in
+/// channel 0), which photons carry into the medium like an environment's from below.
+pub struct GroundPhotons {
+    pub unscattered: GroundRadiance,
+    /// The patches the scattered light arriving on the ground is tallied on.
+    pub tally: GroundPatches,
+}
+
+/// [`energetize`] over a ground: photons that leave the medium going down after scattering
+/// meet the ground, are tallied there and reflected (Lambertian); the ground's own
+/// unscattered light enters as photons from below. Also returns the irradiance of the
+/// scattered light on each of `ground.tally`'s patches (power per area).
+pub fn energetize_over_ground(
+    medium: &Medium,
+    channel: usize,
+    lights: &[Light],
+    options: &EnergetizeOptions,
+    ground: &GroundPhotons,
+    progress: Option<&(dyn Fn(u64, u64) + Sync)>,
+) -> Result<(TwoPassSolution, Vec<f64>), MonteCarloError> {
+    energetize_inner(medium, channel, lights, options, Some(ground), progress)
+}
+
+fn energetize_inner(
+    medium: &Medium,
+    channel: usize,
+    lights: &[Light],
+    options: &EnergetizeOptions,
+    ground: Option<&GroundPhotons>,
+    progress: Option<&(dyn Fn(u64, u64) + Sync)>,
+) -> Result<(TwoPassSolution, Vec<f64>), MonteCarloError> {
     let ch = medium
         .channels()
         .get(channel)
@@ -410,7 +467,10 @@ pub fn energetize(
     check_options(options, lights)?;
     let grid = medium.grid();
     let layout = VoxelLayout::new(grid, options.storage_factor);
-    let (power, energy) = trace_photons(medium, channel, ch, lights, options, &layout, progress);
+    let (power, on_ground, energy) =
+        trace_photons(medium, channel, lights, options, &layout, ground, progress);
+    let area = ground.map_or(1.0, |g| g.tally.size() * g.tally.size());
+    let ground_irradiance = on_ground.iter().map(|p| p / area).collect();
     let cell_share = cell_shares(grid, ch, &layout);
     let voxel_source = voxel_sources(&medium.phase(), options, &power);
     let m = options.bins.count();
@@ -421,7 +481,7 @@ pub fn energetize(
     let max_source = (0..grid.cell_count())
         .map(|c| cell_share[c] as f64 * voxel_max[layout.voxel_of[c] as usize] as f64)
         .fold(0.0, f64::max);
-    Ok(TwoPassSolution {
+    let solution = TwoPassSolution {
         grid: *grid,
         storage_factor: options.storage_factor,
         optical_dims: layout.optical_dims,
@@ -431,7 +491,8 @@ pub fn energetize(
         energy,
         include_first_bounce: options.include_first_bounce,
         max_source,
-    })
+    };
+    Ok((solution, ground_irradiance))
 }
 
 /// Refuses options that cannot produce a result and lights with bad parameters.
@@ -492,25 +553,30 @@ impl VoxelLayout {
 fn trace_photons(
     medium: &Medium,
     channel: usize,
-    ch: &ChannelMedium,
     lights: &[Light],
     options: &EnergetizeOptions,
     layout: &VoxelLayout,
+    ground: Option<&GroundPhotons>,
     progress: Option<&(dyn Fn(u64, u64) + Sync)>,
-) -> (Vec<f64>, PhotonEnergy) {
+) -> (Vec<f64>, Vec<f64>, PhotonEnergy) {
     let grid = medium.grid();
+    let ch = &medium.channels()[channel];
     let m = options.bins.count();
     let optical_count = layout.optical_count;
     let voxel_of = &layout.voxel_of;
     let batches_per_light = options.photons_per_light.div_ceil(BATCH);
     let mut emitters: Vec<(Emitter, f64)> = lights.iter().map(|l| Emitter::new(l, grid)).collect();
-    if let Some(env) = options.environment.as_ref().filter(|e| !e.is_dark()) {
+    let environment = options.environment.as_ref().filter(|e| !e.is_dark());
+    let ground_light = ground.map(|g| &g.unscattered);
+    if environment.is_some() || ground_light.is_some() {
         // Directions drawn uniformly, each photon starting on the disc of the grid's bounding
-        // sphere across its direction: radiance L(ω) through area π R² over 4π sr.
+        // sphere across its direction: radiance L(ω) through area π R² over 4π sr (a
+        // ground's, going up).
         let radius = 0.5 * grid.extent().length() * (1.0 + 1e-9);
         emitters.push((
             Emitter::Environment {
-                environment: env,
+                environment,
+                ground: ground_light,
                 centre: grid.center(),
                 radius,
                 channel: (channel, medium.channels().len()),
@@ -576,7 +642,35 @@ fn trace_photons(
                 let (flight, _) = fly(grid, &ch.sigma_t, None, &ray, f64::INFINITY, target);
                 let Flight::Collision { t, cell } = flight else {
                     tally.energy.escaped += w;
-                    break;
+                    // Scattered light that meets the ground lights it (tallied) and is
+                    // reflected on; unscattered light's reflection is the ground emitter's.
+                    let Some(g) = ground.filter(|_| depth > 0) else {
+                        break;
+                    };
+                    let Some(d) = g.unscattered.ground().hit(ray.origin, ray.direction) else {
+                        break;
+                    };
+                    let x = ray.at(d);
+                    if let Some(i) = g.tally.index_of(x.x, x.y) {
+                        tally.ground[i] += w;
+                    }
+                    w *= g.unscattered.ground().albedo(0, 1);
+                    if w <= 0.0 {
+                        break;
+                    }
+                    tally.energy.entering += w;
+                    // Cosine-distributed about +z: the Lambertian reflection.
+                    let (r2, phi) = (rng.random::<f64>(), 2.0 * PI * rng.random::<f64>());
+                    let r = r2.sqrt();
+                    ray = Ray {
+                        origin: x,
+                        direction: DVec3::new(
+                            r * phi.cos(),
+                            r * phi.sin(),
+                            (1.0 - r2).max(0.0).sqrt(),
+                        ),
+                    };
+                    continue;
                 };
                 depth += 1;
                 tally.energy.interactions += 1;
@@ -618,6 +712,7 @@ fn trace_photons(
         .map(|g| {
             let mut tally = Tally {
                 power: vec![0.0; optical_count * m],
+                ground: vec![0.0; ground.map_or(0, |g| g.tally.count())],
                 energy: PhotonEnergy::default(),
             };
             let mut batch = g as u64;
@@ -629,14 +724,18 @@ fn trace_photons(
         })
         .collect();
     let mut power = vec![0.0f64; optical_count * m];
+    let mut on_ground = vec![0.0f64; ground.map_or(0, |g| g.tally.count())];
     let mut energy = PhotonEnergy::default();
     for t in &tallies {
         for (p, v) in power.iter_mut().zip(&t.power) {
             *p += v;
         }
+        for (p, v) in on_ground.iter_mut().zip(&t.ground) {
+            *p += v;
+        }
         energy.add(&t.energy);
     }
-    (power, energy)
+    (power, on_ground, energy)
 }
 
 /// Each density cell's share of its optical voxel's power, by interception (σs V).
