@@ -884,6 +884,21 @@ fn slices_of_solved_fields() {
     }
 }
 
+/// The mean 8-bit value of a 32×24 render of scene `id` at `exposure`.
+fn mean_pixel(addr: SocketAddr, id: &str, exposure: f64) -> f64 {
+    let r = get(
+        addr,
+        &format!("/v1/scenes/{id}/render?width=32&height=24&exposure={exposure}"),
+    )
+    .unwrap();
+    assert_eq!(r.status, 200, "{}", r.text());
+    let img = image::load_from_memory(&r.body).unwrap().to_rgb8();
+    img.pixels()
+        .map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>())
+        .sum::<f64>()
+        / (3 * img.width() * img.height()) as f64
+}
+
 /// A small cloud under a sky, by discrete ordinates (fast on 8×8×6 cells).
 fn sky_scene() -> String {
     r#"
@@ -967,19 +982,7 @@ fn relighting_a_sky_makes_a_new_scene() {
     assert_eq!(again["name"], "sky cloud · sun 45°, 90°", "{again}");
 
     // The same sun with no skylight and with a bright sky: the second is brighter.
-    let mean = |id: &str| {
-        let r = get(
-            addr,
-            &format!("/v1/scenes/{id}/render?width=32&height=24&exposure=2"),
-        )
-        .unwrap();
-        assert_eq!(r.status, 200, "{}", r.text());
-        let img = image::load_from_memory(&r.body).unwrap().to_rgb8();
-        img.pixels()
-            .map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>())
-            .sum::<f64>()
-            / (3 * img.width() * img.height()) as f64
-    };
+    let mean = |id: &str| mean_pixel(addr, id, 2.0);
     let (dark, _) = relit(r#"{"sky_fraction": 0}"#);
     let (bright, _) = relit(r#"{"sky_fraction": 0.6}"#);
     let (d, b) = (mean(&dark), mean(&bright));
@@ -1081,20 +1084,7 @@ fn relighting_a_ground_changes_its_albedo() {
         serde_json::json!([0.7, 0.7, 0.7]),
         "{v}"
     );
-    let mean = |id: &str| {
-        let r = get(
-            addr,
-            &format!("/v1/scenes/{id}/render?width=32&height=24&exposure=1"),
-        )
-        .unwrap();
-        assert_eq!(r.status, 200, "{}", r.text());
-        let img = image::load_from_memory(&r.body).unwrap().to_rgb8();
-        img.pixels()
-            .map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>())
-            .sum::<f64>()
-            / (3 * img.width() * img.height()) as f64
-    };
-    let (dark, bright) = (mean(&id), mean(&relit));
+    let (dark, bright) = (mean_pixel(addr, &id, 1.0), mean_pixel(addr, &relit, 1.0));
     assert!(
         bright > 1.3 * dark,
         "a brighter ground, a brighter picture: {bright} vs {dark}"

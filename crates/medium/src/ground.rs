@@ -323,6 +323,14 @@ impl GroundPatches {
     }
 }
 
+/// The direction a Lambertian surface facing +z reflects into, from two uniform numbers in
+/// [0, 1): cosine-distributed about +z.
+#[inline]
+pub fn cosine_direction(u1: f64, u2: f64) -> DVec3 {
+    let (r, phi) = (u1.sqrt(), 2.0 * PI * u2);
+    DVec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt())
+}
+
 /// `n` unit directions over the upper hemisphere (`z > 0`), cosine-weighted: a Fibonacci
 /// lattice on the unit disk lifted to the hemisphere, so `E = π/n Σ L(ω_k)` integrates
 /// radiance into irradiance on a horizontal surface.
@@ -357,8 +365,9 @@ fn check_sigma(grid: &Grid, sigma_t: &[f32]) -> Result<(), MediumError> {
     Ok(())
 }
 
-/// Irradiance from `lights` at `p` on the plane, unshadowed when `sigma_t` is `None`.
-fn light_irradiance(p: DVec3, lights: &[Light], medium: Option<(&Grid, &[f32])>) -> f64 {
+/// Irradiance from `lights` at `p` on a plane facing +z, through the medium (σt per cell of
+/// the grid, the exact per-cell optical depth) or unshadowed when `medium` is `None`.
+pub fn light_irradiance(p: DVec3, lights: &[Light], medium: Option<(&Grid, &[f32])>) -> f64 {
     let mut e = 0.0;
     for light in lights {
         let (flow, irradiance) = light.arriving_at(p);

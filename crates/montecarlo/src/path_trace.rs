@@ -31,7 +31,7 @@
 
 use gather::{Camera, Image, ImageChannel};
 use glam::DVec3;
-use medium::ground::Ground;
+use medium::ground::{cosine_direction, light_irradiance, Ground};
 use medium::traversal::Ray;
 use medium::{CellValues, Environment, Grid, Light, Medium, PhaseFunction};
 use rand::Rng;
@@ -206,26 +206,7 @@ impl<'a> PathTracer<'a> {
     /// `Σ_L E_L cos θ_L T_L / π`.
     #[inline]
     fn direct_on_ground(&self, x: DVec3) -> f64 {
-        let mut sum = 0.0;
-        for light in self.lights {
-            let (flow, irradiance) = light.arriving_at(x);
-            let cos = -flow.z;
-            if irradiance <= 0.0 || cos <= 0.0 {
-                continue;
-            }
-            let t_max = match *light {
-                Light::Directional { .. } => f64::INFINITY,
-                Light::Point { position, .. } | Light::Spot { position, .. } => {
-                    (position - x).length()
-                }
-            };
-            let shadow = Ray {
-                origin: x,
-                direction: -flow,
-            };
-            sum += irradiance * cos * transmittance(&self.grid, self.sigma_t, &shadow, t_max);
-        }
-        sum / std::f64::consts::PI
+        light_irradiance(x, self.lights, Some((&self.grid, self.sigma_t))) / std::f64::consts::PI
     }
 
     /// One path's estimate of the radiance arriving at `ray.origin` from `−ray.direction`
@@ -267,19 +248,10 @@ impl<'a> PathTracer<'a> {
                             }
                             throughput /= 1.0 - q;
                         }
-                        // Cosine-distributed about +z: the Lambertian BRDF's sampling.
-                        let (r2, phi) = (
-                            rng.random::<f64>(),
-                            std::f64::consts::TAU * rng.random::<f64>(),
-                        );
-                        let r = r2.sqrt();
+                        // The Lambertian BRDF's sampling.
                         ray = Ray {
                             origin: x,
-                            direction: DVec3::new(
-                                r * phi.cos(),
-                                r * phi.sin(),
-                                (1.0 - r2).max(0.0).sqrt(),
-                            ),
+                            direction: cosine_direction(rng.random(), rng.random()),
                         };
                         continue;
                     }

@@ -48,7 +48,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use gather::{InScattering, RayCarry, ViewSegment};
 use glam::DVec3;
-use medium::ground::{GroundPatches, GroundRadiance};
+use medium::ground::{cosine_direction, GroundPatches, GroundRadiance};
 use medium::phase::rotate_about;
 use medium::traversal::Ray;
 use medium::{ChannelMedium, Environment, Grid, Light, Medium, PhaseFunction};
@@ -659,16 +659,9 @@ fn trace_photons(
                         break;
                     }
                     tally.energy.entering += w;
-                    // Cosine-distributed about +z: the Lambertian reflection.
-                    let (r2, phi) = (rng.random::<f64>(), 2.0 * PI * rng.random::<f64>());
-                    let r = r2.sqrt();
                     ray = Ray {
                         origin: x,
-                        direction: DVec3::new(
-                            r * phi.cos(),
-                            r * phi.sin(),
-                            (1.0 - r2).max(0.0).sqrt(),
-                        ),
+                        direction: cosine_direction(rng.random(), rng.random()),
                     };
                     continue;
                 };
