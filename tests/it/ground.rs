@@ -201,6 +201,17 @@ fn ground_keys_are_checked() {
         "[[light]]\nkind = \"sky\"\nsun_elevation_degrees = 30.0\nup = [0.0, 1.0, 0.0]",
         "up",
     );
+    // Light from under the ground is refused, naming the light.
+    refused(
+        "[ground]",
+        "[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.3, 1.0]\nirradiance = 1.0",
+        "light[1].direction",
+    );
+    refused(
+        "[ground]\nheight = -2.0",
+        "[[light]]\nkind = \"point\"\nposition = [1.0, 1.0, -3.0]\nintensity = 1.0",
+        "light[1].position",
+    );
     // The defaults: at the grid's bottom, albedo 0.2; a coloured ground colours the medium.
     let scene = parse(&scene_text("zonal", ISOTROPIC, "[ground]"));
     let g = scene.ground.unwrap();

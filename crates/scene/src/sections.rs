@@ -143,6 +143,9 @@ impl Ctx<'_> {
                 c.target -= o;
             }
         }
+        if let Some(g) = &ground {
+            self.lights_above(&lights, g)?;
+        }
         Ok(Scene {
             medium,
             lights,
@@ -702,6 +705,39 @@ impl Ctx<'_> {
                 self.non_negative(&b.radiance, "background.radiance")?
             }
         })
+    }
+
+    /// Under a ground light comes from above it: a directional light must travel down, a point
+    /// or spot light must be over the plane (the ground would block what the solvers would
+    /// otherwise carry into the medium from below).
+    fn lights_above(&self, lights: &[Light], ground: &Ground) -> Result<(), SceneError> {
+        for (i, light) in lights.iter().enumerate() {
+            match *light {
+                Light::Directional { direction, .. } if direction.z >= 0.0 => {
+                    return Err(self.err(
+                        format!("light[{i}].direction"),
+                        format!(
+                            "{:?} does not travel down: under a [ground] light comes from above                              (direction z < 0)",
+                            direction.to_array()
+                        ),
+                    ));
+                }
+                Light::Point { position, .. } | Light::Spot { position, .. }
+                    if position.z <= ground.height() =>
+                {
+                    return Err(self.err(
+                        format!("light[{i}].position"),
+                        format!(
+                            "{:?} is not above the ground (z = {})",
+                            position.to_array(),
+                            ground.height()
+                        ),
+                    ));
+                }
+                _ => {}
+            }
+        }
+        Ok(())
     }
 
     /// `[ground] height, albedo`: a Lambertian plane under the grid (its height at most the
