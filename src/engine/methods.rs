@@ -337,15 +337,23 @@ pub fn solve_zonal(
             (g, report, None)
         }
         Some(gr) => {
-            // Below the horizon the ground, not the environment, sends light up.
+            // Below the horizon the ground, not the environment, sends light up. A uniform
+            // environment is taken whole by reciprocity (exact in the operator's own terms:
+            // the white furnace) and the ground adds what it sends beyond it, `L_g − L`.
+            let mut below = 0.0;
             if let Some(env) = environment {
-                add_zonal_inflow(&mut source, medium, c, Some(env), None)?;
+                if env.uniform_radiance().is_some() {
+                    below = env.radiance_along(DVec3::Z, c, medium.channels().len());
+                    add_zonal_environment(&mut source, env, medium, c, op.as_ref())?;
+                } else {
+                    add_zonal_inflow(&mut source, medium, c, Some(env), None)?;
+                }
             }
             let mut round =
                 |ground_source: &[f32], initial: Option<&[f64]>, settings: &SolveSettings| {
                     let looked_up = gr.lookup(ground_source.to_vec())?;
                     let mut s = source.clone();
-                    add_zonal_inflow(&mut s, medium, c, None, Some(&looked_up))?;
+                    add_zonal_inflow(&mut s, medium, c, None, Some((&looked_up, below)))?;
                     let (mut g, report) = run_solver(op.as_ref(), &s, initial, settings, hooks)?;
                     let without_emission = emitters.is_some().then(|| g.clone());
                     if emitters.is_some() {
@@ -470,16 +478,16 @@ fn couple_ground(
 }
 
 /// Adds to the zonal `source` of channel `c` the first-collision source of light entering
-/// from outside: the environment's (`env`) and, with a ground, the ground's light from below
-/// (`ground`, looked up along each bin's lines) — each bin's uncollided fluence from one
-/// transmittance pass. With a ground only the ground sends light up; without `ground` the
-/// upward bins are skipped too (the ground's part is added round by round).
+/// from outside: the environment's (`env`) from above the horizon, or, with `ground = (g,
+/// below)`, the ground's light from below beyond a uniform `below` already counted (`g`
+/// looked up along each bin's lines) — each bin's uncollided fluence from one transmittance
+/// pass.
 fn add_zonal_inflow(
     source: &mut [f64],
     medium: &Medium,
     c: usize,
     env: Option<&Environment>,
-    ground: Option<&medium::ground::GroundRadiance>,
+    ground: Option<(&medium::ground::GroundRadiance, f64)>,
 ) -> Result<()> {
     let channel = &medium.channels()[c];
     let channels = medium.channels().len();
@@ -515,13 +523,14 @@ fn add_zonal_inflow(
                 .par_iter_mut()
                 .zip(&t)
                 .for_each(|(f, ti)| *f += omega * l * ti),
-            (None, Some(g)) => {
+            (None, Some((g, below))) => {
                 fluence
                     .par_iter_mut()
                     .zip(&t)
                     .enumerate()
                     .for_each(|(i, (f, ti))| {
-                        *f += omega * ChannelGround::along_line(g, grid.cell_center(i), d) * ti
+                        let l = ChannelGround::along_line(g, grid.cell_center(i), d) - below;
+                        *f += omega * l * ti
                     })
             }
             (None, None) => {}
