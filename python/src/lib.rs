@@ -69,8 +69,8 @@ impl PyScene {
     #[new]
     #[pyo3(signature = (
         sigma_t, *, cell_size = None, albedo = None, phase = None, emission = None,
-        lights = None, background = None, method = None, solve = None, render = None,
-        cameras = None, interpolation = None, base_dir = None
+        lights = None, background = None, ground = None, method = None, solve = None,
+        render = None, cameras = None, interpolation = None, base_dir = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -82,6 +82,7 @@ impl PyScene {
         emission: Option<&Bound<'_, PyAny>>,
         lights: Option<&Bound<'_, PyAny>>,
         background: Option<&Bound<'_, PyAny>>,
+        ground: Option<&Bound<'_, PyAny>>,
         method: Option<&Bound<'_, PyAny>>,
         solve: Option<&Bound<'_, PyAny>>,
         render: Option<&Bound<'_, PyAny>>,
@@ -102,6 +103,7 @@ impl PyScene {
         root.insert("medium".into(), toml::Value::Table(medium));
         put(&mut root, "light", lights, "lights")?;
         put(&mut root, "background", background, "background")?;
+        put(&mut root, "ground", ground, "ground")?;
         put(&mut root, "render", render, "render")?;
         put(&mut root, "camera", cameras, "cameras")?;
         let mut solve_table = match solve {

@@ -294,3 +294,28 @@ def test_transport_scale_solves_on_blocks_of_cells_and_refuses_bad_values():
     for bad in (0, 17, "coarse", 1.5):
         with pytest.raises(volrad.VolradError, match="transport_scale"):
             scene.solve(transport_scale=bad)
+
+
+def test_a_ground_under_an_array_scene_is_lit_and_shadowed():
+    """`ground=` is the scene file's `[ground]`: the ground shows in the picture, lit by the
+    sun, and a brighter ground brightens the blob's underside."""
+    z, y, x = np.mgrid[0:8, 0:8, 0:8]
+    blob = np.where((x - 3.5) ** 2 + (y - 3.5) ** 2 + (z - 3.5) ** 2 < 9, 2.0, 0.0)
+    camera = {"name": "low", "eye": [3.5, -14.0, 1.0], "target": [3.5, 4.0, 0.0],
+              "up": [0, 0, 1], "fov_y": 60.0, "width": 48, "height": 36}
+
+    def solved(albedo):
+        return volrad.Scene(
+            blob.astype(np.float32), albedo=0.9, method="discrete-ordinates",
+            lights=[{"kind": "directional", "direction": [0.0, 0.0, -1.0], "irradiance": 1.0}],
+            ground={"height": -2.0, "albedo": albedo}, cameras=[camera],
+        ).solve()
+
+    bright, dark = solved(0.8), solved(0.1)
+    image = bright.render()
+    # The bottom row is open ground near the camera: A E / π with E = 1, and a little more.
+    lit_ground = image[-1].mean()
+    assert lit_ground > 0.8 * 1.0 / np.pi * 0.9
+    below = {"eye": [3.5, 3.5, -1.5], "target": [3.5, 3.5, 4.0], "up": [0, 1, 0],
+             "width": 8, "height": 8}
+    assert bright.render(below).mean() > 1.5 * dark.render(below).mean()

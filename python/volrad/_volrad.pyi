@@ -26,6 +26,7 @@ class Scene:
         emission: Optional[_Value] = None,
         lights: Optional[Sequence[Mapping[str, Any]]] = None,
         background: Optional[_Value] = None,
+        ground: Optional[Mapping[str, Any]] = None,
         method: Optional[str] = None,
         solve: Optional[Mapping[str, Any]] = None,
         render: Optional[Mapping[str, Any]] = None,
