@@ -296,7 +296,7 @@ def test_transport_scale_solves_on_blocks_of_cells_and_refuses_bad_values():
             scene.solve(transport_scale=bad)
 
 
-def test_a_ground_under_an_array_scene_is_lit_and_shadowed():
+def test_a_ground_under_an_array_scene_is_lit_and_lights_the_blob():
     """`ground=` is the scene file's `[ground]`: the ground shows in the picture, lit by the
     sun, and a brighter ground brightens the blob's underside."""
     z, y, x = np.mgrid[0:8, 0:8, 0:8]
