@@ -981,7 +981,7 @@ fn render_rays(
     let inv_spp = 1.0 / (sx * sy) as f64;
     let mut pixels = vec![0.0f32; width * height];
     // Pixels whose rays cannot meet the occupied box see only the background: no rays there
-    // (with an environment every pixel sees its own part of it).
+    // (with an environment or a ground every pixel sees its own part of it).
     let every_pixel = integrator.environment.is_some() || integrator.ground.is_some();
     let [bx0, by0, bx1, by1] = match (integrator.index.occupied, every_pixel) {
         (_, true) => [0, 0, width, height],

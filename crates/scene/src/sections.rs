@@ -717,8 +717,9 @@ impl Ctx<'_> {
                     return Err(self.err(
                         format!("light[{i}].direction"),
                         format!(
-                            "{:?} does not travel down: under a [ground] light comes from above                              (direction z < 0)",
-                            direction.to_array()
+                            "[{:.3}, {:.3}, {:.3}] does not travel down: under a [ground] light \
+                             comes from above (direction z < 0)",
+                            direction.x, direction.y, direction.z
                         ),
                     ));
                 }
@@ -728,8 +729,10 @@ impl Ctx<'_> {
                     return Err(self.err(
                         format!("light[{i}].position"),
                         format!(
-                            "{:?} is not above the ground (z = {})",
-                            position.to_array(),
+                            "[{}, {}, {}] is not above the ground (z = {})",
+                            position.x,
+                            position.y,
+                            position.z,
                             ground.height()
                         ),
                     ));
@@ -762,7 +765,8 @@ impl Ctx<'_> {
             return Err(self.err(
                 "ground.height",
                 format!(
-                    "{height}: the ground lies under the volume, at most at the grid's bottom                      (z = 0{})",
+                    "{height}: the ground lies under the volume, at most at the grid's bottom \
+                     (z = 0{})",
                     file_origin.map_or(String::new(), |o| format!(", {} in the file's world", o.z))
                 ),
             ));
@@ -785,7 +789,8 @@ impl Ctx<'_> {
                 return Err(self.err(
                     "ground",
                     format!(
-                        "the environment's up is {up:?}: a ground is the plane z = height, so                          give the environment up = [0, 0, 1]"
+                        "the environment's up is {up:?}: a ground is the plane z = height, so give \
+                         the environment up = [0, 0, 1]"
                     ),
                 ));
             }
