@@ -1049,7 +1049,8 @@ pub fn export_field(
 /// uncollided light and the scattered light. (Two-pass, single scatter and none get the
 /// emitters' light from an emitter pass now; their scattered light is not counted: two-pass
 /// stores it per optical voxel as a directional source, the others do not solve it. An
-/// environment's uncollided light is counted where cells scatter.)
+/// environment's and a ground's uncollided light are counted where cells scatter, and by
+/// discrete ordinates everywhere.)
 ///
 /// A solution on a coarser transport grid gives the lights' unscattered light per data cell
 /// and the rest (scattered, and emitted) interpolated trilinearly from the transport cells.
