@@ -125,16 +125,11 @@ fn bench_service_render(c: &mut Criterion) {
 
     let dims = [24, 24, 18];
     let sigma_t: Vec<f32> = cloud(dims, 7).iter().map(|d| d * 0.6).collect();
-    let medium = Medium::new(
+    let medium = Medium::grey(
         Grid::new(dims, 1.0).unwrap(),
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.95),
-            emission: CellValues::Uniform(0.0),
-        }],
+        sigma_t,
+        0.95,
         PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
     )
     .unwrap();
     let lights = [Light::Directional {

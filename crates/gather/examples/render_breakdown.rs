@@ -17,7 +17,7 @@ use gather::{render, Camera, InScattering, RayCarry, RenderIndex, RenderOptions,
 use glam::DVec3;
 use medium::generators::cloud;
 use medium::light_pass::LightPass;
-use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
+use medium::{Grid, Interpolation, Light, Medium, PhaseFunction};
 use scene::Scene;
 
 /// A source that counts the segments it is asked about.
@@ -126,16 +126,11 @@ fn main() {
     // The load test's cloud and one of its views (benches/render.rs: service).
     let dims = [24, 24, 18];
     let sigma_t: Vec<f32> = cloud(dims, 7).iter().map(|d| d * 0.6).collect();
-    let medium = Medium::new(
+    let medium = Medium::grey(
         Grid::new(dims, 1.0).unwrap(),
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.95),
-            emission: CellValues::Uniform(0.0),
-        }],
+        sigma_t,
+        0.95,
         PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
     )
     .unwrap();
     let lights = [Light::Directional {

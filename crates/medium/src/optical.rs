@@ -222,6 +222,27 @@ impl Medium {
         best
     }
 
+    /// A one-channel medium of σt per cell and one albedo, without emission, sampled
+    /// `nearest`: the common case of tests and examples (checked as [`Medium::new`] checks).
+    pub fn grey(
+        grid: Grid,
+        sigma_t: Vec<f32>,
+        albedo: f32,
+        phase: PhaseFunction,
+    ) -> Result<Medium, MediumError> {
+        Medium::new(
+            grid,
+            vec![ChannelMedium {
+                sigma_t,
+                albedo: CellValues::Uniform(albedo),
+                emission: CellValues::Uniform(0.0),
+            }],
+            phase,
+            Interpolation::Nearest,
+            None,
+        )
+    }
+
     /// Builds and validates a medium.
     pub fn new(
         grid: Grid,

@@ -8,22 +8,17 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gather::Camera;
 use glam::DVec3;
 use medium::generators::cloud;
-use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
+use medium::{Grid, Light, Medium, PhaseFunction};
 use montecarlo::{energetize, path_trace, EnergetizeOptions, PathTraceOptions};
 
 fn cloud_medium() -> Medium {
     let dims = [64, 64, 48];
     let sigma_t: Vec<f32> = cloud(dims, 7).iter().map(|d| d * 0.4).collect();
-    Medium::new(
+    Medium::grey(
         Grid::new(dims, 1.0).unwrap(),
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.99),
-            emission: CellValues::Uniform(0.0),
-        }],
+        sigma_t,
+        0.99,
         PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
     )
     .unwrap()
 }

@@ -134,16 +134,11 @@ fn segment_quadrature_matches_brute_force_in_thick_cells() {
     let sigma_t: Vec<f32> = (0..grid.cell_count())
         .map(|_| (6.0 * rng.random::<f64>()) as f32)
         .collect();
-    let medium = Medium::new(
+    let medium = Medium::grey(
         grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.9),
-            emission: CellValues::Uniform(0.0),
-        }],
+        sigma_t,
+        0.9,
         PhaseFunction::HenyeyGreenstein { g: 0.6 },
-        Interpolation::Nearest,
-        None,
     )
     .unwrap();
     let lights = [
@@ -219,18 +214,7 @@ fn lattice_segments_match_brute_force_and_carry_exactly() {
     let sigma_t: Vec<f32> = (0..grid.cell_count())
         .map(|_| (6.0 * rng.random::<f64>()) as f32)
         .collect();
-    let medium = Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t: sigma_t.clone(),
-            albedo: CellValues::Uniform(0.9),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
-    )
-    .unwrap();
+    let medium = Medium::grey(grid, sigma_t.clone(), 0.9, PhaseFunction::Isotropic).unwrap();
     let lights = [Light::Directional {
         direction: DVec3::new(0.3, -0.4, -0.87).normalize(),
         irradiance: 1.0,
@@ -405,16 +389,11 @@ fn auto_light_depth_is_within_one_and_a_half_percent_of_exact_shadow_rays() {
             .iter()
             .map(|d| d * peak)
             .collect();
-        Medium::new(
+        Medium::grey(
             Grid::new(dims, 1.0).unwrap(),
-            vec![ChannelMedium {
-                sigma_t,
-                albedo: CellValues::Uniform(0.9),
-                emission: CellValues::Uniform(0.0),
-            }],
+            sigma_t,
+            0.9,
             PhaseFunction::HenyeyGreenstein { g: 0.6 },
-            Interpolation::Nearest,
-            None,
         )
         .unwrap()
     };
@@ -532,16 +511,11 @@ fn lattice_models_handle_one_cell_grids_axis_lights_and_point_lights() {
     use gather::{render, Camera};
     let lit = |dims: [usize; 3], sigma: f32, lights: &[Light]| {
         let grid = Grid::new(dims, 1.0).unwrap();
-        let medium = Medium::new(
+        let medium = Medium::grey(
             grid,
-            vec![ChannelMedium {
-                sigma_t: vec![sigma; grid.cell_count()],
-                albedo: CellValues::Uniform(0.8),
-                emission: CellValues::Uniform(0.0),
-            }],
+            vec![sigma; grid.cell_count()],
+            0.8,
             PhaseFunction::Isotropic,
-            Interpolation::Nearest,
-            None,
         )
         .unwrap();
         let pass = LightPass::compute(&medium, 0, lights).unwrap();

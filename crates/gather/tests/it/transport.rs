@@ -506,18 +506,7 @@ fn pixel_zero_zero_is_top_left() {
     let sigma_t: Vec<f32> = (0..16)
         .map(|i| if i % 4 < 2 && i / 4 >= 2 { 1.0 } else { 0.0 })
         .collect();
-    let medium = Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.0),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
-    )
-    .unwrap();
+    let medium = Medium::grey(grid, sigma_t, 0.0, PhaseFunction::Isotropic).unwrap();
     let cam = Camera::orthographic(
         DVec3::new(2.0, 2.0, 5.0),
         DVec3::new(2.0, 2.0, 0.0),

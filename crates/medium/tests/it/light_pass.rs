@@ -11,18 +11,7 @@ use rand_pcg::Pcg64Mcg;
 
 /// The one-channel medium of σt `sigma_t` on `grid` (albedo 0.9, no emission).
 fn medium(grid: &Grid, sigma_t: Vec<f32>) -> Medium {
-    Medium::new(
-        *grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.9),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
-    )
-    .unwrap()
+    Medium::grey(*grid, sigma_t, 0.9, PhaseFunction::Isotropic).unwrap()
 }
 
 fn random_cloud(grid: &Grid, seed: u64) -> Vec<f32> {

@@ -1,21 +1,11 @@
 //! `Medium::new`, the one check of a medium's optical properties that everything downstream
 //! (the light pass, the operators, the renders) relies on instead of checking again.
 
-use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
+use medium::{Grid, Medium, PhaseFunction};
 
 /// `Medium::new` of one channel of σt `sigma_t` on `grid` (albedo 0.9, no emission).
 fn grey(grid: Grid, sigma_t: Vec<f32>) -> Result<Medium, medium::MediumError> {
-    Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(0.9),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
-    )
+    Medium::grey(grid, sigma_t, 0.9, PhaseFunction::Isotropic)
 }
 
 #[test]

@@ -12,18 +12,7 @@ fn columns(albedo: f32) -> Medium {
     let sigma_t: Vec<f32> = (0..grid.cell_count())
         .map(|i| ((i as u64 * 2654435761) % 1000) as f32 / 1000.0 * 0.6)
         .collect();
-    Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(albedo),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
-    )
-    .unwrap()
+    Medium::grey(grid, sigma_t, albedo, PhaseFunction::Isotropic).unwrap()
 }
 
 /// Orthographic camera looking down −z whose 8×8 pixels are exactly the grid's columns.

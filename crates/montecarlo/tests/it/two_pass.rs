@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use gather::OpticalModel;
 use gather::{render, Camera, RenderOptions};
 use glam::DVec3;
-use medium::{CellValues, ChannelMedium, Grid, Interpolation, Light, Medium, PhaseFunction};
+use medium::{Grid, Light, Medium, PhaseFunction};
 use montecarlo::{
     energetize, path_trace_with_error, DirectionBins, EnergetizeOptions, MonteCarloError,
     PathTraceOptions,
@@ -25,18 +25,7 @@ fn blotchy(phase: PhaseFunction, albedo: f32) -> Medium {
             }
         })
         .collect();
-    Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(albedo),
-            emission: CellValues::Uniform(0.0),
-        }],
-        phase,
-        Interpolation::Nearest,
-        None,
-    )
-    .unwrap()
+    Medium::grey(grid, sigma_t, albedo, phase).unwrap()
 }
 
 fn sun() -> Light {
