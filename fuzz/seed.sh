@@ -6,7 +6,7 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 c="$root/fuzz/corpus"
-mkdir -p "$c"/{scene_toml,scene_json,nrrd,mitsuba_vol,vdb,nifti,solution,render_query}
+mkdir -p "$c"/{scene_toml,scene_json,nrrd,mitsuba_vol,vdb,nifti,solution,render_query,environment_map}
 # Scenes at 8×8×6 cells: the fuzz checks skip grids over 2^16 cells (volrad::fuzzing).
 for f in "$root"/data/*.toml; do
     sed -E "s/^dims = \[[0-9, ]+\]/dims = [8, 8, 6]/" "$f" >"$c/scene_toml/$(basename "$f")"
@@ -39,5 +39,10 @@ queries = [
 ]
 for i, q in enumerate(queries):
     (c / "render_query" / f"q{i}").write_text(q)
+# Environment maps: small PFMs, RGB little-endian and grey big-endian, one with a bright texel.
+rgb = [0.2, 0.3, 0.5] * 8
+rgb[9:12] = [500.0, 480.0, 450.0]
+(c / "environment_map" / "sky.pfm").write_bytes(b"PF\n4 2\n-1.0\n" + struct.pack("<24f", *rgb))
+(c / "environment_map" / "grey.pfm").write_bytes(b"Pf\n2 2\n1.0\n" + struct.pack(">4f", 1, 2, 3, 4))
 PY
 du -sh "$c"/*

@@ -306,7 +306,10 @@ fn the_seeds_are_valid() {
 /// - `scene_toml-hot-blackbody.toml` (found by `cargo fuzz run scene_toml` as a 14 s
 ///   timeout): a scene whose blackbody temperatures reach 91,200 K built a colour table of
 ///   91,200 × 471 Planck evaluations before it was refused for a misspelt camera key (the
-///   table's size is tested in `medium::blackbody`).
+///   table's size is tested in `medium::blackbody`);
+/// - `environment_map-pfm-size-overflow.pfm` (found by `cargo fuzz run environment_map`): a
+///   PFM header of 1,444,444,444² RGB pixels, whose byte count overflows 64 bits, panicked on
+///   the multiplication (overflow checks on) or wrapped (off).
 #[test]
 fn inputs_that_broke_a_parser_are_refused() {
     let dir = repo("tests/data/fuzz-regressions");
@@ -342,10 +345,17 @@ fn inputs_that_broke_a_parser_are_refused() {
                     .unwrap_err()
                     .to_string()
             }
+            "environment_map" => {
+                fuzzing::environment_map(&bytes);
+                // The parsers of bytes name no file: the reader prefixes it.
+                let err = gather::image_io::parse_pfm(&bytes).map(drop).unwrap_err();
+                assert!(err.contains("data bytes"), "{err}");
+                format!("{name}: {err}")
+            }
             other => panic!("{name}: no parser `{other}`"),
         };
         assert!(err.starts_with(&format!("{name}: ")), "{err}");
         seen += 1;
     }
-    assert_eq!(seen, 3);
+    assert_eq!(seen, 4);
 }

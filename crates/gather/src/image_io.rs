@@ -558,16 +558,18 @@ pub fn parse_pfm(bytes: &[u8]) -> Result<Image, String> {
     }
     let little_endian = scale < 0.0;
     let data_start = pos + 1; // the single whitespace byte after the scale
-    let count = width as u64 * height as u64 * channels as u64;
+                              // In u128: the byte count of any header's sizes (< 2⁶⁸) fits, where in u64 it may not.
+    let count = width as u128 * height as u128 * channels as u128;
     let data = &bytes[data_start.min(bytes.len())..];
-    if data.len() as u64 != count * 4 {
+    if data.len() as u128 != count * 4 {
         return Err(format!(
             "{} data bytes for a {width}×{height} image with {channels} channel(s) (expected {})",
             data.len(),
             count * 4
         ));
     }
-    let row_len = (width * channels) as usize;
+    // (The data are there, so these counts fit in memory.)
+    let row_len = width as usize * channels as usize;
     let mut pixels = vec![0.0f32; count as usize];
     // File rows are bottom first; the image is top first.
     for (file_row, chunk) in data.chunks_exact(row_len * 4).enumerate() {
