@@ -209,6 +209,17 @@ impl<'a> PathTracer<'a> {
         light_irradiance(x, self.lights, Some((&self.grid, self.sigma_t))) / std::f64::consts::PI
     }
 
+    /// Russian roulette after `depth` events (pbrt's rule: survival probability the
+    /// throughput, at least 5 %): the surviving path's throughput, or `None` when it ends.
+    #[inline]
+    fn roulette<R: Rng + ?Sized>(&self, depth: u32, throughput: f64, rng: &mut R) -> Option<f64> {
+        if depth < self.rr_start_depth || throughput >= 1.0 {
+            return Some(throughput);
+        }
+        let q = (1.0 - throughput).max(0.05);
+        (rng.random::<f64>() >= q).then(|| throughput / (1.0 - q))
+    }
+
     /// One path's estimate of the radiance arriving at `ray.origin` from `−ray.direction`
     /// (the medium behind the origin is not seen).
     pub fn radiance<R: Rng + ?Sized>(&self, ray: &Ray, rng: &mut R) -> f64 {
@@ -241,13 +252,10 @@ impl<'a> PathTracer<'a> {
                         }
                         throughput *= albedo;
                         radiance += throughput * self.direct_on_ground(x);
-                        if depth >= self.rr_start_depth && throughput < 1.0 {
-                            let q = (1.0 - throughput).max(0.05);
-                            if rng.random::<f64>() < q {
-                                break;
-                            }
-                            throughput /= 1.0 - q;
-                        }
+                        let Some(t) = self.roulette(depth, throughput, rng) else {
+                            break;
+                        };
+                        throughput = t;
                         // The Lambertian BRDF's sampling.
                         ray = Ray {
                             origin: x,
@@ -281,13 +289,10 @@ impl<'a> PathTracer<'a> {
             if !self.lights.is_empty() {
                 radiance += throughput * self.direct(x, ray.direction);
             }
-            if depth >= self.rr_start_depth && throughput < 1.0 {
-                let q = (1.0 - throughput).max(0.05);
-                if rng.random::<f64>() < q {
-                    break;
-                }
-                throughput /= 1.0 - q;
-            }
+            let Some(t) = self.roulette(depth, throughput, rng) else {
+                break;
+            };
+            throughput = t;
             ray = Ray {
                 origin: x,
                 direction: self.phase.sample(ray.direction, rng),
