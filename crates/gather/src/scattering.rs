@@ -10,6 +10,7 @@
 use glam::DVec3;
 
 use crate::render::Trilinear;
+pub use medium::traversal::segment_weight;
 use medium::traversal::{Ray, Segment};
 use medium::Grid;
 
@@ -359,20 +360,6 @@ impl<A: InScattering, B: InScattering> InScattering for (A, B) {
     }
     fn is_zero(&self) -> bool {
         self.0.is_zero() && self.1.is_zero()
-    }
-}
-
-/// `∫_0^{Δs} e^{−σt s} ds = (1 − e^{−σt Δs}) / σt` (`= Δs` when `σt Δs` is tiny), the weight
-/// of a constant source over one segment. Shared with [`InScattering`] implementations that
-/// have a per-cell constant source.
-#[inline]
-pub fn segment_weight(sigma_t: f64, length: f64) -> f64 {
-    let tau = sigma_t * length;
-    if tau < 1e-8 {
-        // Series: Δs (1 − τ/2); the relative error of dropping τ²/6 is below 1e-16.
-        length * (1.0 - 0.5 * tau)
-    } else {
-        -(-tau).exp_m1() / sigma_t
     }
 }
 

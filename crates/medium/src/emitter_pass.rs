@@ -38,7 +38,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::environment::fibonacci_directions;
-use crate::traversal::Ray;
+use crate::traversal::{segment_weight, Ray};
 use crate::{Grid, Medium, MediumError};
 
 /// The tolerances of [`EmitterPass::compute`] (see the module doc).
@@ -622,14 +622,7 @@ fn near_field(
             let l = s.length();
             let e = emission[s.cell];
             if e > 0.0 {
-                let optical = sigma * l;
-                // ∫_0^ℓ e^{−σ s} ds, with its series where σℓ is tiny.
-                let path = if optical > 1e-6 {
-                    -(-optical).exp_m1() / sigma
-                } else {
-                    l * (1.0 - 0.5 * optical)
-                };
-                radiance += e * (-tau).exp() * path;
+                radiance += e * (-tau).exp() * segment_weight(sigma, l);
             }
             tau += sigma * l;
         }
