@@ -15,8 +15,8 @@ use std::f64::consts::PI;
 
 use anyhow::{Context, Result};
 use glam::DVec3;
-use medium::ground::{cosine_directions, Ground, GroundPatches, GroundRadiance, GROUND_DIRECTIONS};
-use medium::{Environment, Light, Medium};
+use medium::ground::{environment_irradiance, Ground, GroundPatches, GroundRadiance};
+use medium::{Light, Medium};
 use scene::Scene;
 
 /// The largest relative change (to the brightest patch) of the ground's radiance at which
@@ -36,19 +36,6 @@ pub struct GroundSetup {
     lights: Vec<Light>,
     uncollided: Vec<Vec<f64>>,
     sky_irradiance: Vec<f64>,
-}
-
-/// The environment's irradiance on an unshadowed horizontal plane, channel `c` of `channels`.
-pub fn sky_irradiance(environment: Option<&Environment>, c: usize, channels: usize) -> f64 {
-    let Some(env) = environment else {
-        return 0.0;
-    };
-    let directions = cosine_directions(GROUND_DIRECTIONS);
-    let weight = PI / directions.len() as f64;
-    directions
-        .iter()
-        .map(|&d| weight * env.radiance_along(-d, c, channels))
-        .sum()
 }
 
 impl GroundSetup {
@@ -72,7 +59,7 @@ impl GroundSetup {
             lights: scene.lights.clone(),
             uncollided,
             sky_irradiance: (0..channels)
-                .map(|c| sky_irradiance(environment, c, channels))
+                .map(|c| environment.map_or(0.0, |e| environment_irradiance(e, c, channels)))
                 .collect(),
         }))
     }
@@ -87,14 +74,6 @@ impl GroundSetup {
         }
     }
 
-    /// The ground lit only by the light that reaches it unscattered (the methods that solve
-    /// no scattering: the medium shadows the ground but does not light it).
-    pub fn unscattered(&self) -> Vec<Vec<f32>> {
-        (0..self.uncollided.len())
-            .map(|c| self.channel(c).radiance(None))
-            .collect()
-    }
-
     /// The solved ground, from each channel's reflected radiance per patch.
     pub fn finish(&self, radiance: Vec<Vec<f32>>) -> Result<GroundRadiance> {
         Ok(GroundRadiance::new(
@@ -104,10 +83,6 @@ impl GroundSetup {
             self.lights.clone(),
             self.sky_irradiance.clone(),
         )?)
-    }
-
-    pub fn patches(&self) -> &GroundPatches {
-        &self.patches
     }
 }
 
@@ -119,10 +94,6 @@ pub struct ChannelGround<'a> {
 }
 
 impl ChannelGround<'_> {
-    pub fn ground(&self) -> &Ground {
-        &self.setup.ground
-    }
-
     pub fn patches(&self) -> &GroundPatches {
         &self.setup.patches
     }
@@ -166,18 +137,6 @@ impl ChannelGround<'_> {
             &medium.channels()[c].sigma_t,
             source,
         )?)
-    }
-
-    /// Radiance the ground sends along unit `travel` (going up) on the line through `x`:
-    /// where the line, followed back, meets the ground.
-    #[inline]
-    pub fn along_line(looked_up: &GroundRadiance, x: DVec3, travel: DVec3) -> f64 {
-        if travel.z <= 0.0 {
-            return 0.0;
-        }
-        let h = looked_up.ground().height();
-        let back = (x.z - h) / travel.z;
-        looked_up.radiance_at(x - travel * back, 0)
     }
 }
 

@@ -31,8 +31,8 @@ pub const ENVIRONMENT_BINS: usize = 384;
 /// transmittance pass each per ground–medium round).
 pub const GROUND_INFLOW_BINS: usize = 96;
 
-/// Rays per cell of the transmittance passes that bring light from outside into the zonal
-/// methods (the environment's, the ground's).
+/// Rays per cell of the transmittance passes that bring the ground's light into the zonal
+/// methods (as many as `Environment::uncollided_fluence` takes for an environment's).
 const ZONAL_INFLOW_RAYS_PER_CELL: usize = 4;
 
 /// Link tolerance of the hierarchical zonal operator. 1e-4 keeps the solved source terms of
@@ -326,7 +326,7 @@ pub fn solve_zonal(
     let (g, report, ground_radiance) = match ground {
         None => {
             if let Some(env) = environment {
-                add_zonal_environment(&mut source, env, medium, c, op.as_ref())?;
+                add_zonal_environment(&mut source, env, medium, c, op.as_ref(), false)?;
             }
             let (mut g, report) = run_solver(op.as_ref(), &source, None, settings, hooks)?;
             if emitters.is_some() {
@@ -337,23 +337,17 @@ pub fn solve_zonal(
             (g, report, None)
         }
         Some(gr) => {
-            // Below the horizon the ground, not the environment, sends light up. A uniform
-            // environment is taken whole by reciprocity (exact in the operator's own terms:
-            // the white furnace) and the ground adds what it sends beyond it, `L_g − L`.
-            let mut below = 0.0;
-            if let Some(env) = environment {
-                if env.uniform_radiance().is_some() {
-                    below = env.radiance_along(DVec3::Z, c, medium.channels().len());
-                    add_zonal_environment(&mut source, env, medium, c, op.as_ref())?;
-                } else {
-                    add_zonal_inflow(&mut source, medium, c, Some(env), None)?;
-                }
-            }
+            // Below the horizon the ground, not the environment, sends light up; the ground
+            // adds what it sends beyond what the environment's source already counts there.
+            let below = match environment {
+                Some(env) => add_zonal_environment(&mut source, env, medium, c, op.as_ref(), true)?,
+                None => 0.0,
+            };
             let mut round =
                 |ground_source: &[f32], initial: Option<&[f64]>, settings: &SolveSettings| {
                     let looked_up = gr.lookup(ground_source.to_vec())?;
                     let mut s = source.clone();
-                    add_zonal_inflow(&mut s, medium, c, None, Some((&looked_up, below)))?;
+                    add_zonal_ground(&mut s, medium, c, &looked_up, below)?;
                     let (mut g, report) = run_solver(op.as_ref(), &s, initial, settings, hooks)?;
                     let without_emission = emitters.is_some().then(|| g.clone());
                     if emitters.is_some() {
@@ -477,38 +471,23 @@ fn couple_ground(
     unreachable!("the loop returns by its last round")
 }
 
-/// Adds to the zonal `source` of channel `c` the first-collision source of light entering
-/// from outside: the environment's (`env`) from above the horizon, or, with `ground = (g,
-/// below)`, the ground's light from below beyond a uniform `below` already counted (`g`
-/// looked up along each bin's lines) — each bin's uncollided fluence from one transmittance
-/// pass.
-fn add_zonal_inflow(
+/// Adds to the zonal `source` of channel `c` the first-collision source of a ground's light
+/// (`ground`, looked up along each bin's lines going up) beyond a uniform radiance `below`
+/// the environment's source already counts there: its uncollided fluence over the upward half
+/// of [`GROUND_INFLOW_BINS`], one transmittance pass per bin.
+fn add_zonal_ground(
     source: &mut [f64],
     medium: &Medium,
     c: usize,
-    env: Option<&Environment>,
-    ground: Option<(&medium::ground::GroundRadiance, f64)>,
+    ground: &medium::ground::GroundRadiance,
+    below: f64,
 ) -> Result<()> {
     let channel = &medium.channels()[c];
-    let channels = medium.channels().len();
     let grid = medium.grid();
-    // The ground's light is smooth in direction (Lambertian) and comes round by round: fewer
-    // bins than a sky's.
-    let bins = DirectionBins::with_count(if ground.is_some() {
-        GROUND_INFLOW_BINS
-    } else {
-        ENVIRONMENT_BINS
-    })?;
-    let along = env.map(|e| environment_bin_radiance(e, &bins, c, channels));
+    let bins = DirectionBins::with_count(GROUND_INFLOW_BINS)?;
     let mut fluence = vec![0.0; grid.cell_count()];
-    for (k, (&d, &omega)) in bins.centres().iter().zip(bins.solid_angles()).enumerate() {
-        let up = d.z > 0.0;
-        let uniform = match (&along, up) {
-            (Some(a), false) if a[k] > 0.0 => Some(a[k]),
-            _ => None,
-        };
-        let from_ground = up && ground.is_some();
-        if uniform.is_none() && !from_ground {
+    for (&d, &omega) in bins.centres().iter().zip(bins.solid_angles()) {
+        if d.z <= 0.0 {
             continue;
         }
         let t = medium::light_pass::directional_cell_transmittance(
@@ -517,29 +496,26 @@ fn add_zonal_inflow(
             d,
             ZONAL_INFLOW_RAYS_PER_CELL,
         )
-        .context("the uncollided light from outside")?;
-        match (uniform, ground) {
-            (Some(l), _) => fluence
-                .par_iter_mut()
-                .zip(&t)
-                .for_each(|(f, ti)| *f += omega * l * ti),
-            (None, Some((g, below))) => {
-                fluence
-                    .par_iter_mut()
-                    .zip(&t)
-                    .enumerate()
-                    .for_each(|(i, (f, ti))| {
-                        let l = ChannelGround::along_line(g, grid.cell_center(i), d) - below;
-                        *f += omega * l * ti
-                    })
-            }
-            (None, None) => {}
-        }
+        .context("the ground's uncollided light")?;
+        fluence
+            .par_iter_mut()
+            .zip(&t)
+            .enumerate()
+            .for_each(|(i, (f, ti))| {
+                *f += omega * (ground.sent_along(grid.cell_center(i), d, 0) - below) * ti
+            });
     }
+    add_scattered_fluence(source, medium, c, &fluence);
+    Ok(())
+}
+
+/// Adds `σs φ / 4π`, the isotropic first-collision source of the uncollided fluence `φ`, to
+/// the zonal `source` of channel `c`.
+fn add_scattered_fluence(source: &mut [f64], medium: &Medium, c: usize, fluence: &[f64]) {
+    let channel = &medium.channels()[c];
     for (i, (s, phi)) in source.iter_mut().zip(fluence).enumerate() {
         *s += channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * phi / (4.0 * PI);
     }
-    Ok(())
 }
 
 /// The radiance `env` sends along each bin of `bins` in channel `c` of `channels`: at the
@@ -571,14 +547,19 @@ pub fn environment_bin_radiance(
         .collect()
 }
 
-/// Adds the environment's first-collision source to the zonal `source` of channel `c`.
+/// Adds the environment's first-collision source to the zonal `source` of channel `c`; with
+/// `under_ground`, a sky's light from below the horizon is left out (the ground sends it).
+/// Returns the radiance the source counts from below the horizon: a uniform environment's,
+/// which is taken whole even over a ground (its reciprocity source is exact in the
+/// operator's own terms: the white furnace), and 0 for a sky.
 fn add_zonal_environment(
     source: &mut [f64],
     env: &Environment,
     medium: &Medium,
     c: usize,
     op: &dyn TransportOperator,
-) -> Result<()> {
+    under_ground: bool,
+) -> Result<f64> {
     let channel = &medium.channels()[c];
     let channels = medium.channels().len();
     if env.uniform_radiance().is_some() {
@@ -593,22 +574,29 @@ fn add_zonal_environment(
         for (i, (s, k)) in source.iter_mut().zip(&collided).enumerate() {
             *s += l * (channel.albedo.get(i) as f64 * sigma_t[i] - k).max(0.0);
         }
-        return Ok(());
+        return Ok(l);
     }
-    // A sky: its uncollided fluence over ENVIRONMENT_BINS directions, scattered isotropically.
+    // A sky: its uncollided fluence over ENVIRONMENT_BINS directions, scattered isotropically
+    // (bins of light going up, from below the horizon, carry none over a ground).
     let bins = DirectionBins::with_count(ENVIRONMENT_BINS)?;
+    let mut radiances = environment_bin_radiance(env, &bins, c, channels);
+    if under_ground {
+        for (r, d) in radiances.iter_mut().zip(bins.centres()) {
+            if d.z > 0.0 {
+                *r = 0.0;
+            }
+        }
+    }
     let fluence = Environment::uncollided_fluence(
         medium.grid(),
         &channel.sigma_t,
         bins.centres(),
         bins.solid_angles(),
-        &environment_bin_radiance(env, &bins, c, channels),
+        &radiances,
     )
     .context("the environment's uncollided light")?;
-    for (i, (s, phi)) in source.iter_mut().zip(fluence).enumerate() {
-        *s += channel.albedo.get(i) as f64 * channel.sigma_t[i] as f64 * phi / (4.0 * PI);
-    }
-    Ok(())
+    add_scattered_fluence(source, medium, c, &fluence);
+    Ok(0.0)
 }
 
 /// The sweep options a scene's `[solve]` settings ask for, for `phase` in `bins`.
@@ -669,6 +657,9 @@ pub fn solve_ordinates(
     let mut source = vec![0.0; op.len()];
     op.transport(&external, &mut source);
     let environment = environment.filter(|e| !e.is_dark());
+    // A ground's last round gathers the final bounce toward every bin already (what the
+    // ground sees): the render's higher orders are that, not a second gather.
+    let mut gathered: Option<Vec<f64>> = None;
     let (radiance, report, ground_radiance) = match ground {
         None => {
             // The environment's uncollided radiance ψ on the bins, in the sweep's own
@@ -718,7 +709,7 @@ pub fn solve_ordinates(
                         for (l, fl) in f.iter_mut().enumerate() {
                             let d = centres[l];
                             *fl = if d.z > 0.0 {
-                                ChannelGround::along_line(&looked_up, x, d)
+                                looked_up.sent_along(x, d, 0)
                             } else {
                                 along[l]
                             };
@@ -754,6 +745,7 @@ pub fn solve_ordinates(
                         (toward[i] + external[i]).max(0.0) + e
                     })?;
                     let next = gr.radiance(Some(&e_scat));
+                    gathered = Some(toward);
                     Ok::<_, anyhow::Error>((solved, total, report, next))
                 };
             couple_ground(gr, settings, hooks, c, channels, &mut round)?
@@ -763,8 +755,11 @@ pub fn solve_ordinates(
     // lights' once-scattered light and beyond), i.e. second and higher orders, by the true
     // phase function towards each bin centre (the final directional bounce; the render
     // interpolates).
-    let mut higher = vec![0.0; op.len()];
-    op.gather_density(&radiance, &mut higher);
+    let mut higher = gathered.unwrap_or_else(|| {
+        let mut higher = vec![0.0; op.len()];
+        op.gather_density(&radiance, &mut higher);
+        higher
+    });
     if let Some(pass) = emitters {
         // The emission's own first scattering, which the bins no longer hold.
         op.add_collision_density(pass.fluence(), pass.current(), &mut higher)?;

@@ -23,7 +23,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::environment::pick;
-use crate::traversal::Ray;
+use crate::traversal::{segment_weight, Ray};
 use crate::{Environment, Grid, Light, MediumError};
 
 /// Directions over the upper hemisphere a patch gathers the environment's and the medium's
@@ -217,70 +217,10 @@ impl GroundPatches {
     }
 }
 
-/// Most lattice points a side on which the ground's smooth parts (the environment's light and
-/// the medium's scattered light, both from wide solid angles) are computed; patches between
-/// interpolate bilinearly.
-pub const LATTICE_SIDE: usize = 64;
-
-/// Every `stride`-th patch along each side (and the last), where the smooth parts of the
-/// ground's irradiance are computed.
-struct Lattice {
-    dims: [usize; 2],
-    xs: Vec<usize>,
-    ys: Vec<usize>,
-    stride: usize,
-}
-
-impl Lattice {
-    fn new(dims: [usize; 2]) -> Lattice {
-        let stride = dims[0].max(dims[1]).div_ceil(LATTICE_SIDE).max(1);
-        let axis = |n: usize| {
-            let mut v: Vec<usize> = (0..n).step_by(stride).collect();
-            if v.last() != Some(&(n - 1)) {
-                v.push(n - 1);
-            }
-            v
-        };
-        Lattice {
-            dims,
-            xs: axis(dims[0]),
-            ys: axis(dims[1]),
-            stride,
-        }
-    }
-
-    /// The lattice's patches (x-fastest).
-    fn points(&self) -> Vec<usize> {
-        self.ys
-            .iter()
-            .flat_map(|&j| self.xs.iter().map(move |&i| i + self.dims[0] * j))
-            .collect()
-    }
-
-    /// Values at every patch from `coarse`, one per lattice point in [`Lattice::points`]'s
-    /// order, bilinear between lattice points.
-    fn upsample(&self, coarse: &[f64]) -> Vec<f64> {
-        let bracket = |axis: &[usize], i: usize| -> (usize, f64) {
-            if axis.len() == 1 {
-                return (0, 0.0);
-            }
-            let a = (i / self.stride).min(axis.len() - 2);
-            let t = (i - axis[a]) as f64 / (axis[a + 1] - axis[a]) as f64;
-            (a, t.min(1.0))
-        };
-        let nx = self.xs.len();
-        let at = |a: usize, b: usize| coarse[a.min(nx - 1) + nx * b.min(self.ys.len() - 1)];
-        (0..self.dims[0] * self.dims[1])
-            .map(|index| {
-                let (i, j) = (index % self.dims[0], index / self.dims[0]);
-                let (a, u) = bracket(&self.xs, i);
-                let (b, v) = bracket(&self.ys, j);
-                (1.0 - v) * ((1.0 - u) * at(a, b) + u * at(a + 1, b))
-                    + v * ((1.0 - u) * at(a, b + 1) + u * at(a + 1, b + 1))
-            })
-            .collect()
-    }
-}
+/// Most patches a side on which the ground's smooth parts (the environment's light and the
+/// medium's scattered light, both from wide solid angles) are computed, on
+/// [`GroundPatches::coarsened`] patches; the patches between interpolate bilinearly.
+pub const SMOOTH_SIDE: usize = 64;
 
 impl GroundPatches {
     /// The same region in patches at most `max_side` a side (each an integer number of this
@@ -345,6 +285,25 @@ pub fn cosine_directions(n: usize) -> Vec<DVec3> {
         .collect()
 }
 
+/// The environment's radiance arriving from each of `directions` (up from the ground), times
+/// the quadrature weight `π / n`: their sum is its irradiance on an unshadowed horizontal
+/// plane.
+fn sky_weights(env: &Environment, directions: &[DVec3], c: usize, channels: usize) -> Vec<f64> {
+    let weight = PI / directions.len() as f64;
+    directions
+        .iter()
+        .map(|&d| weight * env.radiance_along(-d, c, channels))
+        .collect()
+}
+
+/// The environment's irradiance on an unshadowed horizontal plane facing +z, channel `c` of
+/// `channels` (over [`GROUND_DIRECTIONS`] directions, as the patches gather it).
+pub fn environment_irradiance(env: &Environment, c: usize, channels: usize) -> f64 {
+    sky_weights(env, &cosine_directions(GROUND_DIRECTIONS), c, channels)
+        .iter()
+        .sum()
+}
+
 /// Transmittance through the grid along `ray` to `t_max`.
 #[inline]
 fn transmittance(grid: &Grid, sigma_t: &[f32], ray: &Ray, t_max: f64) -> f64 {
@@ -404,8 +363,8 @@ impl GroundPatches {
     /// Per channel and patch, the irradiance of the light that reaches the ground unscattered:
     /// the `lights` through the medium (`sigma_t[c]` per cell of `grid`, one slice per channel)
     /// at every patch, and the environment's light from above the horizon through the medium,
-    /// which shadows softly, on a lattice of at most [`LATTICE_SIDE`] patches a side and
-    /// interpolated between. Channels with the same σt share their rays.
+    /// which shadows softly, on patches at most [`SMOOTH_SIDE`] a side and interpolated
+    /// between. Channels with the same σt share their rays.
     pub fn uncollided_irradiance(
         &self,
         ground: &Ground,
@@ -418,9 +377,6 @@ impl GroundPatches {
             check_sigma(grid, s)?;
         }
         let channels = sigma_t.len();
-        let directions = cosine_directions(GROUND_DIRECTIONS);
-        let weight = PI / directions.len() as f64;
-        let lattice = Lattice::new(self.dims);
         let mut out: Vec<Vec<f64>> = Vec::with_capacity(channels);
         for c in 0..channels {
             if let Some(same) = (0..c).find(|&o| sigma_t[o] == sigma_t[c]) {
@@ -444,7 +400,9 @@ impl GroundPatches {
             out.push(direct);
         }
         if let Some(env) = environment {
-            // Transmittance along each direction from each lattice point, shared by channels
+            let directions = cosine_directions(GROUND_DIRECTIONS);
+            let coarse = self.coarsened(SMOOTH_SIDE);
+            // Transmittance along each direction from each coarse patch, shared by channels
             // with the same σt.
             let mut tables: Vec<(usize, Vec<f32>)> = Vec::new();
             for c in 0..channels {
@@ -452,11 +410,10 @@ impl GroundPatches {
                     Some((_, t)) => t,
                     None => {
                         let sigma = sigma_t[c];
-                        let t: Vec<f32> = lattice
-                            .points()
-                            .par_iter()
-                            .flat_map_iter(|&index| {
-                                let p = self.centre(index, ground.height);
+                        let t: Vec<f32> = (0..coarse.count())
+                            .into_par_iter()
+                            .flat_map_iter(|index| {
+                                let p = coarse.centre(index, ground.height);
                                 directions.iter().map(move |&d| {
                                     let ray = Ray {
                                         origin: p,
@@ -470,16 +427,12 @@ impl GroundPatches {
                         &tables.last().expect("just pushed").1
                     }
                 };
-                let sky: Vec<f64> = directions
-                    .iter()
-                    .map(|&d| weight * env.radiance_along(-d, c, channels))
-                    .collect();
-                let n = directions.len();
-                let coarse: Vec<f64> = t
-                    .chunks(n)
+                let sky = sky_weights(env, &directions, c, channels);
+                let on_coarse: Vec<f64> = t
+                    .chunks(directions.len())
                     .map(|row| row.iter().zip(&sky).map(|(&t, l)| t as f64 * l).sum())
                     .collect();
-                for (e, v) in out[c].iter_mut().zip(lattice.upsample(&coarse)) {
+                for (e, v) in out[c].iter_mut().zip(self.resample(&coarse, &on_coarse)) {
                     *e += v;
                 }
             }
@@ -490,8 +443,8 @@ impl GroundPatches {
     /// Per patch, the irradiance of the medium's scattered light: `π/n Σ_k ∫ Q T ds` along
     /// each of [`GROUND_DIRECTIONS`] cosine-weighted directions up from the patch's centre,
     /// with `source(cell, travel)` the radiance per unit length cell `cell` sends along
-    /// `travel` (piecewise constant in each cell, as σt). Smooth over the ground: computed on a
-    /// lattice of at most [`LATTICE_SIDE`] patches a side and interpolated between.
+    /// `travel` (piecewise constant in each cell, as σt). Smooth over the ground: computed on
+    /// patches at most [`SMOOTH_SIDE`] a side and interpolated between.
     pub fn scattered_irradiance(
         &self,
         ground: &Ground,
@@ -502,12 +455,11 @@ impl GroundPatches {
         check_sigma(grid, sigma_t)?;
         let directions = cosine_directions(GROUND_DIRECTIONS);
         let weight = PI / directions.len() as f64;
-        let lattice = Lattice::new(self.dims);
-        let coarse: Vec<f64> = lattice
-            .points()
+        let coarse = self.coarsened(SMOOTH_SIDE);
+        let on_coarse: Vec<f64> = (0..coarse.count())
             .into_par_iter()
             .map(|index| {
-                let p = self.centre(index, ground.height);
+                let p = coarse.centre(index, ground.height);
                 let mut e = 0.0;
                 for &d in &directions {
                     let ray = Ray {
@@ -518,16 +470,8 @@ impl GroundPatches {
                     for seg in grid.traverse(&ray, 0.0, f64::INFINITY) {
                         let sigma = sigma_t[seg.cell] as f64;
                         let len = seg.length();
-                        let tau = sigma * len;
-                        // ∫ e^{−σ s} ds over the segment: (1 − e^{−τ}) / σ, len when thin.
-                        let track = if tau > 1e-6 {
-                            -(-tau).exp_m1() / sigma
-                        } else {
-                            len * (1.0 - 0.5 * tau)
-                        };
-                        let q = source(seg.cell, -d);
-                        l += t * q * track;
-                        t *= (-tau).exp();
+                        l += t * source(seg.cell, -d) * segment_weight(sigma, len);
+                        t *= (-sigma * len).exp();
                         if t < 1e-7 {
                             break;
                         }
@@ -537,7 +481,7 @@ impl GroundPatches {
                 e
             })
             .collect();
-        Ok(lattice.upsample(&coarse))
+        Ok(self.resample(&coarse, &on_coarse))
     }
 }
 
@@ -639,6 +583,18 @@ impl GroundRadiance {
         }
         let albedo = self.ground.albedo(c, self.channels());
         albedo / PI * (self.sky_irradiance[c] + light_irradiance(p, &self.lights, None))
+    }
+
+    /// The radiance the ground sends along unit `travel` (going up; 0 otherwise) on the line
+    /// through `x`, where that line meets the plane (before or after `x`: in the void between
+    /// the radiance is the same all along it).
+    #[inline]
+    pub fn sent_along(&self, x: DVec3, travel: DVec3, c: usize) -> f64 {
+        if travel.z <= 0.0 {
+            return 0.0;
+        }
+        let to_plane = (self.ground.height - x.z) / travel.z;
+        self.radiance_at(x + travel * to_plane, c)
     }
 
     /// What a ray along unit `direction` from `origin` sees of the ground, if it meets it.
@@ -783,20 +739,6 @@ mod tests {
         // Exact between the coarse centres (clamped beyond the outer ones).
         let c = fine.centre(40 + 100 * 30, 0.0);
         assert!((back[40 + 100 * 30] - f(c.x, c.y)).abs() < 1e-9);
-    }
-
-    #[test]
-    fn the_lattice_reproduces_linear_fields_exactly() {
-        for dims in [[1, 1], [5, 3], [200, 131]] {
-            let lattice = Lattice::new(dims);
-            assert!(lattice.xs.len() <= LATTICE_SIDE + 1 && lattice.ys.len() <= LATTICE_SIDE + 1);
-            let f = |index: usize| 2.0 * (index % dims[0]) as f64 - 0.5 * (index / dims[0]) as f64;
-            let coarse: Vec<f64> = lattice.points().into_iter().map(f).collect();
-            let fine = lattice.upsample(&coarse);
-            for (index, v) in fine.iter().enumerate() {
-                assert!((v - f(index)).abs() < 1e-9, "{dims:?} patch {index}: {v}");
-            }
-        }
     }
 
     #[test]

@@ -311,12 +311,9 @@ impl Emitter<'_> {
                 let origin =
                     centre - direction * (radius * 1.001) + e1 * (r * a.cos()) + e2 * (r * a.sin());
                 // Going up under a ground, the light is the ground's where the line meets it.
-                // (The line meets the plane before or after the start point: the radiance is
-                // the same all along it.)
-                let from_ground = ground.filter(|_| direction.z > 0.0).map(|g| {
-                    let to_plane = (g.ground().height() - origin.z) / direction.z;
-                    g.radiance_at(origin + direction * to_plane, 0)
-                });
+                let from_ground = ground
+                    .filter(|_| direction.z > 0.0)
+                    .map(|g| g.sent_along(origin, direction, 0));
                 let radiance = match (from_ground, environment) {
                     (Some(l), _) => l,
                     (None, Some(env)) => env.radiance_along(direction, c, channels),
