@@ -229,14 +229,8 @@ impl SceneInfo {
             phase: scene::phase_spelling(&m.phase()),
             lights: scene.lights.len(),
             environment: scene.environment.as_ref().map(|e| match e.spec() {
-                medium::environment::EnvironmentSpec::Uniform {
-                    radiance: [r, g, b],
-                } => {
-                    if r == g && g == b {
-                        format!("uniform, radiance {r}")
-                    } else {
-                        format!("uniform, radiance [{r}, {g}, {b}]")
-                    }
+                medium::environment::EnvironmentSpec::Uniform { radiance } => {
+                    format!("uniform, radiance {}", grey_or_rgb(radiance))
                 }
                 medium::environment::EnvironmentSpec::Sky(s) => format!(
                     "Preetham sky, turbidity {}, sun at {}° elevation, {}° azimuth (the sun is \
@@ -255,15 +249,11 @@ impl SceneInfo {
             }),
             ground: scene.ground.map(|g| {
                 let patches = medium::ground::GroundPatches::covering(&g, m.grid(), &scene.lights);
-                let [r, gr, b] = g.albedo_rgb();
-                let albedo = if g.is_coloured() {
-                    format!("[{r}, {gr}, {b}]")
-                } else {
-                    format!("{r}")
-                };
                 format!(
-                    "Lambertian plane at z = {}, albedo {albedo}; its light solved on {} × {} patches of {} (coupled with the medium)",
+                    "Lambertian plane at z = {}, albedo {}; its light solved on {} × {} \
+                     patches of {:.3} (coupled with the medium)",
                     g.height(),
+                    grey_or_rgb(g.albedo_rgb()),
                     patches.dims()[0],
                     patches.dims()[1],
                     patches.size()
@@ -383,5 +373,14 @@ impl fmt::Display for SceneInfo {
                 .collect::<Vec<_>>()
                 .join(", ")
         )
+    }
+}
+
+/// `v` for a grey triple, `[r, g, b]` otherwise: how a scene file spells a colour.
+fn grey_or_rgb([r, g, b]: [f64; 3]) -> String {
+    if r == g && g == b {
+        format!("{r}")
+    } else {
+        format!("[{r}, {g}, {b}]")
     }
 }

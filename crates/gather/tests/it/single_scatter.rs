@@ -748,16 +748,7 @@ fn the_first_bounce_at_a_step_keeps_its_own_medium() {
 
 /// A `trilinear` medium of one channel: `sigma_t` per cell, uniform albedo, HG phase `g`.
 fn trilinear_medium(grid: Grid, sigma_t: Vec<f32>, albedo: f32, g: f64) -> Medium {
-    Medium::new(
-        grid,
-        vec![ChannelMedium {
-            sigma_t,
-            albedo: CellValues::Uniform(albedo),
-            emission: CellValues::Uniform(0.0),
-        }],
-        PhaseFunction::HenyeyGreenstein { g },
-        Interpolation::Trilinear,
-        None,
-    )
-    .unwrap()
+    Medium::grey(grid, sigma_t, albedo, PhaseFunction::HenyeyGreenstein { g })
+        .unwrap()
+        .with_interpolation(Interpolation::Trilinear)
 }
