@@ -38,8 +38,8 @@ Checks made by this script (it stops if one fails):
   for albedo 1 |A| < 1e-8.
 """
 
-import json
 import math
+import pathlib
 import sys
 import time
 
@@ -47,6 +47,10 @@ import numpy as np
 import pydisort
 import torch
 from pydisort import Disort, DisortOptions
+
+# The median-of-five cosines, rounding and the table writer of the black-ground slabs' script.
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "crates/formfactor/tests/data"))
+from make_disort_slabs import nearby, round_sig, write_table  # noqa: E402
 
 TAUS = [0.5, 1.0, 2.0, 4.0]
 GS = [0.0, 0.6]
@@ -65,16 +69,6 @@ CHECK_HIGH = (128, 256)
 DIVERGENCE_LEVELS = 2049
 
 F64 = torch.float64
-
-MEDIAN_STEP = 2e-4
-
-
-def nearby(mu):
-    """The five cosines whose median radiance stands for mu's."""
-    if mu >= 1.0:
-        return [1.0 - k * MEDIAN_STEP for k in range(5)]
-    return [mu * (1.0 + k * MEDIAN_STEP) for k in range(-2, 3)]
-
 
 def disort(tau, albedo, g, ground_albedo, mu0, nstr, nmom, user_tau, user_mu, phis):
     """One DISORT run; returns (fluxes (level, [rfldir, fldn, flup, dfdt, uavg, ...]),
@@ -163,10 +157,6 @@ def max_rel_diff(a, b, ground_albedo):
     # Python's max() silently skips NaN when it is not first: refuse it instead.
     assert all(math.isfinite(x) for x in va + vb), "non-finite DISORT value"
     return max(abs(x / y - 1.0) for x, y in zip(va, vb) if y != 0.0)
-
-
-def round_sig(x, digits=10):
-    return float(f"{x:.{digits}g}")
 
 
 def main():
@@ -344,14 +334,7 @@ def main():
         },
         "wall_time_s": round(time.time() - start, 1),
     }
-    # Header fields indented, one case per line: small, and diffs stay readable.
-    text = json.dumps(doc, indent=1)
-    body = ",\n".join("  " + json.dumps(c, separators=(",", ":")) for c in cases)
-    text = text[:-2] + ',\n "cases": [\n' + body + "\n ]\n}\n"
-    json.loads(text)
-    with open(out_path, "w") as f:
-        f.write(text)
-    print(f"{len(cases)} cases -> {out_path}", file=sys.stderr)
+    write_table(doc, cases, out_path)
 
 
 if __name__ == "__main__":

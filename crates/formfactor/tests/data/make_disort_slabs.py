@@ -138,6 +138,18 @@ def round_sig(x, digits=10):
     return float(f"{x:.{digits}g}")
 
 
+def write_table(doc, cases, out_path):
+    """Writes `doc` with `cases` appended: header fields indented, one case per line (small,
+    and diffs stay readable). Shared with tests/data/make_disort_ground.py."""
+    text = json.dumps(doc, indent=1)
+    body = ",\n".join("  " + json.dumps(c, separators=(",", ":")) for c in cases)
+    text = text[:-2] + ',\n "cases": [\n' + body + "\n ]\n}\n"
+    json.loads(text)
+    with open(out_path, "w") as f:
+        f.write(text)
+    print(f"{len(cases)} cases -> {out_path}", file=sys.stderr)
+
+
 def single_scatter_check():
     """DISORT against analytic single scattering, tau = 1e-4, g = 0.9, mu0 = 0.7."""
     tau, a, g, mu0 = 1e-4, 1.0, 0.9, 0.7
@@ -289,14 +301,7 @@ def main():
         },
         "wall_time_s": round(time.time() - start, 1),
     }
-    # Header fields indented, one case per line: small, and diffs stay readable.
-    text = json.dumps(doc, indent=1)
-    body = ",\n".join("  " + json.dumps(c, separators=(",", ":")) for c in cases)
-    text = text[:-2] + ',\n "cases": [\n' + body + "\n ]\n}\n"
-    json.loads(text)
-    with open(out_path, "w") as f:
-        f.write(text)
-    print(f"{len(cases)} cases -> {out_path}", file=sys.stderr)
+    write_table(doc, cases, out_path)
 
 
 if __name__ == "__main__":
