@@ -146,10 +146,10 @@ fn the_extraction_sees_quotes_comments_and_continuations() {
 
 /// The README's guide, run as written and in order in a fresh directory holding a copy of
 /// `data/`: every command exits 0 and writes what the guide says it writes — the new user's
-/// first hour, without a command that fails after the work. Left out, by name: the
-/// path-traced reference, the albedo bench, validation and the server (minutes each, or a
-/// process that does not end; their flags are checked by `every_command_in_the_docs_parses`,
-/// the server by the service tests and the browser test).
+/// first hour, without a command that fails after the work. Left out here, by name: the
+/// path-traced reference, the albedo bench and validation (minutes each) and the server (a
+/// process that does not end): `tests/readme_guide.py`, which CI runs with the release binary,
+/// runs the whole guide block and the service's curl examples as written.
 #[test]
 fn the_readme_guide_runs_as_written() {
     let readme = fs::read_to_string(root().join("README.md")).unwrap();
