@@ -206,6 +206,11 @@ fn monte_carlo_flux(
 }
 
 fn main() -> Result<()> {
+    // The solve's own log (phases, the emitter pass, the operator's size) with RUST_LOG=info.
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (mut case, mut method, mut dims) = ("i".to_string(), "discrete-ordinates".to_string(), 60);
     let mut histories: u64 = 10_000_000;
