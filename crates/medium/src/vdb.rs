@@ -284,6 +284,17 @@ fn bit(mask: &[u64], n: usize) -> bool {
     mask[n >> 6] >> (n & 63) & 1 == 1
 }
 
+/// The positions of the set bits of `word`, lowest first.
+fn set_bits(mut word: u64) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (word != 0).then(|| {
+            let b = word.trailing_zeros() as usize;
+            word &= word - 1;
+            b
+        })
+    })
+}
+
 /// Stored value types.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Scalar {
@@ -702,10 +713,8 @@ impl Visitor for Survey {
         m.copy_from_slice(mask);
         self.leaves.push((origin, m));
         for (w, &word) in m.iter().enumerate() {
-            let mut bits = word;
-            while bits != 0 {
-                let n = w * 64 + bits.trailing_zeros() as usize;
-                bits &= bits - 1;
+            for b in set_bits(word) {
+                let n = w * 64 + b;
                 let p = [
                     origin[0] + (n >> 6) as i64,
                     origin[1] + ((n >> 3) & 7) as i64,
@@ -798,17 +807,42 @@ fn internal_node(
             origin[2] + ((n & dim_mask) << child_log2) as i64,
         ]
     };
-    for (n, &value) in values.iter().enumerate() {
-        if !bit(&child_mask, n) {
-            visit.tile(local(n), 1 << child_log2, value, bit(&value_mask, n));
+    // Tiles, 64 slots at a time: the visitors ignore inactive tiles that hold the background
+    // (most of a sparse node's 32,768 or 4,096 slots), so only active tiles and inactive ones
+    // with another value are reported; a word of background values is told by one OR.
+    let background = codec.background.to_bits();
+    for (w, chunk) in values.chunks_exact(64).enumerate() {
+        let tiles = !child_mask[w];
+        let mut reported = tiles & value_mask[w];
+        let other = chunk
+            .iter()
+            .fold(0u32, |acc, v| acc | (v.to_bits() ^ background));
+        if other != 0 {
+            for (b, v) in chunk.iter().enumerate() {
+                if v.to_bits() != background {
+                    reported |= tiles & (1 << b);
+                }
+            }
+        }
+        for b in set_bits(reported) {
+            let n = w * 64 + b;
+            visit.tile(
+                local(n),
+                1 << child_log2,
+                chunk[b],
+                value_mask[w] >> b & 1 == 1,
+            );
         }
     }
-    for n in (0..slots).filter(|&n| bit(&child_mask, n)) {
-        if child_log2 == 3 {
-            let mask = cur.mask(8, "leaf value mask")?;
-            visit.leaf(local(n), &mask);
-        } else {
-            internal_node(cur, codec, local(n), 4, 3, visit)?;
+    for (w, &children) in child_mask.iter().enumerate() {
+        for b in set_bits(children) {
+            let n = w * 64 + b;
+            if child_log2 == 3 {
+                let mask = cur.mask(8, "leaf value mask")?;
+                visit.leaf(local(n), &mask);
+            } else {
+                internal_node(cur, codec, local(n), 4, 3, visit)?;
+            }
         }
     }
     Ok(())
