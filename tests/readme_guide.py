@@ -71,7 +71,7 @@ def run(command, cwd, env):
     if done.returncode != 0:
         fail(f"`{command}` exited {done.returncode} after {seconds:.0f} s:\n{done.stderr[-3000:]}")
     print(f"ok {seconds:6.1f} s  {command}", flush=True)
-    return done.stdout
+    return done.stdout, done.stderr
 
 
 def copy_checkout(dest):
@@ -130,9 +130,15 @@ def main():
     if os.path.basename(binary) != "volrad":
         fail(f"{binary}: the guide calls `volrad`; give the binary of that name")
 
+    scene_hash = None
     for command in guide:
         if command.split()[0] == "volrad":
-            run(command, work, env)
+            out, err = run(command, work, env)
+            if command.startswith("volrad solve data/cloud.toml"):
+                found = re.search(r"scene hash ([0-9a-f]{32})", out + err)
+                scene_hash = found and found.group(1)
+    if scene_hash is None:
+        fail("`volrad solve data/cloud.toml …` did not print its scene hash")
     promised = ["volrad-default.png", "cloud.volrad", "front.png", "orbit/front_000.png",
                 "orbit/front_035.png", "close.exr", "fluence.nrrd", "truth.pfm",
                 "bench", "docs/validation/report.md", "v/report.md"]
@@ -176,7 +182,11 @@ def main():
         for command in curls:
             command = command.replace("curl -s ", "curl -s --fail ", 1)
             if cloud is None and "POST" in command and "/v1/scenes" in command:
-                cloud = json.loads(run(command, work, env))["id"]
+                cloud = json.loads(run(command, work, env)[0])["id"]
+                # The README: "the id is the scene hash `volrad solve` prints".
+                if cloud != scene_hash:
+                    fail(f"the service's id {cloud} is not the scene hash {scene_hash} that "
+                         "`volrad solve data/cloud.toml` printed")
                 wait_done(cloud)
                 wait_done(sky)
                 continue
