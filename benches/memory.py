@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Peak memory of `volrad solve` against `volrad info`'s prediction, method by method.
+"""Peak memory and time of `volrad solve` against `volrad info`'s predictions, method by method.
 
     cargo build --release --bin volrad
     python3 benches/memory.py [--volrad target/release/volrad] [--quick] [--only METHOD]
@@ -7,7 +7,8 @@
 For each case it writes a scene (Max's cloud generator, about 12 % of cells non-empty, or a
 uniform medium filling every cell), asks `volrad info --json` for the predicted peak, runs
 `volrad solve` under /usr/bin/time and prints a Markdown table of predicted and measured peak
-resident memory (docs/performance.md, "Memory"). Needs only the standard library.
+resident memory and wall-clock time (docs/performance.md, "Memory" and "Time"). Needs only the
+standard library.
 """
 
 import argparse
@@ -32,6 +33,7 @@ CASES = [
     ("zonal-hierarchical", (64, 64, 48), "cloud", "", False),
     ("zonal-hierarchical", (24, 24, 24), "uniform", "", True),
     ("zonal-hierarchical", (40, 40, 40), "uniform", "", False),
+    ("zonal-hierarchical", (32, 32, 24), "cloud-rgb", "", False),
     ("discrete-ordinates", (32, 32, 24), "cloud", "bins = 24", True),
     ("discrete-ordinates", (32, 32, 24), "cloud", "", True),
     ("discrete-ordinates", (32, 32, 24), "cloud", "bins = 384", False),
@@ -47,6 +49,15 @@ CASES = [
     ("two-pass", (48, 48, 36), "cloud", "", False),
     ("two-pass", (32, 32, 24), "cloud", "photons = 100000", False),
     ("two-pass", (32, 32, 32), "uniform", "", False),
+    # The sample scenes as they are (their own methods, lights, skies, grounds, emission and
+    # iteration limits): what the time model's iteration counts are checked on.
+    ("scene", "data/cloud.toml", "", "", True),
+    ("scene", "data/cloud-sky.toml", "", "", False),
+    ("scene", "data/cloud-backlit.toml", "", "", False),
+    ("scene", "data/dipole.toml", "", "", False),
+    ("scene", "data/fire.toml", "", "", False),
+    ("scene", "data/fire-scattering.toml", "", "", False),
+    ("scene", "data/smoke-emission.toml", "", "", False),
 ]
 
 
@@ -84,41 +95,55 @@ def main():
     parser.add_argument("--only", help="one method")
     parser.add_argument("--match", help="cases whose settings or medium contain this text")
     args = parser.parse_args()
-    print("| method | grid | medium | settings | predicted | measured | error |")
-    print("|---|---|---|---|---|---|---|")
+    print("| method | grid | medium | settings | memory predicted | measured | error "
+          "| time predicted | measured | error |")
+    print("|---|---|---|---|---:|---:|---:|---:|---:|---:|")
     worst = 0.0
+    worst_time = 0.0
     with tempfile.TemporaryDirectory() as tmp:
         folder = pathlib.Path(tmp)
         for method, dims, medium, extra, quick in CASES:
             if (args.quick and not quick) or (args.only and method != args.only):
                 continue
-            if args.match and args.match not in extra + medium:
+            if args.match and args.match not in extra + medium + (dims if isinstance(dims, str) else ""):
                 continue
-            scene = folder / "scene.toml"
-            scene.write_text(scene_text(method, dims, medium, extra, folder))
+            if method == "scene":
+                scene = pathlib.Path(dims).resolve()
+            else:
+                scene = folder / "scene.toml"
+                scene.write_text(scene_text(method, dims, medium, extra, folder))
             info = json.loads(
                 subprocess.run(
                     [args.volrad, "info", "--json", scene], check=True, capture_output=True, text=True
                 ).stdout
             )
             predicted = info["peak_memory_bytes"] / 2**20
+            predicted_seconds = info["predicted_seconds"]
             timed = subprocess.run(
-                ["/usr/bin/time", "-f", "%M", args.volrad, "--quiet", "solve", scene,
+                ["/usr/bin/time", "-f", "%M %e", args.volrad, "--quiet", "solve", scene,
                  "-o", folder / "s.volrad"],
                 capture_output=True, text=True,
             )
             if timed.returncode != 0:
                 sys.exit(f"{method} {dims}: {timed.stderr}")
-            measured = int(timed.stderr.strip().splitlines()[-1]) / 1024
+            rss, seconds = timed.stderr.strip().splitlines()[-1].split()
+            measured = int(rss) / 1024
+            seconds = max(float(seconds), 0.01)
             error = predicted / measured - 1
             worst = max(worst, abs(error))
+            time_error = predicted_seconds / seconds - 1
+            worst_time = max(worst_time, abs(time_error))
             settings = extra.replace("\n", ", ").replace("|", "\\|") or "defaults"
+            if method == "scene":
+                method, medium, settings = info["method"], dims, "the scene's"
+                dims = info["dims"]
             print(
                 f"| {method} | {dims[0]}×{dims[1]}×{dims[2]} | {medium} | {settings} | "
-                f"{predicted:.0f} MiB | {measured:.0f} MiB | {100 * error:+.0f} % |",
+                f"{predicted:.0f} MiB | {measured:.0f} MiB | {100 * error:+.0f} % | "
+                f"{predicted_seconds:.2f} s | {seconds:.2f} s | {100 * time_error:+.0f} % |",
                 flush=True,
             )
-    print(f"\nworst |error|: {100 * worst:.0f} %")
+    print(f"\nworst |error|: memory {100 * worst:.0f} %, time {100 * worst_time:.0f} %")
 
 
 if __name__ == "__main__":

@@ -98,7 +98,7 @@ pub fn solve_with_progress(
     quiet: bool,
     max_memory: Option<u64>,
 ) -> Result<Solution> {
-    let progress = SolveProgress::start(settings, quiet);
+    let progress = SolveProgress::start(scene, settings, quiet);
     // solve_scene checks the memory budget before any work.
     let hooks = SolveHooks {
         control: Arc::new(progress.control()),

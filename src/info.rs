@@ -2,7 +2,7 @@
 
 use std::fmt;
 
-use crate::engine::{budget, methods};
+use crate::engine::{budget, methods, timing};
 use formfactor::ordinates::{forward_truncation_fraction, DirectionBins};
 use medium::coarsening::Coarsening;
 use scene::Scene;
@@ -43,6 +43,11 @@ pub struct SceneInfo {
     /// ([`budget::solve_peak`]), and its parts.
     pub peak_memory_bytes: u64,
     pub memory_parts: Vec<budget::MemoryPart>,
+    /// Predicted time of `volrad solve` with the scene's settings on this machine's worker
+    /// threads ([`timing::solve_time`]), its parts, the iterations per channel it expects
+    /// and the spectral radius it expects them from.
+    pub predicted_seconds: f64,
+    pub time: timing::TimeEstimate,
     /// Largest optical depth of one cell (σt · cell size).
     pub max_cell_optical_depth: f64,
     /// The transport grid multiple scattering is solved on, when it is coarser than the
@@ -167,6 +172,12 @@ impl SceneInfo {
         let occupancy = budget::Occupancy::of(m);
         let occupied = occupancy.at(1);
         let peak = budget::solve_peak(scene, &scene.solve, &occupancy);
+        let time = timing::solve_time(
+            scene,
+            &scene.solve,
+            &occupancy,
+            rayon::current_num_threads(),
+        );
         let h = m.grid().cell_size;
         let max_cell_optical_depth = hi * h;
         let scale = budget::transport_scale(scene, &scene.solve);
@@ -266,6 +277,8 @@ impl SceneInfo {
             medium_bytes: m.memory_bytes(),
             peak_memory_bytes: peak.total(),
             memory_parts: peak.parts().to_vec(),
+            predicted_seconds: time.total().as_secs_f64(),
+            time,
             max_cell_optical_depth,
             transport,
             ordinates,
@@ -372,7 +385,16 @@ impl fmt::Display for SceneInfo {
                 .map(|p| format!("{} {}", p.what, budget::human_bytes(p.bytes)))
                 .collect::<Vec<_>>()
                 .join(", ")
-        )
+        )?;
+        write!(f, "time             solve {}", self.time)?;
+        if let (Some(n), Some(rho)) = (self.time.iterations(), self.time.spectral_radius()) {
+            write!(
+                f,
+                "; {n} iteration{} per channel expected (spectral radius ≈ {rho:.3})",
+                if n == 1 { "" } else { "s" }
+            )?;
+        }
+        writeln!(f)
     }
 }
 

@@ -4,10 +4,15 @@ use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use scene::SolveSettings;
+use scene::{Scene, SolveSettings};
+
+use crate::engine::budget::Occupancy;
+use crate::engine::timing;
 use solver::SolveControl;
 
-/// A spinner that shows the iteration and residual of the running solve.
+/// A spinner that shows the solve's predicted time from the start (`engine::timing`, the
+/// model `volrad info` prints), then the iteration, residual and time left at the rate of
+/// convergence.
 pub struct SolveProgress {
     bar: ProgressBar,
     tolerance: f64,
@@ -15,15 +20,28 @@ pub struct SolveProgress {
 }
 
 impl SolveProgress {
-    pub fn start(settings: &SolveSettings, quiet: bool) -> SolveProgress {
+    pub fn start(scene: &Scene, settings: &SolveSettings, quiet: bool) -> SolveProgress {
+        let occupancy = Occupancy::of(&scene.medium);
+        let predicted =
+            timing::solve_time(scene, settings, &occupancy, rayon::current_num_threads());
+        tracing::debug!(
+            seconds = predicted.total().as_secs_f64(),
+            iterations = predicted.iterations(),
+            spectral_radius = predicted.spectral_radius(),
+            "predicted solve time"
+        );
         let bar = if quiet {
             ProgressBar::hidden()
         } else {
             let bar = ProgressBar::new_spinner();
             bar.set_style(
-                ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+                ProgressStyle::with_template("{spinner} [{elapsed_precise}{prefix}] {msg}")
                     .unwrap_or_else(|_| ProgressStyle::default_spinner()),
             );
+            bar.set_prefix(format!(
+                ", about {} predicted",
+                timing::duration_text(predicted.total())
+            ));
             bar.enable_steady_tick(Duration::from_millis(200));
             bar.set_message(format!(
                 "solving ({}); Ctrl-C cancels",
@@ -64,7 +82,7 @@ impl SolveProgress {
                     tol,
                     max_iterations,
                 )
-                .map(|(n, t)| format!(", about {n} more ({})", seconds(t)))
+                .map(|(n, t)| format!(", about {n} more ({})", timing::duration_text(t)))
                 .unwrap_or_default();
                 let residual = format!("relative residual {residual:.3e} (target {tol:.1e})");
                 bar.set_message(format!(
@@ -105,16 +123,6 @@ fn time_left(
     };
     let left = left.min(max_iterations.saturating_sub(now.0));
     Some((left, elapsed.mul_f64(left as f64 / steps as f64)))
-}
-
-/// `12 s`, `3 min 20 s`.
-fn seconds(t: Duration) -> String {
-    let s = t.as_secs_f64().round() as u64;
-    if s < 60 {
-        format!("{s} s")
-    } else {
-        format!("{} min {} s", s / 60, s % 60)
-    }
 }
 
 /// The control the Ctrl-C handler cancels; replaced by each new solve.
@@ -203,6 +211,9 @@ mod tests {
         // No rate yet, or not converging: no estimate.
         assert!(time_left((1, 1.0), (1, 1.0), Duration::ZERO, 1e-6, 100).is_none());
         assert!(time_left((1, 1.0), (3, 2.0), Duration::from_secs(1), 1e-6, 100).is_none());
-        assert_eq!(seconds(Duration::from_secs(200)), "3 min 20 s");
+        assert_eq!(
+            timing::duration_text(Duration::from_secs(200)),
+            "3 min 20 s"
+        );
     }
 }

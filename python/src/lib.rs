@@ -205,7 +205,7 @@ impl PyScene {
         volrad::engine::pipeline::scene_hash(&self.scene)
     }
 
-    /// What `volrad info` prints for the scene: sizes, lights and predicted memory.
+    /// What `volrad info` prints for the scene: sizes, lights, predicted memory and time.
     fn info(&self) -> String {
         volrad::info::SceneInfo::of(&self.scene).to_string()
     }
@@ -269,7 +269,7 @@ impl PyScene {
         };
         let settings = overrides.apply(&self.scene.solve).map_err(refuse)?;
         let started = Instant::now();
-        let bar = SolveProgress::start(&settings, !progress);
+        let bar = SolveProgress::start(&self.scene, &settings, !progress);
         let hooks = SolveHooks {
             control: Arc::new(bar.control()),
             memory_limit: MemoryLimit::given_or_available(max_memory),

@@ -247,6 +247,8 @@ def test_a_solve_that_cannot_fit_raises_before_it_starts():
         method="discrete-ordinates",
         solve={"bins": 384},
     )
+    # What the refusal is measured against, and the time the solve would take, before it.
+    assert "solve peak" in scene.info() and "time             solve about" in scene.info()
     started = time.monotonic()
     with pytest.raises(volrad.VolradError, match=r"needs about .*--max-memory.*bins = "):
         scene.solve(max_memory="256M")

@@ -1,7 +1,8 @@
 //! The engine: everything between a validated scene and a stored solution or an image —
 //! the solve of every method ([`methods`]), the orchestration shared by the command line and
-//! the service ([`pipeline`]), the scattered-light sources a render adds ([`sources`]) and the
-//! solution file ([`solution`]). It knows no command line and no HTTP: the front ends
+//! the service ([`pipeline`]), the scattered-light sources a render adds ([`sources`]), the
+//! solution file ([`solution`]) and what a solve will cost in memory ([`budget`]) and time
+//! ([`timing`]). It knows no command line and no HTTP: the front ends
 //! (`cli`, `commands`, `service`, `validate`, `bench_albedo`) sit above it.
 
 pub mod budget;
@@ -10,6 +11,7 @@ pub mod methods;
 pub mod pipeline;
 pub mod solution;
 pub mod sources;
+pub mod timing;
 
 use std::sync::Arc;
 

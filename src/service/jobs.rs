@@ -65,6 +65,8 @@ pub(crate) struct Job {
     /// What people call it (`?name=` of the upload, a preloaded file's stem); stored beside
     /// the scene (`ID.name`).
     pub name: Option<String>,
+    /// The predicted time of the running solve (`engine::timing`), seconds.
+    pub predicted_seconds: Option<f64>,
 }
 
 enum WorkerMsg {
@@ -250,6 +252,7 @@ impl Service {
                     last_used: stamp,
                     note,
                     name,
+                    predicted_seconds: None,
                 },
             );
         }
@@ -424,6 +427,7 @@ impl Service {
                     last_used: stamp,
                     note: None,
                     name: found.name,
+                    predicted_seconds: None,
                 },
             );
             evict(&mut jobs, cache, self.inner.limits.max_cache_bytes, &id);
@@ -531,6 +535,7 @@ impl Service {
                 last_used: stamp,
                 note: None,
                 name: None,
+                predicted_seconds: None,
             },
         );
         drop(jobs);
@@ -643,6 +648,17 @@ impl Service {
             };
             (scene, Arc::clone(&job.control))
         };
+        // Outside the lock: it reads the whole medium.
+        let occupancy = crate::engine::budget::Occupancy::of(&scene.medium);
+        let predicted = crate::engine::timing::solve_time(
+            &scene,
+            &scene.solve,
+            &occupancy,
+            rayon::current_num_threads(),
+        );
+        if let Some(job) = self.lock().get_mut(id) {
+            job.predicted_seconds = Some(predicted.total().as_secs_f64());
+        }
         let (phase_service, phase_id) = (self.clone(), id.to_string());
         let (progress_service, progress_id) = (self.clone(), id.to_string());
         let solve_control = solver::SolveControl::with_flag(control.flag())
@@ -756,6 +772,9 @@ pub(crate) fn describe(id: &str, job: &Job, with_history: bool) -> Value {
             residual,
         } => {
             v["phase"] = json!(phase);
+            if let Some(t) = job.predicted_seconds {
+                v["predicted_seconds"] = json!(t);
+            }
             v["iteration"] = json!(iteration);
             v["residual"] = if residual.is_finite() {
                 json!(residual)

@@ -231,6 +231,14 @@ fn info_and_export_describe_the_solution() {
     let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(info["cells"], 12 * 12 * 10);
     assert!(info["max_axis_optical_depth"].as_f64().unwrap() > 0.0);
+    // The predicted solve time, in parts, with the iterations it expects.
+    assert!(info["predicted_seconds"].as_f64().unwrap() > 0.0);
+    assert!(info["time"]["iterations"].as_u64().unwrap() >= 1);
+    let text = String::from_utf8_lossy(&volrad(&["info", s(&scene)]).stdout).into_owned();
+    assert!(
+        text.contains("time             solve about") && text.contains("iterations per channel"),
+        "{text}"
+    );
 
     let sol = dir.path().join("s.volrad");
     assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)])

@@ -16,5 +16,6 @@ mod reference_cloud24;
 mod service;
 mod service_faults;
 mod solution_file;
+mod timing;
 mod transport_grid;
 mod validate;

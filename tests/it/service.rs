@@ -435,6 +435,11 @@ fn delete_and_cancel() {
     loop {
         let v = get(addr, &format!("/v1/scenes/{sid}")).unwrap().json();
         if v["state"] == "solving" && v["iteration"].as_u64().unwrap_or(0) >= 1 {
+            // The predicted time of the whole solve, from before its first iteration.
+            assert!(
+                v["predicted_seconds"].as_f64().is_some_and(|t| t > 0.0),
+                "{v}"
+            );
             break;
         }
         assert_ne!(

@@ -197,9 +197,16 @@ impl Medium {
     /// The largest optical depth `Σ σt h` along any row of cells parallel to an axis, over all
     /// channels: how opaque the medium is "across the grid".
     pub fn max_axis_optical_depth(&self) -> f64 {
+        self.axis_optical_depths().into_iter().fold(0.0, f64::max)
+    }
+
+    /// The largest optical depth `Σ σt h` along a row of cells parallel to x, to y and to z,
+    /// over all channels: the medium's optical size along each axis (a wide slab is thick
+    /// across x and y and thin across z).
+    pub fn axis_optical_depths(&self) -> [f64; 3] {
         let [nx, ny, nz] = self.grid.dims;
         let h = self.grid.cell_size;
-        let mut best = 0.0f64;
+        let mut best = [0.0f64; 3];
         for ch in &self.channels {
             let s = &ch.sigma_t;
             let mut along_x = vec![0.0f64; ny * nz];
@@ -215,8 +222,10 @@ impl Medium {
                     }
                 }
             }
-            for v in along_x.iter().chain(&along_y).chain(&along_z) {
-                best = best.max(v * h);
+            for (axis, rows) in [along_x, along_y, along_z].iter().enumerate() {
+                for v in rows {
+                    best[axis] = best[axis].max(v * h);
+                }
             }
         }
         best

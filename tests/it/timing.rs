@@ -1,0 +1,115 @@
+//! The predicted solve time (`engine::timing`): its iteration counts against the iterations
+//! solves take, on media the model was not fitted to — thin and thick, grey and white,
+//! isotropic and forward-scattering, a cloud and a wide slab.
+
+use std::path::Path;
+
+use scene::Scene;
+use volrad::engine::budget::Occupancy;
+use volrad::engine::methods::SolveSummary;
+use volrad::engine::pipeline::solve_scene;
+use volrad::engine::timing::solve_time;
+use volrad::engine::SolveHooks;
+
+/// A scene of a generated cloud (`slab: false`) or a uniform slab 4 cells thick spanning the
+/// grid (`slab: true`) solved by `method` with `extra` `[solve]` lines.
+fn scene(slab: bool, sigma_t: f64, albedo: f64, g: f64, method: &str, extra: &str) -> Scene {
+    let dir = tempfile::tempdir().unwrap();
+    let volume = if slab {
+        let cells = 40 * 40 * 4;
+        let bytes: Vec<u8> = (0..cells)
+            .flat_map(|_| (sigma_t as f32).to_le_bytes())
+            .collect();
+        std::fs::write(dir.path().join("slab.f32"), bytes).unwrap();
+        "file = \"slab.f32\"\ndims = [40, 40, 4]".to_string()
+    } else {
+        format!(
+            "generator = {{ kind = \"cloud\", seed = 3 }}\ndims = [24, 24, 18]\nsigma_t_scale = {sigma_t}"
+        )
+    };
+    let text = format!(
+        r#"
+[volume]
+{volume}
+
+[medium]
+albedo = {albedo}
+phase = {{ kind = "henyey-greenstein", g = {g} }}
+
+[[light]]
+kind = "directional"
+direction = [-0.3, -0.4, -1.0]
+irradiance = 1.0
+
+[solve]
+method = "{method}"
+{extra}
+"#
+    );
+    Scene::from_toml_str(&text, dir.path(), Path::new("timing-test.toml")).unwrap()
+}
+
+/// The iterations a solve took (the first channel's) and those the model predicted.
+fn iterations(scene: &Scene) -> (usize, usize) {
+    let occupancy = Occupancy::of(&scene.medium);
+    let predicted = solve_time(scene, &scene.solve, &occupancy, 2)
+        .iterations()
+        .expect("an iterative method");
+    let solution = solve_scene(scene, &scene.solve, &SolveHooks::default()).unwrap();
+    let summary = SolveSummary::of(&solution, 0.0);
+    (summary.channels[0].iterations, predicted)
+}
+
+#[test]
+fn predicted_iterations_follow_the_solves() {
+    // (slab, σt scale, albedo, g, method, [solve] lines)
+    let cases = [
+        (false, 0.6, 0.99, 0.0, "discrete-ordinates", "bins = 24"),
+        (false, 1.5, 0.9, 0.6, "discrete-ordinates", "bins = 24"),
+        (false, 0.3, 0.5, 0.0, "discrete-ordinates", "bins = 24"),
+        (true, 1.0, 0.99, 0.0, "discrete-ordinates", "bins = 24"),
+        (
+            false,
+            1.0,
+            0.95,
+            0.0,
+            "zonal-hierarchical",
+            r#"iteration = "jacobi""#,
+        ),
+        (
+            false,
+            1.0,
+            0.95,
+            0.0,
+            "zonal-hierarchical",
+            r#"iteration = "gauss-seidel""#,
+        ),
+        (
+            true,
+            2.0,
+            0.9,
+            0.0,
+            "zonal-hierarchical",
+            r#"iteration = "jacobi""#,
+        ),
+    ];
+    let mut report = Vec::new();
+    let mut ratios = Vec::new();
+    for (slab, sigma_t, albedo, g, method, extra) in cases {
+        let (taken, predicted) = iterations(&scene(slab, sigma_t, albedo, g, method, extra));
+        let ratio = predicted as f64 / taken.max(1) as f64;
+        report.push(format!(
+            "slab {slab} σt {sigma_t} a {albedo} g {g} {method} {extra}: {taken} taken, \
+             {predicted} predicted"
+        ));
+        ratios.push(ratio);
+    }
+    eprintln!("{}", report.join("\n"));
+    // Within a factor 1.6 either way: the time predicted follows the iterations (a
+    // Gauss–Seidel counted as Jacobi, or a medium's thickness misread, is a factor 2 or more).
+    assert!(
+        ratios.iter().all(|r| (1.0 / 1.6..=1.6).contains(r)),
+        "{}",
+        report.join("\n")
+    );
+}
