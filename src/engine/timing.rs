@@ -207,30 +207,32 @@ pub fn solve_time(
         }
     }
     let iterations_label = "the iterations";
+    // An operator built once per channel from `units` (pairs, links), then applied in
+    // every iteration.
+    let mut operator = |what: &'static str, units: f64, build: f64, apply: f64| {
+        parts.push(TimePart {
+            what,
+            seconds: channels * units * build,
+        });
+        parts.push(TimePart {
+            what: iterations_label,
+            seconds: channels * applications * units * apply,
+        });
+    };
     match settings.method {
         SolveMethod::None | SolveMethod::SingleScatter => {}
-        SolveMethod::Zonal => {
-            let pairs = transport_occupied * transport_occupied;
-            parts.push(TimePart {
-                what: "the form factors",
-                seconds: channels * pairs * ZONAL_BUILD_SECONDS_PER_PAIR,
-            });
-            parts.push(TimePart {
-                what: iterations_label,
-                seconds: channels * applications * pairs * ZONAL_APPLY_SECONDS_PER_PAIR,
-            });
-        }
-        SolveMethod::ZonalHierarchical => {
-            let links = transport_occupied * links_per_occupied_cell(transport_occupied);
-            parts.push(TimePart {
-                what: "the hierarchical operator",
-                seconds: channels * links * HIERARCHICAL_BUILD_SECONDS_PER_LINK,
-            });
-            parts.push(TimePart {
-                what: iterations_label,
-                seconds: channels * applications * links * HIERARCHICAL_APPLY_SECONDS_PER_LINK,
-            });
-        }
+        SolveMethod::Zonal => operator(
+            "the form factors",
+            transport_occupied * transport_occupied,
+            ZONAL_BUILD_SECONDS_PER_PAIR,
+            ZONAL_APPLY_SECONDS_PER_PAIR,
+        ),
+        SolveMethod::ZonalHierarchical => operator(
+            "the hierarchical operator",
+            transport_occupied * links_per_occupied_cell(transport_occupied),
+            HIERARCHICAL_BUILD_SECONDS_PER_LINK,
+            HIERARCHICAL_APPLY_SECONDS_PER_LINK,
+        ),
         SolveMethod::DiscreteOrdinates => {
             let bins = settings.bins as f64;
             let cell_bins = transport_cells * bins;
