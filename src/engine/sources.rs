@@ -15,11 +15,17 @@ use crate::engine::solution::{ChannelSolution, ScatteredField, Solution};
 /// Where a per-cell source is drawn between cell centres: `trilinear` renders (which call
 /// `at`) reconstruct the source function `Q/σt` trilinearly over the cells with σt > 0 and
 /// multiply by the reconstructed σt ([`Trilinear::source`]), so a solved field looks as
-/// smooth as the medium; `nearest` renders keep it constant per cell (`segment`).
+/// smooth as the medium.
 ///
-/// A source solved on a coarser transport grid is drawn as the data grid's σs times the
-/// in-scattered radiance `Q/σs` of the transport cells, interpolated trilinearly between
-/// their centres (over those that scatter): smooth light over the data's own detail.
+/// A `nearest` medium's cells keep their own σs, but the light in them is continuous (a
+/// constant source per cell is what the zonal model solves for, not what the medium holds:
+/// next to a bright emitter or a lit face it was 2–4 % off in the image): its source is drawn
+/// as the cell's σs times the in-scattered radiance `Q/σs` interpolated trilinearly between
+/// the centres of the cells that scatter (`segment` takes it at the segment's middle).
+///
+/// A source solved on a coarser transport grid is drawn the same way from the transport
+/// cells: the data grid's σs times their in-scattered radiance, interpolated between their
+/// centres — smooth light over the data's own detail.
 #[derive(Clone, Copy)]
 pub struct CellLattice<'a> {
     grid: Grid,
@@ -139,19 +145,27 @@ impl<'a> CellLattice<'a> {
     /// Channel `c` of `solution` (the solved one); `ch` is its solution.
     pub fn of(solution: &'a Solution, c: usize, ch: &'a ChannelSolution) -> Result<Self> {
         let medium = &solution.medium;
-        if solution.transport.scale() == 1 {
+        let trilinear = medium.interpolation() == Interpolation::Trilinear;
+        if solution.transport.scale() == 1 && trilinear {
             return Ok(Self::of_medium(medium, c));
         }
-        let transport = {
-            let cache = ch.render_cache.transport(medium, &solution.transport, c)?;
-            Some(TransportLattice {
-                coarse: *solution.transport.coarse(),
-                inverse_coarse_size: 1.0 / solution.transport.coarse().cell_size,
-                channel: &medium.channels()[c],
-                inverse_sigma_s: &cache.inverse_sigma_s,
-                max_sigma_s: cache.max_sigma_s,
-            })
+        // A `nearest` medium keeps its cells' σs, but the light in it is continuous: the
+        // in-scattered radiance is interpolated between the cells' centres.
+        let scattering = if solution.transport.scale() == 1 {
+            ch.render_cache.own_grid(medium, c)
+        } else {
+            &ch.render_cache
+                .transport(medium, &solution.transport, c)?
+                .scattering
         };
+        let coarse = *solution.transport.coarse();
+        let transport = Some(TransportLattice {
+            coarse,
+            inverse_coarse_size: 1.0 / coarse.cell_size,
+            channel: &medium.channels()[c],
+            inverse_sigma_s: &scattering.inverse_sigma_s,
+            max_sigma_s: scattering.max_sigma_s,
+        });
         Ok(CellLattice {
             transport,
             ..Self::of_medium(medium, c)
@@ -189,8 +203,9 @@ impl<'a> CellLattice<'a> {
         }
     }
 
-    /// `Q` of a `nearest` render's segment: the cell's own value, or on a transport grid the
-    /// cell's σs times the in-scattered radiance at the segment's middle.
+    /// `Q` of a `nearest` render's segment: the cell's σs times the in-scattered radiance at
+    /// the segment's middle (the cell's own value only for a lattice of the bare medium,
+    /// [`of_medium`](Self::of_medium)).
     #[inline]
     fn segment(&self, seg: &ViewSegment, value: impl Fn(usize) -> f64) -> f64 {
         match &self.transport {

@@ -145,10 +145,10 @@ fn an_emitting_cube_in_vacuum_and_in_an_absorber_has_the_exact_fluence_in_every_
 /// rendered from a stored solution (16 samples per pixel: the cube's edges are sharp), agrees
 /// with the path tracer, which samples emission as a source: isotropic in zonal-hierarchical,
 /// discrete ordinates and two-pass, g = 0.6 in discrete ordinates (whose first collision
-/// then has a direction: the beam part of the pass's flux vector). Measured: RMS 3.7–5.0 %,
-/// image means −1.2 … +0.9 % (the RMS is the cells' piecewise-constant first scattering next
-/// to the cube, the same without the emitter pass). Two-pass sent no photons from emitting
-/// cells before, and missed 45 % of this image.
+/// then has a direction: the beam part of the pass's flux vector). Measured: RMS 1.6 % and
+/// 1.9 % (zonal-hierarchical, discrete ordinates at g = 0), 3.7 % (two-pass, whose tallies
+/// stay constant per cell next to the cube), 4.2 % (g = 0.6); image means −2.0 … +0.4 %.
+/// Two-pass sent no photons from emitting cells before, and missed 45 % of this image.
 #[test]
 fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
     for (phase, methods) in [
@@ -172,8 +172,17 @@ fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
                 rms * 100.0,
                 mean * 100.0
             );
+            // The zonal methods and discrete ordinates at g = 0 draw the solved source as
+            // the cell's σs times the in-scattered radiance interpolated between centres:
+            // 1.6–1.9 % (3.9–4.0 % with it constant per cell). Two-pass keeps its tallies
+            // per cell (3.7 %); at g = 0.6 the bins' angular error adds (4.2 %, mean −2.0 %).
+            let (rms_bound, mean_bound) = if method == &"two-pass" || phase == FORWARD {
+                (0.055, 0.025)
+            } else {
+                (0.025, 0.01)
+            };
             assert!(
-                rms < 0.055 && mean.abs() < 0.02,
+                rms < rms_bound && mean.abs() < mean_bound,
                 "{phase}, {method}: RMS {:.2} %, image mean {:+.2} % against the path tracer",
                 rms * 100.0,
                 mean * 100.0

@@ -100,8 +100,10 @@ fn hierarchical_matches_exact_source_terms() {
 }
 
 /// Discrete ordinates (Max's 96 bins) against the forward-scattering reference
-/// (tests/data/cloud24-anisotropic, Henyey–Greenstein g = 0.6): issue #5's target is 5 %
-/// (measured 3.0 % with 96 bins and the true-phase final gather; 2.2 % with 384 before it).
+/// (tests/data/cloud24-anisotropic, Henyey–Greenstein g = 0.6): issue #5's target was 5 %.
+/// Measured 1.8 % RMS, +0.8 % mean since a `nearest` medium's solved source is drawn as the
+/// cell's σs times the in-scattered radiance interpolated between cell centres; 2.8 % and
+/// +2.4 % with the source constant per cell (the code before), which the bounds refuse.
 #[test]
 fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-anisotropic");
@@ -122,12 +124,12 @@ fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
     .unwrap();
     println!("discrete ordinates (96 bins) vs Mitsuba, g = 0.6: {c:?}");
     assert!(
-        c.relative_rms_error < 0.05,
+        c.relative_rms_error < 0.025,
         "relative RMS {:.4}",
         c.relative_rms_error
     );
     assert!(
-        c.relative_mean_difference.abs() < 0.04,
+        c.relative_mean_difference.abs() < 0.015,
         "mean off by {:.4}",
         c.relative_mean_difference
     );
@@ -136,9 +138,10 @@ fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
 /// Issue #18's worst case: the cloud made strongly forward-scattering (g = 0.85) and seen from
 /// behind (the first camera turned 225° about its up axis, so the sun shines through the cloud
 /// towards the camera). Against volrad's own path tracer (512 spp, its noise taken out), the
-/// image mean of discrete ordinates with 96 bins is +9.1 % ± 0.9 %; with linear interpolation
-/// between bin centres and no δ-M truncation (the code before) it was +13.2 % here (+12.8 % on
-/// the full-size view, docs/validation.md). The bound sits between the two.
+/// image mean of discrete ordinates with 96 bins is +7.5 % ± 0.9 %; with the source constant
+/// in each `nearest` cell it was +9.1 %, and with linear interpolation between bin centres
+/// and no δ-M truncation before that +13.2 % here (+12.8 % on the full-size view,
+/// docs/validation.md). The bound refuses the code before.
 #[test]
 fn forward_scattering_cloud_seen_against_the_light_is_within_ten_percent() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-anisotropic");
@@ -174,7 +177,7 @@ fn forward_scattering_cloud_seen_against_the_light_is_within_ten_percent() {
     let c = compare_images(&image, None, &reference, Some(&reference_err), 0.01, 1).unwrap();
     println!("discrete ordinates, g = 0.85, back-lit view vs path tracer: {c:?}");
     assert!(
-        c.relative_mean_difference < 0.105 && c.relative_mean_difference > -0.05,
+        c.relative_mean_difference < 0.085 && c.relative_mean_difference > -0.05,
         "mean off by {:.4}",
         c.relative_mean_difference
     );

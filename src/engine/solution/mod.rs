@@ -88,6 +88,39 @@ pub struct RenderCache {
     /// The transport grid's medium and what renders need of it, when it is coarser than the
     /// data grid.
     transport: std::sync::OnceLock<Result<TransportCache, String>>,
+    /// `1/σs` per data cell, for `nearest` renders of a source solved on the data grid.
+    own_grid: std::sync::OnceLock<InverseScattering>,
+}
+
+/// `1/σs` of one channel per cell of the grid a source lives on (0 where a cell does not
+/// scatter): a stored source divided by it is the in-scattered radiance `Q/σs`, which a render
+/// interpolates between cell centres; and a bound on the data grid's σs.
+#[derive(Clone)]
+pub struct InverseScattering {
+    pub inverse_sigma_s: Vec<f32>,
+    /// An upper bound on the channel's σs on the data grid.
+    pub max_sigma_s: f64,
+}
+
+impl InverseScattering {
+    /// Of channel `coarse` (cells of the grid the source lives on), bounded by the data
+    /// grid's channel `fine`.
+    fn of(coarse: &medium::ChannelMedium, fine: &medium::ChannelMedium) -> InverseScattering {
+        let inverse_sigma_s = (0..coarse.sigma_t.len())
+            .map(|o| {
+                let s = coarse.sigma_s(o);
+                if s > 0.0 {
+                    1.0 / s
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        InverseScattering {
+            inverse_sigma_s,
+            max_sigma_s: fine.max_sigma_t() as f64 * fine.albedo.max() as f64,
+        }
+    }
 }
 
 /// The medium on a solution's transport grid and what a render of channel `c` reads from it.
@@ -95,11 +128,8 @@ pub struct RenderCache {
 pub struct TransportCache {
     /// [`Coarsening::medium`] of the solution's medium.
     pub medium: Medium,
-    /// `1/σs` of channel `c` per transport cell (0 where nothing scatters): a stored source
-    /// divided by it is the in-scattered radiance the render spreads over the data cells.
-    pub inverse_sigma_s: Vec<f32>,
-    /// An upper bound on channel `c`'s σs on the data grid.
-    pub max_sigma_s: f64,
+    /// Channel `c`'s `1/σs` per transport cell: what the render spreads over the data cells.
+    pub scattering: InverseScattering,
 }
 
 impl RenderCache {
@@ -129,26 +159,23 @@ impl RenderCache {
                     .channels()
                     .get(c)
                     .ok_or_else(|| format!("channel {c} does not exist"))?;
-                let inverse_sigma_s = (0..coarse.grid().cell_count())
-                    .map(|o| {
-                        let s = ch.sigma_s(o);
-                        if s > 0.0 {
-                            1.0 / s
-                        } else {
-                            0.0
-                        }
-                    })
-                    .collect();
-                let fine = &medium.channels()[c];
-                let max_sigma_s = fine.max_sigma_t() as f64 * fine.albedo.max() as f64;
+                let scattering = InverseScattering::of(ch, &medium.channels()[c]);
                 Ok(TransportCache {
                     medium: coarse,
-                    inverse_sigma_s,
-                    max_sigma_s,
+                    scattering,
                 })
             })
             .as_ref()
             .map_err(|e| anyhow::anyhow!("transport grid: {e}"))
+    }
+
+    /// Channel `c`'s `1/σs` per cell of `medium` (the solution's own, on every call), for
+    /// a source solved on the data grid.
+    pub fn own_grid(&self, medium: &Medium, c: usize) -> &InverseScattering {
+        self.own_grid.get_or_init(|| {
+            let ch = &medium.channels()[c];
+            InverseScattering::of(ch, ch)
+        })
     }
 
     /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
