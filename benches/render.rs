@@ -92,11 +92,14 @@ fn bench_scattering_render(c: &mut Criterion) {
         .iter()
         .map(|&v| v as f32)
         .collect();
+    // Drawn as a solution of this `nearest` medium draws it: smooth light, each cell's mean
+    // kept.
+    let scattering = volrad::engine::solution::InverseScattering::of_channel(medium, 0);
     let solution = (
         SingleScatter::new(medium, 0, &pass, SingleScatterOptions::default()).unwrap(),
         volrad::engine::sources::CellSource::new(
             &higher,
-            volrad::engine::sources::CellLattice::of_medium(medium, 0),
+            volrad::engine::sources::CellLattice::of_own_grid(medium, 0, &scattering),
         ),
     );
     let mut group = c.benchmark_group("render");
@@ -147,11 +150,12 @@ fn bench_service_render(c: &mut Criterion) {
     let first =
         SingleScatter::with_depth_model(&medium, 0, &pass, SingleScatterOptions::default(), &depth)
             .unwrap();
+    let scattering = volrad::engine::solution::InverseScattering::of_channel(&medium, 0);
     let solution = (
         first,
         volrad::engine::sources::CellSource::new(
             &higher,
-            volrad::engine::sources::CellLattice::of_medium(&medium, 0),
+            volrad::engine::sources::CellLattice::of_own_grid(&medium, 0, &scattering),
         ),
     );
     let centre = medium.grid().extent() * 0.5;

