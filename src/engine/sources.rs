@@ -612,6 +612,45 @@ pub fn channel_scattering<'a>(
 mod tests {
     use super::*;
 
+    /// A row of 7 scattering cells (σs = 1) whose solved values are the cell means of
+    /// `(x − ½)²`, `i² + 1/12`: drawn smoothly, each cell keeps its mean exactly (a quadratic
+    /// is what the correction is exact for); interpolating the means as centre values would
+    /// add `Δ²r / 8 = 1/4` to every inner cell.
+    #[test]
+    fn a_nearest_medium_keeps_each_cells_mean_when_drawn_smoothly() {
+        let grid = Grid::new([7, 1, 1], 1.0).unwrap();
+        let medium =
+            Medium::grey(grid, vec![1.0; 7], 1.0, medium::PhaseFunction::Isotropic).unwrap();
+        assert_eq!(medium.interpolation(), Interpolation::Nearest);
+        let scattering = InverseScattering::of_channel(&medium, 0);
+        let means: Vec<f32> = (0..7).map(|i| (i * i) as f32 + 1.0 / 12.0).collect();
+        let source = CellSource::new(&means, CellLattice::of_own_grid(&medium, 0, &scattering));
+        // Cells 2–4: their neighbours' centre values are corrected too (an edge cell's is
+        // not, having one neighbour; nor is a negative one kept).
+        for (cell, &mean) in means.iter().enumerate().take(5).skip(2) {
+            let n = 1000;
+            let average = (0..n)
+                .map(|k| {
+                    let x = DVec3::new(cell as f64 + (k as f64 + 0.5) / n as f64, 0.5, 0.5);
+                    source.at(x, cell, DVec3::X)
+                })
+                .sum::<f64>()
+                / n as f64;
+            let mean = mean as f64;
+            assert!(
+                (average - mean).abs() < 1e-4 * mean.max(1.0),
+                "cell {cell}: drawn {average}, solved {mean}"
+            );
+            // Smooth: the light at the cell's faces is its neighbours' too.
+            let face = DVec3::new(cell as f64 + 1.0, 0.5, 0.5);
+            let (left, right) = (
+                source.at(face, cell, DVec3::X),
+                source.at(face, cell + 1, DVec3::X),
+            );
+            assert!((left - right).abs() < 1e-9, "{left} {right}");
+        }
+    }
+
     /// One cell of σt 1 (a lattice under which `at` is the cell's own value).
     fn one_cell() -> CellLattice<'static> {
         CellLattice {
