@@ -3,7 +3,6 @@
 use std::fmt;
 
 use crate::engine::{budget, methods, timing};
-use formfactor::ordinates::{forward_truncation_fraction, DirectionBins};
 use medium::coarsening::Coarsening;
 use scene::Scene;
 use scene::{SceneOrigin, SolveMethod};
@@ -130,18 +129,10 @@ fn emission_info(scene: &Scene) -> Option<String> {
         return None;
     }
     let how = match scene.solve.method {
-        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates => {
-            // The solve decides on the grid it solves on.
-            let scale = budget::transport_scale(scene, &scene.solve);
-            let coarse = (scale > 1)
-                .then(|| {
-                    Coarsening::new(m.grid(), scale)
-                        .and_then(|k| k.medium(m))
-                        .ok()
-                })
-                .flatten();
-            let runs = methods::emitter_pass_decision(coarse.as_ref().unwrap_or(m), 0)
-                .is_ok_and(|(_, pays)| pays);
+        method if method.solves_linear_system() => {
+            let runs = methods::emitter_pass_plans(scene, &scene.solve)
+                .iter()
+                .any(|p| p.runs);
             if runs {
                 "uncollided light traced to every cell centre (emitter pass), its first \
                  collision the solve's source"
@@ -151,9 +142,7 @@ fn emission_info(scene: &Scene) -> Option<String> {
             }
         }
         SolveMethod::TwoPass => "photons sent from the emitting cells as from a light",
-        SolveMethod::None | SolveMethod::SingleScatter => {
-            "integrated along view rays only (not scattered)"
-        }
+        _ => "integrated along view rays only (not scattered)",
     };
     Some(format!("{emitting} emitting cells; {how}"))
 }
@@ -192,11 +181,7 @@ impl SceneInfo {
             });
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
             let phase = m.phase();
-            let options = DirectionBins::with_count(scene.solve.bins)
-                .map(|bins| crate::engine::methods::ordinates_options(&scene.solve, &bins, &phase))
-                .unwrap_or_default();
-            let cone = options.forward_truncation_degrees;
-            let fraction = forward_truncation_fraction(cone, &phase).unwrap_or(0.0);
+            let (cone, fraction) = methods::forward_truncation(&scene.solve, &phase);
             // The sweep runs through σt − f σs: its thickest cell.
             let tau_cell = m
                 .channels()

@@ -173,20 +173,11 @@ impl Occupancy {
 /// grid within it (the size class whose solves take seconds to a minute and about 1–2 GB).
 pub const AUTO_TRANSPORT_CELLS: usize = 1 << 18;
 
-/// Whether `method` solves on a transport grid (the others have nothing to coarsen, or their
-/// own optical voxels).
-pub fn uses_transport_grid(method: SolveMethod) -> bool {
-    matches!(
-        method,
-        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
-    )
-}
-
 /// The transport scale a solve of `scene` with `settings` uses: the scene's, or for `auto`
 /// the smallest that keeps the transport grid within [`AUTO_TRANSPORT_CELLS`]; 1 for methods
 /// without a transport grid.
 pub fn transport_scale(scene: &Scene, settings: &SolveSettings) -> usize {
-    if !uses_transport_grid(settings.method) {
+    if !settings.method.solves_linear_system() {
         return 1;
     }
     match settings.transport_scale {
@@ -463,7 +454,7 @@ fn alternatives(
         let bytes = solve_peak(scene, &other, occupancy).total();
         (bytes <= limit).then_some(bytes)
     };
-    if uses_transport_grid(settings.method) {
+    if settings.method.solves_linear_system() {
         let scale = transport_scale(scene, settings);
         let coarser = (scale + 1..=MAX_TRANSPORT_SCALE).find_map(|k| {
             with(&|o| o.transport_scale = TransportScale::Fixed(k)).map(|bytes| (k, bytes))

@@ -45,10 +45,7 @@ pub const HIERARCHY_TOLERANCE: f64 = 1e-4;
 /// `dsa-cg` a diffusion approximation, which only the hierarchical operator provides.
 /// Methods that do not iterate (none, single scatter, two-pass) ignore the setting.
 pub fn check_iteration(settings: &SolveSettings) -> Result<()> {
-    if matches!(
-        settings.method,
-        SolveMethod::None | SolveMethod::SingleScatter | SolveMethod::TwoPass
-    ) {
+    if !settings.method.solves_linear_system() {
         return Ok(());
     }
     let it = settings.iteration;
@@ -167,6 +164,50 @@ pub fn emitter_pass_decision(medium: &Medium, c: usize) -> Result<(f64, bool)> {
     Ok((cost, emitter_pass_pays(cost, medium.grid().cell_count())))
 }
 
+/// An emitting channel's emitter pass as a solve of a scene would decide it.
+pub struct EmitterPassPlan {
+    pub channel: usize,
+    /// Estimated rays per cell, and the cells of the grid the solve runs on.
+    pub rays_per_cell: f64,
+    pub cells: usize,
+    /// Whether the solve runs the pass at that cost ([`emitter_pass_pays`]).
+    pub runs: bool,
+}
+
+/// The emitter passes a solve of `scene` with `settings` considers, one per emitting channel,
+/// decided as the solve decides them: on the grid it solves on (the transport grid when it is
+/// coarser). Empty for methods without the pass, or when nothing emits.
+pub fn emitter_pass_plans(scene: &Scene, settings: &SolveSettings) -> Vec<EmitterPassPlan> {
+    let medium = &scene.medium;
+    let emitting: Vec<usize> = (0..medium.channels().len())
+        .filter(|&c| !medium.channels()[c].emission.is_zero())
+        .collect();
+    if !settings.method.solves_linear_system() || emitting.is_empty() {
+        return Vec::new();
+    }
+    let scale = crate::engine::budget::transport_scale(scene, settings);
+    let coarse = (scale > 1)
+        .then(|| {
+            medium::coarsening::Coarsening::new(medium.grid(), scale)
+                .and_then(|k| k.medium(medium))
+                .ok()
+        })
+        .flatten();
+    let solved = coarse.as_ref().unwrap_or(medium);
+    emitting
+        .into_iter()
+        .filter_map(|c| {
+            let (rays_per_cell, runs) = emitter_pass_decision(solved, c).ok()?;
+            Some(EmitterPassPlan {
+                channel: c,
+                rays_per_cell,
+                cells: solved.grid().cell_count(),
+                runs,
+            })
+        })
+        .collect()
+}
+
 /// The emitter pass of channel `c` (the emitters' uncollided light, traced to every cell
 /// centre) when the solve method takes it as its first-collision source — the zonal methods
 /// and discrete ordinates —, the channel emits, and the pass's estimated cost is at most
@@ -178,11 +219,7 @@ pub fn emitter_pass(
     settings: &SolveSettings,
     hooks: &SolveHooks,
 ) -> Result<Option<EmitterPass>> {
-    let uses_it = matches!(
-        settings.method,
-        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
-    );
-    if !uses_it || medium.channels()[c].emission.is_zero() {
+    if !settings.method.solves_linear_system() || medium.channels()[c].emission.is_zero() {
         return Ok(None);
     }
     let (cost, pays) = emitter_pass_decision(medium, c)?;
@@ -612,6 +649,17 @@ pub fn ordinates_options(
             .unwrap_or_else(|| default_forward_truncation_degrees(bins, phase)),
         ..OrdinatesOptions::default()
     }
+}
+
+/// The forward peak a discrete-ordinates solve with `settings` truncates (δ-M): its cone in
+/// degrees and the fraction of scattering inside it.
+pub fn forward_truncation(settings: &SolveSettings, phase: &PhaseFunction) -> (f64, f64) {
+    let cone = DirectionBins::with_count(settings.bins)
+        .map(|bins| ordinates_options(settings, &bins, phase))
+        .unwrap_or_default()
+        .forward_truncation_degrees;
+    let fraction = formfactor::ordinates::forward_truncation_fraction(cone, phase).unwrap_or(0.0);
+    (cone, fraction)
 }
 
 /// Discrete-ordinates multiple scattering for channel `c`. With an emitter pass the bins

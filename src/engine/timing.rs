@@ -14,7 +14,6 @@
 use std::fmt;
 use std::time::Duration;
 
-use formfactor::ordinates::forward_truncation_fraction;
 use medium::coarsening::Coarsening;
 use scene::{Scene, SolveMethod, SolveSettings};
 
@@ -43,20 +42,12 @@ impl TimeEstimate {
         Duration::from_secs_f64(self.parts.iter().map(|p| p.seconds).sum::<f64>().max(0.0))
     }
 
-    pub fn parts(&self) -> &[TimePart] {
-        &self.parts
-    }
-
     pub fn iterations(&self) -> Option<usize> {
         self.iterations
     }
 
     pub fn spectral_radius(&self) -> Option<f64> {
         self.spectral_radius
-    }
-
-    pub fn threads(&self) -> usize {
-        self.threads
     }
 }
 
@@ -174,30 +165,29 @@ pub fn solve_time(
             * channels
             * (DATA_GRID_SECONDS_PER_CELL + lights * LIGHT_PASS_SECONDS_PER_CELL_LIGHT),
     });
-    if uses_emitter_pass(settings.method) {
-        let rays: f64 = (0..medium.channels().len())
-            .filter(|&c| !medium.channels()[c].emission.is_zero())
-            .filter_map(|c| super::methods::emitter_pass_decision(medium, c).ok())
-            .filter(|&(_, pays)| pays)
-            .map(|(rays_per_cell, _)| rays_per_cell * cells)
-            .sum();
-        if rays > 0.0 {
-            parts.push(TimePart {
-                what: "the emitter pass",
-                seconds: rays * EMITTER_SECONDS_PER_RAY,
-            });
-        }
+    let rays: f64 = super::methods::emitter_pass_plans(scene, settings)
+        .iter()
+        .filter(|p| p.runs)
+        .map(|p| p.rays_per_cell * p.cells as f64)
+        .sum();
+    if rays > 0.0 {
+        parts.push(TimePart {
+            what: "the emitter pass",
+            seconds: rays * EMITTER_SECONDS_PER_RAY,
+        });
     }
 
     let rho = spectral_radius_estimate(scene, settings);
-    let iterations = iterates(settings.method)
+    let iterations = settings
+        .method
+        .solves_linear_system()
         .then(|| expected_iterations(&settings.iteration, rho, settings.tolerance))
         .map(|n| n.min(settings.max_iterations));
     let applications = iterations.map_or(0.0, |n| {
         n as f64 * applications_per_iteration(&settings.iteration)
     });
     if let Some(ground) = &scene.ground {
-        if iterates(settings.method) || settings.method == SolveMethod::TwoPass {
+        if settings.method.solves_linear_system() || settings.method == SolveMethod::TwoPass {
             let patches =
                 medium::ground::GroundPatches::covering(ground, grid, &scene.lights).count();
             parts.push(TimePart {
@@ -267,24 +257,9 @@ pub fn solve_time(
     TimeEstimate {
         parts,
         iterations,
-        spectral_radius: iterates(settings.method).then_some(rho),
+        spectral_radius: settings.method.solves_linear_system().then_some(rho),
         threads: threads.max(1),
     }
-}
-
-fn uses_emitter_pass(method: SolveMethod) -> bool {
-    matches!(
-        method,
-        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
-    )
-}
-
-/// Whether `method` runs a linear iteration.
-fn iterates(method: SolveMethod) -> bool {
-    matches!(
-        method,
-        SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
-    )
 }
 
 /// Links of the hierarchical operator per non-empty cell: they grow with the log of the cells
@@ -314,20 +289,16 @@ pub fn spectral_radius_estimate(scene: &Scene, settings: &SolveSettings) -> f64 
     let phase = medium.phase();
     let g = phase.mean_cosine();
     let depths = medium.axis_optical_depths();
-    let mut rho = 0.0f64;
-    for ch in medium.channels() {
-        let albedo = ch.albedo.max() as f64;
-        let truncated = if settings.method == SolveMethod::DiscreteOrdinates {
-            let options = formfactor::ordinates::DirectionBins::with_count(settings.bins)
-                .map(|bins| super::methods::ordinates_options(settings, &bins, &phase))
-                .unwrap_or_default();
-            forward_truncation_fraction(options.forward_truncation_degrees, &phase).unwrap_or(0.0)
-        } else {
-            0.0
-        };
-        rho = rho.max(diffusion_spectral_radius(albedo, g, depths, truncated));
-    }
-    rho
+    let truncated = if settings.method == SolveMethod::DiscreteOrdinates {
+        super::methods::forward_truncation(settings, &phase).1
+    } else {
+        0.0
+    };
+    medium
+        .channels()
+        .iter()
+        .map(|ch| diffusion_spectral_radius(ch.albedo.max() as f64, g, depths, truncated))
+        .fold(0.0, f64::max)
 }
 
 /// `ρ = ω' / (1 + B² / (3 (1 − ω' g')))` for a block of optical depths `depths` (see

@@ -69,6 +69,17 @@ impl SolveMethod {
         }
     }
 
+    /// Whether the method solves the grid's linear system — the zonal methods and discrete
+    /// ordinates: the methods that iterate, solve on a transport grid, and take the emitters'
+    /// uncollided light (the emitter pass) as their first-collision source. The others build
+    /// no system (`none`, `single-scatter`) or trace photons (`two-pass`).
+    pub fn solves_linear_system(self) -> bool {
+        matches!(
+            self,
+            SolveMethod::Zonal | SolveMethod::ZonalHierarchical | SolveMethod::DiscreteOrdinates
+        )
+    }
+
     /// The fastest robust iteration for a method (`volrad bench albedo`, docs/albedo.md):
     /// diffusion-synthetic CG for the hierarchical zonal system (6 iterations where Jacobi
     /// needs 69 and CG 14 on the sample cloud at albedo 0.999, and the fastest from albedo
