@@ -98,11 +98,12 @@ pub fn solve_with_progress(
     quiet: bool,
     max_memory: Option<u64>,
 ) -> Result<Solution> {
-    let progress = SolveProgress::start(scene, settings, quiet);
+    let progress = SolveProgress::start(settings, quiet);
     // solve_scene checks the memory budget before any work.
     let hooks = SolveHooks {
         control: Arc::new(progress.control()),
         memory_limit: crate::engine::budget::MemoryLimit::given_or_available(max_memory),
+        on_prediction: Some(progress.prediction()),
     };
     crate::progress::cancel_on_ctrl_c(hooks.control.clone());
     let solution = solve_scene(scene, settings, &hooks);

@@ -4,15 +4,14 @@ use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use scene::{Scene, SolveSettings};
+use scene::SolveSettings;
 
-use crate::engine::budget::Occupancy;
 use crate::engine::timing;
 use solver::SolveControl;
 
-/// A spinner that shows the solve's predicted time from the start (`engine::timing`, the
-/// model `volrad info` prints), then the iteration, residual and time left at the rate of
-/// convergence.
+/// A spinner that shows the solve's predicted time from before its first work
+/// ([`prediction`](Self::prediction): the model `volrad info` prints), then the iteration,
+/// residual and time left at the rate of convergence.
 pub struct SolveProgress {
     bar: ProgressBar,
     tolerance: f64,
@@ -20,16 +19,7 @@ pub struct SolveProgress {
 }
 
 impl SolveProgress {
-    pub fn start(scene: &Scene, settings: &SolveSettings, quiet: bool) -> SolveProgress {
-        let occupancy = Occupancy::of(&scene.medium);
-        let predicted =
-            timing::solve_time(scene, settings, &occupancy, rayon::current_num_threads());
-        tracing::debug!(
-            seconds = predicted.total().as_secs_f64(),
-            iterations = predicted.iterations(),
-            spectral_radius = predicted.spectral_radius(),
-            "predicted solve time"
-        );
+    pub fn start(settings: &SolveSettings, quiet: bool) -> SolveProgress {
         let bar = if quiet {
             ProgressBar::hidden()
         } else {
@@ -38,10 +28,6 @@ impl SolveProgress {
                 ProgressStyle::with_template("{spinner} [{elapsed_precise}{prefix}] {msg}")
                     .unwrap_or_else(|_| ProgressStyle::default_spinner()),
             );
-            bar.set_prefix(format!(
-                ", about {} predicted",
-                timing::duration_text(predicted.total())
-            ));
             bar.enable_steady_tick(Duration::from_millis(200));
             bar.set_message(format!(
                 "solving ({}); Ctrl-C cancels",
@@ -54,6 +40,18 @@ impl SolveProgress {
             tolerance: settings.tolerance,
             max_iterations: settings.max_iterations,
         }
+    }
+
+    /// What the solve calls with its predicted time (`SolveHooks::on_prediction`): shown
+    /// beside the elapsed time from then on.
+    pub fn prediction(&self) -> Arc<crate::engine::PredictionFn> {
+        let bar = self.bar.clone();
+        Arc::new(move |predicted: &timing::TimeEstimate| {
+            bar.set_prefix(format!(
+                ", about {} predicted",
+                timing::duration_text(predicted.total())
+            ))
+        })
     }
 
     /// A solver control whose progress callback updates this spinner.

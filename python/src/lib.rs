@@ -269,10 +269,11 @@ impl PyScene {
         };
         let settings = overrides.apply(&self.scene.solve).map_err(refuse)?;
         let started = Instant::now();
-        let bar = SolveProgress::start(&self.scene, &settings, !progress);
+        let bar = SolveProgress::start(&settings, !progress);
         let hooks = SolveHooks {
             control: Arc::new(bar.control()),
             memory_limit: MemoryLimit::given_or_available(max_memory),
+            on_prediction: Some(bar.prediction()),
         };
         let scene = &self.scene;
         let outcome = run_cancellable(py, &hooks.control, || solve_scene(scene, &settings, &hooks));

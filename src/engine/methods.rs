@@ -1282,6 +1282,7 @@ mod tests {
                         .with_phase(move |p| seen.lock().unwrap().push(p.to_string())),
                 ),
                 memory_limit: None,
+                on_prediction: None,
             };
             crate::engine::pipeline::solve_scene(&scene, &settings, &hooks).unwrap();
             assert_eq!(*phases.lock().unwrap(), expected, "{method:?}");

@@ -15,6 +15,10 @@ pub mod timing;
 
 use std::sync::Arc;
 
+/// Told the solve's predicted time ([`timing::solve_time`]) once its checks have passed,
+/// before any work.
+pub type PredictionFn = dyn Fn(&timing::TimeEstimate) + Send + Sync;
+
 /// Progress and cancellation for a solve, shared with whoever started it.
 #[derive(Clone, Default)]
 pub struct SolveHooks {
@@ -22,4 +26,7 @@ pub struct SolveHooks {
     /// The memory the solve must fit in ([`budget::check_solve`], before any work); `None`
     /// checks nothing.
     pub memory_limit: Option<budget::MemoryLimit>,
+    /// Who wants the predicted time (a progress bar, the service's status); `None`: nobody,
+    /// and it is not computed.
+    pub on_prediction: Option<Arc<PredictionFn>>,
 }

@@ -74,6 +74,22 @@ pub fn solve_scene(
     crate::engine::methods::check_environment(scene, settings)?;
     crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let medium = &scene.medium;
+    if let Some(tell) = &hooks.on_prediction {
+        let occupancy = crate::engine::budget::Occupancy::of(medium);
+        let predicted = crate::engine::timing::solve_time(
+            scene,
+            settings,
+            &occupancy,
+            rayon::current_num_threads(),
+        );
+        tracing::debug!(
+            seconds = predicted.total().as_secs_f64(),
+            iterations = predicted.iterations(),
+            spectral_radius = predicted.spectral_radius(),
+            "predicted solve time"
+        );
+        tell(&predicted);
+    }
     // Multiple scattering is solved on the transport grid (the data grid itself at scale 1);
     // the light pass stays on the data grid for the render's exact first bounce.
     let transport = Coarsening::new(

@@ -648,17 +648,7 @@ impl Service {
             };
             (scene, Arc::clone(&job.control))
         };
-        // Outside the lock: it reads the whole medium.
-        let occupancy = crate::engine::budget::Occupancy::of(&scene.medium);
-        let predicted = crate::engine::timing::solve_time(
-            &scene,
-            &scene.solve,
-            &occupancy,
-            rayon::current_num_threads(),
-        );
-        if let Some(job) = self.lock().get_mut(id) {
-            job.predicted_seconds = Some(predicted.total().as_secs_f64());
-        }
+        let (predict_service, predict_id) = (self.clone(), id.to_string());
         let (phase_service, phase_id) = (self.clone(), id.to_string());
         let (progress_service, progress_id) = (self.clone(), id.to_string());
         let solve_control = solver::SolveControl::with_flag(control.flag())
@@ -674,6 +664,13 @@ impl Service {
         let hooks = SolveHooks {
             control: Arc::new(solve_control),
             memory_limit: Some(self.solve_memory_limit()),
+            on_prediction: Some(Arc::new(
+                move |predicted: &crate::engine::timing::TimeEstimate| {
+                    if let Some(job) = predict_service.lock().get_mut(&predict_id) {
+                        job.predicted_seconds = Some(predicted.total().as_secs_f64());
+                    }
+                },
+            )),
         };
         let started = std::time::Instant::now();
         let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {

@@ -734,6 +734,7 @@ fn run_method(
         control,
         // The report measures every method on the sample scenes: refuse none for its size.
         memory_limit: None,
+        on_prediction: None,
     };
     let started = Instant::now();
     let solution = solve_scene(scene, &solve, &hooks)?;
