@@ -301,14 +301,21 @@ impl<'a> CellLattice<'a> {
         }
     }
 
-    /// For a lattice that keeps each cell's mean and one value per cell: the values whose
-    /// plain interpolation is that of `values` with the means kept (the cell's σs times its
-    /// corrected centre ratio), and the lattice that interpolates them plainly. `None` for
-    /// any other lattice.
-    fn with_cell_means_kept(&self, values: &[f32]) -> Option<(Vec<f32>, CellLattice<'a>)> {
+    /// Whether centre values are corrected to keep each cell's mean (a `nearest` medium on
+    /// its own grid).
+    fn keeps_cell_means(&self) -> bool {
+        self.transport.is_some_and(|t| t.keep_cell_means)
+    }
+
+    /// For one value per cell: the values whose plain interpolation ([`plain`](Self::plain))
+    /// is that of `values` with each cell's mean kept — the cell's σs times its corrected
+    /// centre ratio. `values` itself for a lattice that keeps no means.
+    fn centre_values(&self, values: &[f32]) -> Vec<f32> {
         use rayon::prelude::*;
-        let t = self.transport.filter(|t| t.keep_cell_means)?;
-        let corrected = (0..values.len())
+        let Some(t) = self.transport.filter(|t| t.keep_cell_means) else {
+            return values.to_vec();
+        };
+        (0..values.len())
             .into_par_iter()
             .map(|o| {
                 let inv = t.inverse_sigma_s[o] as f64;
@@ -318,15 +325,18 @@ impl<'a> CellLattice<'a> {
                     values[o]
                 }
             })
-            .collect();
-        let plain = CellLattice {
-            transport: Some(TransportLattice {
+            .collect()
+    }
+
+    /// This lattice without the correction of its centre values.
+    fn plain(&self) -> CellLattice<'a> {
+        CellLattice {
+            transport: self.transport.map(|t| TransportLattice {
                 keep_cell_means: false,
                 ..t
             }),
             ..*self
-        };
-        Some((corrected, plain))
+        }
     }
 }
 
@@ -341,10 +351,15 @@ pub struct CellSource<'a> {
 impl<'a> CellSource<'a> {
     pub fn new(values: &'a [f32], lattice: CellLattice<'a>) -> Self {
         // One value per cell and direction-free: the centre values that keep each cell's
-        // mean are found once here, not from 7 cells at every step of the render.
-        let (values, lattice) = match lattice.with_cell_means_kept(values) {
-            Some((corrected, plain)) => (std::borrow::Cow::Owned(corrected), plain),
-            None => (std::borrow::Cow::Borrowed(values), lattice),
+        // mean are found once here, not from 7 cells at every step of the render (a
+        // solution's renders share them: [`channel_scattering`]).
+        let (values, lattice) = if lattice.keeps_cell_means() {
+            (
+                std::borrow::Cow::Owned(lattice.centre_values(values)),
+                lattice.plain(),
+            )
+        } else {
+            (std::borrow::Cow::Borrowed(values), lattice)
         };
         let max = lattice.bound(&values, 1);
         CellSource {
@@ -587,10 +602,18 @@ pub fn channel_scattering<'a>(
         return Ok(Box::new(first));
     }
     Ok(match (&ch.scattered, &solution.bins) {
-        (ScatteredField::Isotropic { higher_order, .. }, _) => Box::new((
-            first,
-            CellSource::new(higher_order, CellLattice::of(solution, c, ch)?),
-        )),
+        (ScatteredField::Isotropic { higher_order, .. }, _) => {
+            let lattice = CellLattice::of(solution, c, ch)?;
+            let source = if lattice.keeps_cell_means() {
+                let centre = ch
+                    .render_cache
+                    .centre_values(|| lattice.centre_values(higher_order));
+                CellSource::new(centre, lattice.plain())
+            } else {
+                CellSource::new(higher_order, lattice)
+            };
+            Box::new((first, source))
+        }
         (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
             let logs = ch.render_cache.log_source(higher_order);
             Box::new((

@@ -90,6 +90,8 @@ pub struct RenderCache {
     transport: std::sync::OnceLock<Result<TransportCache, String>>,
     /// `1/σs` per data cell, for `nearest` renders of a source solved on the data grid.
     own_grid: std::sync::OnceLock<InverseScattering>,
+    /// A per-cell source's centre values that keep each cell's mean (`nearest` renders).
+    centre_values: std::sync::OnceLock<Vec<f32>>,
 }
 
 /// `1/σs` of one channel per cell of the grid a source lives on (0 where a cell does not
@@ -180,6 +182,12 @@ impl RenderCache {
     pub fn own_grid(&self, medium: &Medium, c: usize) -> &InverseScattering {
         self.own_grid
             .get_or_init(|| InverseScattering::of_channel(medium, c))
+    }
+
+    /// The channel's per-cell source's centre values, made by `make` on the first call (the
+    /// same source on every call).
+    pub fn centre_values(&self, make: impl FnOnce() -> Vec<f32>) -> &[f32] {
+        self.centre_values.get_or_init(make)
     }
 
     /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
