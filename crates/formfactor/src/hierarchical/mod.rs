@@ -1,7 +1,7 @@
 //! The hierarchical zonal operator: an octree of cell clusters linked by an error oracle.
 //!
 //! Clusters form a regular pyramid: level 0 is the cells, level `l` the `2^l`-cell blocks. A
-//! cluster carries its interception sum `Σ α_i` (α = 1 − e^{−σt ℓ̄}; extinction in the thin
+//! cluster carries its interception sum `Σ α_i` (α the chord-averaged interception; extinction in the thin
 //! limit), the largest escape factor `β` of its cells, its α-weighted centroid and its mean
 //! σt (the optical-depth pyramid used for transmittance between clusters).
 //!
@@ -10,7 +10,8 @@
 //! oracle) its boxes are more than R cells apart, `ρ = (r_A + r_B)/d ≤ θ`, and the estimated
 //! transferred fraction times the relative transfer error, `m_AB ρ² ≤ tolerance`. Leaf pairs
 //! within R cells use the exact near-field terms of [`crate::zonal`]; other leaf pairs use the
-//! exact far estimate. A link carries `K_AB = G T_AB / d²`, so that `F_ij = α_i β_j K_AB` for
+//! exact far estimate. A link carries `K_AB = G T_AB / d² · (1 + (v_A + v_B)/d²)` (`v` the
+//! clusters' per-axis spread of points), so that `F_ij = α_i β_j K_AB` for
 //! `i ∈ A, j ∈ B`: reciprocal (`F/σt` symmetric) by construction since each unordered pair is
 //! stored once and applied both ways. Column sums are accounted per cell after the build and
 //! any above 1 corrected by the symmetric scaling `D F D` (as for the exact matrix).
@@ -25,7 +26,9 @@ use medium::{traversal::Ray, Grid, Medium};
 use rayon::prelude::*;
 use solver::TransportOperator;
 
-use crate::zonal::kernel::{escape, geometry_factor, interception, mean_chord, NearStencil};
+use crate::zonal::kernel::{
+    escape, geometry_factor, interception, self_shielding_depth, NearStencil,
+};
 use crate::zonal::{
     active_cells, albedo_vec, channel_of, far_entry, near_columns, near_entry, symmetrizer_weights,
     validate_near, BuildReport, FormFactorError, NearQuadrature,
@@ -66,6 +69,9 @@ struct Level {
     alpha_sum: Vec<f64>,
     beta_max: Vec<f64>,
     centroid: Vec<DVec3>,
+    /// Per-axis variance of the cells' points about the centroid (α-weighted, each cell's own
+    /// `h²/12` included); empty at level 0, where it is `h²/12` for every cell.
+    spread: Vec<f64>,
     sigma_mean: Vec<f32>,
     /// Links into each cluster (receiver-sorted): `link_ptr[A]..link_ptr[A+1]`.
     link_ptr: Vec<usize>,
@@ -214,12 +220,14 @@ impl HierarchicalOperator {
         }
 
         // The pyramid.
+        let cell_spread = h * h / 12.0;
         let mut levels = vec![Level {
             dims: grid.dims,
             span: 1,
             alpha_sum: alpha.clone(),
             beta_max: beta.clone(),
             centroid: (0..n).map(|i| grid.cell_center(i)).collect(),
+            spread: Vec::new(),
             sigma_mean: sigma_t.clone(),
             link_ptr: Vec::new(),
             link_src: Vec::new(),
@@ -234,12 +242,13 @@ impl HierarchicalOperator {
                 alpha_sum: Vec::new(),
                 beta_max: Vec::new(),
                 centroid: Vec::new(),
+                spread: Vec::new(),
                 sigma_mean: Vec::new(),
                 link_ptr: Vec::new(),
                 link_src: Vec::new(),
                 link_k: Vec::new(),
             };
-            let stats: Vec<(f64, f64, DVec3, f32)> = (0..level.count())
+            let stats: Vec<(f64, f64, DVec3, f64, f32)> = (0..level.count())
                 .into_par_iter()
                 .map(|c| {
                     let (mut a, mut b, mut m, mut s, mut cnt) =
@@ -253,10 +262,21 @@ impl HierarchicalOperator {
                         cnt += cells;
                     }
                     let centroid = if a > 0.0 { m / a } else { DVec3::ZERO };
-                    (a, b, centroid, (s / cnt as f64) as f32)
+                    // Parallel axes: a child's spread plus its centroid's offset (per axis).
+                    let mut spread = 0.0;
+                    if a > 0.0 {
+                        for ch in children(&level, fine, c) {
+                            let own = fine.spread.get(ch).copied().unwrap_or(cell_spread);
+                            let offset = (fine.centroid[ch] - centroid).length_squared() / 3.0;
+                            spread += fine.alpha_sum[ch] * (own + offset);
+                        }
+                        spread /= a;
+                    }
+                    (a, b, centroid, spread, (s / cnt as f64) as f32)
                 })
                 .collect();
-            for (a, b, c, s) in stats {
+            for (a, b, c, v, s) in stats {
+                level.spread.push(v);
                 level.alpha_sum.push(a);
                 level.beta_max.push(b);
                 level.centroid.push(c);
@@ -289,7 +309,10 @@ impl HierarchicalOperator {
                         let rho = 2.0 * rad / d;
                         if rho <= options.max_opening {
                             let t = (-cluster_depth(grid, level, a, b)).exp();
-                            let k = g * t / (d * d);
+                            // The mean of 1/|x − y|² over the clusters' points exceeds 1/d²
+                            // (it is subharmonic): by (v_A + v_B)/d² to second order.
+                            let spread = level.spread[a] + level.spread[b];
+                            let k = g * t / (d * d) * (1.0 + spread / (d * d));
                             let m = k
                                 * (level.alpha_sum[a] * level.beta_max[b])
                                     .max(level.alpha_sum[b] * level.beta_max[a]);
@@ -567,7 +590,8 @@ fn box_gap(grid: &Grid, level: &Level, a: usize, b: usize) -> usize {
 }
 
 /// Optical depth between two clusters of one level along their centroid line, through the
-/// level's mean-σt grid, less half a mean chord of each end (which the cell factors α, β hold).
+/// level's mean-σt grid, less each end's self-shielding depth (which the cell factors α, β
+/// hold; see [`crate::zonal::kernel::depth_between_cells`]).
 fn cluster_depth(grid: &Grid, level: &Level, a: usize, b: usize) -> f64 {
     let (a, b) = if a < b { (a, b) } else { (b, a) };
     let coarse = Grid {
@@ -581,8 +605,7 @@ fn cluster_depth(grid: &Grid, level: &Level, a: usize, b: usize) -> f64 {
         .traverse(&ray, 0.0, r)
         .map(|s| level.sigma_mean[s.cell] as f64 * s.length())
         .sum();
-    let ends = 0.5
-        * mean_chord(grid.cell_size)
+    let ends = self_shielding_depth(grid.cell_size)
         * (level.sigma_mean[a] as f64 + level.sigma_mean[b] as f64);
     (tau - ends).max(0.0)
 }

@@ -1,11 +1,17 @@
 //! The shared far-field kernel (thick-cell estimate) and the near-field ray stencil.
 //!
-//! Far pairs: `F_ij = α_i β_j G T_ij / r²` with the isotropic mean chord `ℓ̄ = 2h/3` of a cube,
-//! `α = 1 − e^{−σt ℓ̄}` (interception), `β = α / (σt ℓ̄)` (mean escape from the emitting
-//! cell), `G = (S/4)/(4π) = 1.5 h² / 4π` (mean projected area over 4π) and `T_ij` the
-//! transmittance between the cells along the centre line, end cells excluded. It is exactly
-//! reciprocal: `F_ij / σt_i = ℓ̄ β_i β_j G T / r²` is symmetric, and tends to Rushmeier's
-//! `σt_i V T / 4π r²` for thin cells.
+//! Far pairs: `F_ij = α_i β_j G T_ij / r²` with `α` the cube's interception averaged over
+//! isotropic uniform (μ-random) chords, `α(σt) = ⟨1 − e^{−σt ℓ}⟩`, `β = α / (σt ℓ̄)` (mean escape
+//! from the emitting cell; `ℓ̄ = 2h/3` the mean chord), `G = (S/4)/(4π) = 1.5 h² / 4π` (mean
+//! projected area over 4π) and `T_ij` the transmittance between the cells (see
+//! [`depth_between_cells`]). It is exactly reciprocal: `F_ij / σt_i = ℓ̄ β_i β_j G T / r²` is
+//! symmetric, and tends to `σt_i V e^{−τ(centre→centre)} / 4π r²` for thin cells, the first
+//! two orders in `σt h` included.
+//!
+//! Why the chord average: `1 − e^{−σt ℓ}` is concave in `ℓ`, so the earlier `1 − e^{−σt ℓ̄}`
+//! over-estimated interception (and escape) by 1 % at `σt h = 0.1`, 5 % at 0.5 and 9 % at 1, and
+//! the light scattered many times at albedo 0.99 compounded it (docs/validation.md, "The zonal
+//! far field").
 //!
 //! Near pairs (Chebyshev offset ≤ R) use the identity
 //! `F_ij = E_{y∈j, ω}[T(y → i) (1 − e^{−σt_i ℓ_i})]`: rays from stratified points of the source
@@ -13,6 +19,7 @@
 //! for the canonical neighbourhood and reused for every cell. Energy is conserved ray by ray.
 
 use std::f64::consts::PI;
+use std::sync::OnceLock;
 
 use glam::DVec3;
 use medium::{traversal::Ray, Grid};
@@ -23,21 +30,141 @@ pub(crate) fn mean_chord(h: f64) -> f64 {
     2.0 * h / 3.0
 }
 
-/// `α = 1 − e^{−σt ℓ̄}`, the chance that a ray from afar is extinguished in the cell.
-#[inline]
-pub(crate) fn interception(sigma_t: f64, h: f64) -> f64 {
-    -(-sigma_t * mean_chord(h)).exp_m1()
+/// The unit cube's μ-random chords (isotropic directions, uniform over each direction's
+/// projected area), as the interception `⟨1 − e^{−x ℓ}⟩` tabulated against `x = σt h` and the
+/// self-shielding depth `⟨ℓ²⟩ / 2⟨ℓ⟩`. Made once per process by a deterministic quadrature
+/// (256 directions × 128² lateral points, 4.2 M chords, a few tens of ms).
+struct CubeChords {
+    /// `ln x` of the first table entry and the step in `ln x`.
+    ln_x0: f64,
+    ln_step: f64,
+    /// `⟨1 − e^{−x ℓ}⟩ / (1 − e^{−x ℓ̄})` at `x = e^{ln_x0 + k ln_step}`: smooth, 1 for thin
+    /// cells, about 0.92 for opaque ones.
+    ratio: Vec<f64>,
+    /// `⟨ℓ²⟩ / 2⟨ℓ⟩` for the unit cube (≈ 0.448; `ℓ̄/2 = 1/3` would be exact only if every
+    /// chord were as long as the mean).
+    shielding_depth: f64,
 }
 
-/// `β = (1 − e^{−τ})/τ`, `τ = σt ℓ̄`: the mean escape of light emitted uniformly in the cell.
+fn cube_chords() -> &'static CubeChords {
+    static CHORDS: OnceLock<CubeChords> = OnceLock::new();
+    CHORDS.get_or_init(|| {
+        // Chord lengths of the unit cube, weighted by projected area, in a fine histogram
+        // (sum of weights and of weight × length per bin, so each bin holds its mean length).
+        const BINS: usize = 4096;
+        const DIRECTIONS: usize = 256;
+        const LATERAL: usize = 128;
+        let longest = 3f64.sqrt();
+        let mut weight = vec![0.0f64; BINS];
+        let mut length = vec![0.0f64; BINS];
+        let golden = PI * (3.0 - 5f64.sqrt());
+        let reach = 0.5 * longest;
+        let step = 2.0 * reach / LATERAL as f64;
+        for k in 0..DIRECTIONS {
+            // A hemisphere suffices: the cube is centrally symmetric.
+            let z = 1.0 - (k as f64 + 0.5) / DIRECTIONS as f64;
+            let rho = (1.0 - z * z).sqrt();
+            let phi = golden * k as f64;
+            let u = DVec3::new(rho * phi.cos(), rho * phi.sin(), z);
+            let helper = if u.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+            let v1 = u.cross(helper).normalize();
+            let v2 = u.cross(v1);
+            for a in 0..LATERAL {
+                for b in 0..LATERAL {
+                    let p = v1 * (-reach + (a as f64 + 0.5) * step)
+                        + v2 * (-reach + (b as f64 + 0.5) * step);
+                    // Slab intersection of the line p + t u with [−½, ½]³.
+                    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+                    for axis in 0..3 {
+                        let (o, d) = (p[axis], u[axis]);
+                        if d.abs() < 1e-12 {
+                            if o.abs() > 0.5 {
+                                t1 = f64::NEG_INFINITY;
+                            }
+                            continue;
+                        }
+                        let (ta, tb) = ((-0.5 - o) / d, (0.5 - o) / d);
+                        t0 = t0.max(ta.min(tb));
+                        t1 = t1.min(ta.max(tb));
+                    }
+                    let chord = t1 - t0;
+                    if chord > 0.0 {
+                        let bin = ((chord / longest * BINS as f64) as usize).min(BINS - 1);
+                        weight[bin] += 1.0;
+                        length[bin] += chord;
+                    }
+                }
+            }
+        }
+        let chords: Vec<(f64, f64)> = weight
+            .iter()
+            .zip(&length)
+            .filter(|(&w, _)| w > 0.0)
+            .map(|(&w, &l)| (w, l / w))
+            .collect();
+        let total: f64 = chords.iter().map(|c| c.0).sum();
+        let first: f64 = chords.iter().map(|c| c.0 * c.1).sum::<f64>() / total;
+        let second: f64 = chords.iter().map(|c| c.0 * c.1 * c.1).sum::<f64>() / total;
+        let (ln_x0, ln_x1, count) = ((1e-4f64).ln(), (1e4f64).ln(), 241);
+        let ln_step = (ln_x1 - ln_x0) / (count - 1) as f64;
+        let ratio = (0..count)
+            .map(|k| {
+                let x = (ln_x0 + k as f64 * ln_step).exp();
+                let mean: f64 = chords
+                    .iter()
+                    .map(|&(w, l)| -w * (-x * l).exp_m1())
+                    .sum::<f64>()
+                    / total;
+                mean / -(-x * first).exp_m1()
+            })
+            .collect();
+        CubeChords {
+            ln_x0,
+            ln_step,
+            ratio,
+            shielding_depth: second / (2.0 * first),
+        }
+    })
+}
+
+/// `α = ⟨1 − e^{−σt ℓ}⟩` over the cube's μ-random chords: the chance that a ray from afar is
+/// extinguished in the cell.
+#[inline]
+pub(crate) fn interception(sigma_t: f64, h: f64) -> f64 {
+    let x = sigma_t * h;
+    if x <= 0.0 {
+        return 0.0;
+    }
+    let table = cube_chords();
+    let ln_x = x.ln();
+    if ln_x < table.ln_x0 {
+        // Thinner than the table: the ratio's first-order term, `1 − x (s − ℓ̄/2)`.
+        let slope = (1.0 - table.ratio[0]) / table.ln_x0.exp();
+        return -(-sigma_t * mean_chord(h)).exp_m1() * (1.0 - slope * x);
+    }
+    let at = ((ln_x - table.ln_x0) / table.ln_step).min((table.ratio.len() - 1) as f64);
+    let k = (at as usize).min(table.ratio.len() - 2);
+    let f = at - k as f64;
+    let ratio = table.ratio[k] * (1.0 - f) + table.ratio[k + 1] * f;
+    -(-sigma_t * mean_chord(h)).exp_m1() * ratio
+}
+
+/// `β = α / (σt ℓ̄)`: the mean escape of light emitted uniformly in the cell.
 #[inline]
 pub(crate) fn escape(sigma_t: f64, h: f64) -> f64 {
     let tau = sigma_t * mean_chord(h);
     if tau < 1e-8 {
-        1.0 - 0.5 * tau
+        1.0 - sigma_t * self_shielding_depth(h)
     } else {
-        -(-tau).exp_m1() / tau
+        interception(sigma_t, h) / tau
     }
+}
+
+/// `⟨ℓ²⟩ / 2⟨ℓ⟩` of a cube of side `h` (≈ 0.448 h): the depth at which a thin cell shields its
+/// own light, `α ≈ σt ℓ̄ (1 − σt · this)`.
+#[inline]
+pub(crate) fn self_shielding_depth(h: f64) -> f64 {
+    cube_chords().shielding_depth * h
 }
 
 /// `G = 1.5 h² / 4π`.
@@ -46,7 +173,14 @@ pub(crate) fn geometry_factor(h: f64) -> f64 {
     1.5 * h * h / (4.0 * PI)
 }
 
-/// Optical depth between two distinct cells along their centre line, end cells excluded.
+/// Optical depth between two distinct cells for [`far_entry`](super::far_entry): along their
+/// centre line, the end cells excluded, plus the line's first and last `e − s` beyond the end
+/// cells, where `e` is the line's half-length inside an end cell and `s` the
+/// [`self_shielding_depth`]. Why: the end cells' own attenuation is in `α`, `β` (thin:
+/// `e^{−σt s}` each), while the line from centre to centre crosses `e ≥ h/2` of each end; the
+/// rays between the cells' points cross, on average, that much more of the cells next to them.
+/// In a uniform medium this is `σt (r − 2s)`, and the far estimate then matches the exact
+/// double integral to 1–3 % for `σt h ≤ 1` (it was 2–170 % high, most along diagonals).
 /// Always traced from the lower index to the higher so that `τ_ij = τ_ji` bit for bit.
 pub(crate) fn depth_between_cells(grid: &Grid, sigma_t: &[f32], i: usize, j: usize) -> f64 {
     let (a, b) = if i < j { (i, j) } else { (j, i) };
@@ -54,9 +188,23 @@ pub(crate) fn depth_between_cells(grid: &Grid, sigma_t: &[f32], i: usize, j: usi
     let cb = grid.cell_center(b);
     let r = (cb - ca).length();
     let ray = Ray::new(ca, cb - ca);
+    let dir = (cb - ca) / r;
+    // Half the line inside a cube along `dir` (both ends are cubes of the same size).
+    let e = 0.5 * grid.cell_size / dir.abs().max_element();
+    let reach = (e - self_shielding_depth(grid.cell_size)).max(0.0);
+    let (near_a, near_b) = (e + reach, r - e - reach);
     grid.traverse(&ray, 0.0, r)
         .filter(|s| s.cell != a && s.cell != b)
-        .map(|s| sigma_t[s.cell] as f64 * s.length())
+        .map(|s| {
+            let sigma = sigma_t[s.cell] as f64;
+            let (t0, t1) = (s.t_enter.max(e), s.t_exit.min(r - e));
+            if t1 <= t0 || sigma == 0.0 {
+                return 0.0;
+            }
+            // Lengths of the segment within the two reaches beyond the end cells count twice.
+            let extra = (t1.min(near_a) - t0).max(0.0) + (t1 - t0.max(near_b)).max(0.0);
+            sigma * (t1 - t0 + extra)
+        })
         .sum()
 }
 
@@ -253,5 +401,119 @@ impl NearStencil {
         let inv = 1.0 / self.rays() as f64;
         column.iter_mut().for_each(|c| *c *= inv);
         escaped * inv
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// μ-random chords of the unit cube drawn at random: a uniform direction and a uniform
+    /// point of a disc that covers every projection (independent of the quadrature above).
+    fn random_chords(count: usize) -> Vec<f64> {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let reach = 0.5 * 3f64.sqrt();
+        let mut chords = Vec::with_capacity(count);
+        while chords.len() < count {
+            let z: f64 = 1.0 - 2.0 * rng.random::<f64>();
+            let phi = 2.0 * PI * rng.random::<f64>();
+            let s = (1.0 - z * z).sqrt();
+            let u = DVec3::new(s * phi.cos(), s * phi.sin(), z);
+            let helper = if u.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+            let (v1, v2) = (
+                u.cross(helper).normalize(),
+                u.cross(u.cross(helper).normalize()),
+            );
+            let (rr, th) = (
+                reach * rng.random::<f64>().sqrt(),
+                2.0 * PI * rng.random::<f64>(),
+            );
+            let p = v1 * rr * th.cos() + v2 * rr * th.sin();
+            let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+            for a in 0..3 {
+                let (ta, tb) = ((-0.5 - p[a]) / u[a], (0.5 - p[a]) / u[a]);
+                t0 = t0.max(ta.min(tb));
+                t1 = t1.min(ta.max(tb));
+            }
+            if t1 > t0 {
+                chords.push(t1 - t0);
+            }
+        }
+        chords
+    }
+
+    /// The interception is the chord average `⟨1 − e^{−x ℓ}⟩`, not `1 − e^{−x ℓ̄}` (which is
+    /// 1.1 % / 5.1 % / 9.1 % / 15.5 % higher at x = 0.1 / 0.5 / 1 / 4), and its thin limit
+    /// carries the cube's own second moment.
+    #[test]
+    fn interception_is_the_chord_average_of_the_cube() {
+        let chords = random_chords(400_000);
+        let mean = chords.iter().sum::<f64>() / chords.len() as f64;
+        assert!((mean - 2.0 / 3.0).abs() < 2e-3, "mean chord {mean}");
+        for x in [0.01, 0.1, 0.5, 1.0, 4.0, 30.0] {
+            let sampled =
+                chords.iter().map(|l| -(-x * l).exp_m1()).sum::<f64>() / chords.len() as f64;
+            let table = interception(x, 1.0);
+            assert!(
+                (table / sampled - 1.0).abs() < 3e-3,
+                "x {x}: table {table}, sampled {sampled}"
+            );
+            // The same for another cell size: α depends on σt h only.
+            assert!((interception(x / 2.0, 2.0) / table - 1.0).abs() < 1e-12);
+        }
+        let second = chords.iter().map(|l| l * l).sum::<f64>() / chords.len() as f64;
+        let depth = second / (2.0 * mean);
+        assert!(
+            (self_shielding_depth(1.0) / depth - 1.0).abs() < 5e-3,
+            "shielding depth {} vs sampled {depth}",
+            self_shielding_depth(1.0)
+        );
+        // Thin cells: β = 1 − σt s to first order, continuous across the series' switch.
+        let s = 1e-5;
+        let series = 1.0 - s * self_shielding_depth(1.0);
+        assert!(
+            (escape(s, 1.0) - series).abs() < 1e-8,
+            "{} vs {series}",
+            escape(s, 1.0)
+        );
+        assert!((escape(1.6e-8, 1.0) - escape(1.4e-8, 1.0)).abs() < 1e-8);
+    }
+
+    /// The far estimate against the exact double integral
+    /// `σt V ⟨e^{−σt |x−y|} / 4π |x−y|²⟩` over two cubes of a uniform medium. Measured: within
+    /// 0.1–2.7 % for σt h ≤ 1 at offsets of 5–8 cells, axis to diagonal; the estimate before
+    /// (the mean chord in α and β, the centre line's depth outside the end cells) was 2–171 %
+    /// high, most along diagonals.
+    #[test]
+    fn far_estimate_matches_the_double_integral_in_a_uniform_medium() {
+        let grid = Grid::new([14, 14, 14], 1.0).unwrap();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        for sigma in [0.1f32, 0.5, 1.0] {
+            let sigma_t = vec![sigma; grid.cell_count()];
+            for offset in [[5, 0, 0], [5, 3, 0], [5, 5, 5], [8, 0, 0], [8, 4, 2]] {
+                let (i, j) = (
+                    grid.index(0, 0, 0),
+                    grid.index(offset[0], offset[1], offset[2]),
+                );
+                let estimate = super::super::far_entry(&grid, &sigma_t, i, j);
+                let samples = 200_000;
+                let mut sum = 0.0;
+                let o = DVec3::new(offset[0] as f64, offset[1] as f64, offset[2] as f64);
+                for _ in 0..samples {
+                    let x = DVec3::new(rng.random(), rng.random(), rng.random());
+                    let y = o + DVec3::new(rng.random(), rng.random(), rng.random());
+                    let d = (y - x).length();
+                    sum += (-(sigma as f64) * d).exp() / (d * d);
+                }
+                let exact = sigma as f64 * sum / samples as f64 / (4.0 * PI);
+                let error = estimate / exact - 1.0;
+                println!("σt {sigma}, offset {offset:?}: {:+.2} %", 100.0 * error);
+                assert!(
+                    error.abs() < 0.04,
+                    "σt {sigma}, offset {offset:?}: estimate {estimate:.4e}, exact {exact:.4e} ({error:+.3})"
+                );
+            }
+        }
     }
 }

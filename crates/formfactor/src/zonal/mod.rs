@@ -3,7 +3,7 @@
 //! `F_ij = σt_i/(4π V_i) ∫_{V_i}∫_{V_j} T(x,y)/|x−y|² dx dy`, built as:
 //! - near pairs (Chebyshev offset ≤ R, the self term included) by the ray quadrature of
 //!   [`kernel::NearStencil`], symmetrised in the reciprocal form `S = F/σt`;
-//! - far pairs by the thick-cell estimate `α_i β_j G T_ij / r²` (exactly reciprocal);
+//! - far pairs by the thick-cell estimate `α_i β_j G T_ij / r² · (1 + h²/6r²)` (exactly reciprocal);
 //! - then, only where a column sum exceeds 1 (quadrature error at large σt·h), the symmetric
 //!   diagonal scaling `F ← D F D`, `d_j = min(1, 1/c_j)`, which keeps `F/σt` symmetric and makes
 //!   every column sum ≤ 1 (`Σ_i d_i F_ij d_j ≤ d_j c_j ≤ 1`).
@@ -165,14 +165,17 @@ pub(crate) fn near_entry(
     0.5 * (f_ij + sigma_t[i] as f64 / sigma_t[j] as f64 * f_ji)
 }
 
-/// The far-field estimate `F_ij = α_i β_j G T_ij / r²` for distinct cells.
+/// The far-field estimate `F_ij = α_i β_j G T_ij / r² · (1 + h²/6r²)` for distinct cells.
 #[inline]
 pub(crate) fn far_entry(grid: &Grid, sigma_t: &[f32], i: usize, j: usize) -> f64 {
     let h = grid.cell_size;
     let (si, sj) = (sigma_t[i] as f64, sigma_t[j] as f64);
     let r2 = (grid.cell_center(i) - grid.cell_center(j)).length_squared();
     let t = (-depth_between_cells(grid, sigma_t, i, j)).exp();
-    interception(si, h) * escape(sj, h) * geometry_factor(h) * t / r2
+    // The mean of 1/|x − y|² over two cubes exceeds 1/r² (it is subharmonic): by h²/6r² to
+    // second order (each cube's points vary by h²/12 per axis).
+    let spread = 1.0 + h * h / (6.0 * r2);
+    interception(si, h) * escape(sj, h) * geometry_factor(h) * t / r2 * spread
 }
 
 /// Weights `w_i = 1/(a_i σt_i)` making `diag(w)·diag(a)·F` symmetric; `None` when an active
