@@ -7,9 +7,13 @@
 //! cargo run --release -p formfactor --example zonal_conservation -- \
 //!     tests/data/cloud24-isotropic/cloud24.f32 24,24,18 1.0 20000
 //! ```
-//! Arguments: a raw little-endian f32 σt file (x fastest), its dims, the cell size, and the
-//! rays traced per cell (default 20,000). docs/validation.md, "The zonal far field", quotes it.
+//! Arguments: a raw little-endian f32 σt file (x fastest), its dims, the cell size, the
+//! rays traced per cell (default 20,000) and a factor on σt (default 1). The hierarchical
+//! operator's column sums are compared too (its default options; `VOLRAD_TOLERANCE` and
+//! `VOLRAD_MAX_OPENING` override its tolerance and largest opening). docs/validation.md,
+//! "The zonal far field", quotes it.
 use formfactor::zonal::{ExactOptions, FormFactorMatrix};
+use formfactor::{HierarchicalOperator, HierarchicalOptions};
 use glam::DVec3;
 use medium::{traversal::Ray, Grid, Medium, PhaseFunction};
 use rand::{Rng, SeedableRng};
@@ -21,10 +25,11 @@ fn main() {
     let dims: Vec<usize> = args[2].split(',').map(|v| v.parse().unwrap()).collect();
     let h: f64 = args[3].parse().unwrap();
     let rays: usize = args.get(4).map(|v| v.parse().unwrap()).unwrap_or(20000);
+    let scale: f32 = args.get(5).map(|v| v.parse().unwrap()).unwrap_or(1.0);
     let bytes = std::fs::read(path).unwrap();
     let sigma: Vec<f32> = bytes
         .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .map(|c| scale * f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
         .collect();
     let grid = Grid::new([dims[0], dims[1], dims[2]], h).unwrap();
     let medium = Medium::grey(grid, sigma.clone(), 0.99, PhaseFunction::Isotropic).unwrap();
@@ -32,6 +37,14 @@ fn main() {
     let f = FormFactorMatrix::build(&medium, 0, &ExactOptions::default(), None).unwrap();
     println!("operator built in {:.3} s", start.elapsed().as_secs_f64());
     let cols = f.column_sums();
+    let hierarchy = HierarchicalOperator::build(&medium, 0, &hierarchy_options()).unwrap();
+    let hierarchy_cols = hierarchy.column_sums();
+    println!(
+        "hierarchy: {} links, {} near entries, built in {:.2} s",
+        hierarchy.link_count(),
+        hierarchy.near_entries(),
+        hierarchy.report().seconds
+    );
     let active: Vec<usize> = (0..sigma.len()).filter(|&i| sigma[i] > 0.0).collect();
     let r = 4i64;
     // near / far parts of each column from the matrix
@@ -85,24 +98,39 @@ fn main() {
         })
         .collect();
     let (mut w, mut dt, mut dn, mut df, mut st, mut sabs) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut dh = 0.0;
     for (k, &j) in active.iter().enumerate() {
         let wt = sigma[j] as f64;
         let (tt, tn) = traced[k];
         w += wt;
         st += wt * tt;
         dt += wt * (cols[j] - tt);
+        dh += wt * (hierarchy_cols[j] - tt);
         sabs += wt * (cols[j] - tt).abs();
         dn += wt * (near[j] - tn);
         df += wt * ((cols[j] - near[j]) - (tt - tn));
     }
     println!(
         "{} cells; traced extinction {:.5}; operator − traced: total {:+.5} (mean |·| {:.5}), \
-         near field {:+.5}, far field {:+.5}",
+         near field {:+.5}, far field {:+.5}; the hierarchy − traced: total {:+.5}",
         active.len(),
         st / w,
         dt / w,
         sabs / w,
         dn / w,
         df / w,
+        dh / w,
     );
+}
+
+/// The hierarchy's default options, `VOLRAD_TOLERANCE` and `VOLRAD_MAX_OPENING` overriding.
+fn hierarchy_options() -> HierarchicalOptions {
+    let mut options = HierarchicalOptions::default();
+    if let Ok(v) = std::env::var("VOLRAD_TOLERANCE") {
+        options.tolerance = v.parse().unwrap();
+    }
+    if let Ok(v) = std::env::var("VOLRAD_MAX_OPENING") {
+        options.max_opening = v.parse().unwrap();
+    }
+    options
 }
