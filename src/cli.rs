@@ -73,7 +73,8 @@ pub struct ValidateArgs {
     /// discrete-ordinates, two-pass, path-trace; default: all).
     #[arg(long, value_delimiter = ',')]
     pub methods: Vec<String>,
-    /// Directory for report.md, report.json and the images.
+    /// Directory for report.md, report.json and the images (images an earlier report there
+    /// showed and this one does not are removed).
     #[arg(short = 'o', long = "output", default_value = "docs/validation")]
     pub output: PathBuf,
     /// Few samples (64-spp reference, 4 spp renders, 16-spp path tracing): CI-sized runs.

@@ -396,6 +396,7 @@ pub fn run(options: &ValidateOptions, command: &str) -> Result<ValidationReport>
     }
     std::fs::create_dir_all(&options.out)
         .with_context(|| format!("creating {}", options.out.display()))?;
+    let earlier_images = images_of_report(&options.out.join("report.json"));
 
     let views = options.settings.views.max(1) as u64;
     let steps = cases.len() as u64 * views * (1 + options.methods.len() as u64);
@@ -432,7 +433,54 @@ pub fn run(options: &ValidateOptions, command: &str) -> Result<ValidationReport>
         &serde_json::to_string_pretty(&report)?,
     )?;
     write_png(&options.out.join("error-scale.png"), &error_scale_bar())?;
+    // The images an earlier report in this folder showed and this one does not (a method or
+    // a worst view that changed) would otherwise stay beside it, looking current.
+    let shown = report_images(&report);
+    for stale in earlier_images.iter().filter(|name| !shown.contains(*name)) {
+        let path = options.out.join(stale);
+        if let Err(e) = std::fs::remove_file(&path) {
+            if e.kind() != std::io::ErrorKind::NotFound {
+                tracing::warn!(path = %path.display(), error = %e, "could not remove a stale image");
+            }
+        }
+    }
     Ok(report)
+}
+
+/// The image files a report shows.
+fn report_images(report: &ValidationReport) -> Vec<String> {
+    report
+        .scenes
+        .iter()
+        .flat_map(|scene| &scene.methods)
+        .flat_map(|method| &method.views)
+        .filter_map(|view| view.image.clone())
+        .collect()
+}
+
+/// The image files the `report.json` at `path` names, if there is one: only plain `.png`
+/// names (no folders), so that nothing but what `validate` wrote there is ever removed.
+fn images_of_report(path: &Path) -> Vec<String> {
+    let Ok(bytes) = std::fs::read(path) else {
+        return Vec::new();
+    };
+    let Ok(json) = serde_json::from_slice::<serde_json::Value>(&bytes) else {
+        return Vec::new();
+    };
+    let list = |v: &serde_json::Value, key: &str| -> Vec<serde_json::Value> {
+        v[key].as_array().cloned().unwrap_or_default()
+    };
+    list(&json, "scenes")
+        .iter()
+        .flat_map(|scene| list(scene, "methods"))
+        .flat_map(|method| list(&method, "views"))
+        .filter_map(|view| view["image"].as_str().map(str::to_string))
+        .filter(|name| {
+            name.ends_with(".png")
+                && Path::new(name).file_name() == Some(std::ffi::OsStr::new(name))
+                && !name.starts_with('.')
+        })
+        .collect()
 }
 
 /// Name of a scene in the report and image files: its directory for `scene.toml`, else its

@@ -142,6 +142,25 @@ fn quick_validation_reports_every_method_with_images() {
     }
 }
 
+/// A second report into the same folder removes the images the first one showed and it does
+/// not (here: a method left out), and keeps other files.
+#[test]
+fn a_new_report_removes_the_images_only_the_old_one_showed() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let out = dir.path().join("report");
+    let o = quick_validate(&scene, &out, &["--methods", "zonal,single-scatter"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("tiny_single-scatter.png").exists());
+    std::fs::write(out.join("notes.png"), b"not validate's").unwrap();
+    let o = quick_validate(&scene, &out, &["--methods", "zonal"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("tiny_zonal.png").exists());
+    assert!(!out.join("tiny_single-scatter.png").exists());
+    assert!(out.join("notes.png").exists());
+    assert!(out.join("error-scale.png").exists());
+}
+
 #[test]
 fn variants_and_orbit_views_are_each_measured_and_the_worst_is_named() {
     let dir = tempfile::tempdir().unwrap();
