@@ -418,13 +418,22 @@ pub fn check_solve(
     let Some(limit) = limit else {
         return Ok(());
     };
-    let occupancy = Occupancy::of(&scene.medium);
-    let estimate = solve_peak(scene, settings, &occupancy);
+    check_solve_occupied(scene, settings, limit, &Occupancy::of(&scene.medium))
+}
+
+/// [`check_solve`] for a caller that has the medium's [`Occupancy`] already.
+pub fn check_solve_occupied(
+    scene: &Scene,
+    settings: &SolveSettings,
+    limit: MemoryLimit,
+    occupancy: &Occupancy,
+) -> Result<()> {
+    let estimate = solve_peak(scene, settings, occupancy);
     if estimate.total() <= limit.bytes {
         return Ok(());
     }
     let largest = estimate.largest();
-    let fits = alternatives(&occupancy, scene, settings, limit.bytes);
+    let fits = alternatives(occupancy, scene, settings, limit.bytes);
     let advice = if fits.is_empty() {
         "nothing fits on this grid: use a coarser grid (fewer cells)".to_string()
     } else {

@@ -72,14 +72,18 @@ pub fn solve_scene(
     // Before any light pass or operator: an iteration the method cannot run is refused now.
     crate::engine::methods::check_iteration(settings)?;
     crate::engine::methods::check_environment(scene, settings)?;
-    crate::engine::budget::check_solve(scene, settings, hooks.memory_limit)?;
     let medium = &scene.medium;
-    if let Some(tell) = &hooks.on_prediction {
-        let occupancy = crate::engine::budget::Occupancy::of(medium);
+    // Both the memory check and the prediction count the non-empty cells: once.
+    let occupancy = (hooks.memory_limit.is_some() || hooks.on_prediction.is_some())
+        .then(|| crate::engine::budget::Occupancy::of(medium));
+    if let (Some(limit), Some(occupancy)) = (hooks.memory_limit, &occupancy) {
+        crate::engine::budget::check_solve_occupied(scene, settings, limit, occupancy)?;
+    }
+    if let (Some(tell), Some(occupancy)) = (&hooks.on_prediction, &occupancy) {
         let predicted = crate::engine::timing::solve_time(
             scene,
             settings,
-            &occupancy,
+            occupancy,
             rayon::current_num_threads(),
         );
         tracing::debug!(
