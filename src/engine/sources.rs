@@ -10,7 +10,9 @@ use gather::{InScattering, OpticalModel, RayCarry, StepSample, Trilinear, ViewSe
 use glam::DVec3;
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium};
 
-use crate::engine::solution::{ChannelSolution, InverseScattering, ScatteredField, Solution};
+use crate::engine::solution::{
+    ChannelSolution, InverseScattering, RenderCache, ScatteredField, Solution,
+};
 
 /// Where a per-cell source is drawn between cell centres: `trilinear` renders (which call
 /// `at`) reconstruct the source function `Q/σt` trilinearly over the cells with σt > 0 and
@@ -350,14 +352,26 @@ pub struct CellSource<'a> {
 
 impl<'a> CellSource<'a> {
     pub fn new(values: &'a [f32], lattice: CellLattice<'a>) -> Self {
+        Self::drawn(values, lattice, None)
+    }
+
+    /// As [`new`](Self::new), the corrected centre values (if the lattice keeps cell means)
+    /// kept in `cache` for every render of the same solution channel.
+    pub fn cached(values: &'a [f32], lattice: CellLattice<'a>, cache: &'a RenderCache) -> Self {
+        Self::drawn(values, lattice, Some(cache))
+    }
+
+    fn drawn(values: &'a [f32], lattice: CellLattice<'a>, cache: Option<&'a RenderCache>) -> Self {
         // One value per cell and direction-free: the centre values that keep each cell's
-        // mean are found once here, not from 7 cells at every step of the render (a
-        // solution's renders share them: [`channel_scattering`]).
+        // mean are found once per source (or per solution, with a cache), not from 7 cells
+        // at every step of the render.
         let (values, lattice) = if lattice.keeps_cell_means() {
-            (
-                std::borrow::Cow::Owned(lattice.centre_values(values)),
-                lattice.plain(),
-            )
+            let make = || lattice.centre_values(values);
+            let centre = match cache {
+                Some(cache) => std::borrow::Cow::Borrowed(cache.centre_values(make)),
+                None => std::borrow::Cow::Owned(make()),
+            };
+            (centre, lattice.plain())
         } else {
             (std::borrow::Cow::Borrowed(values), lattice)
         };
@@ -602,18 +616,14 @@ pub fn channel_scattering<'a>(
         return Ok(Box::new(first));
     }
     Ok(match (&ch.scattered, &solution.bins) {
-        (ScatteredField::Isotropic { higher_order, .. }, _) => {
-            let lattice = CellLattice::of(solution, c, ch)?;
-            let source = if lattice.keeps_cell_means() {
-                let centre = ch
-                    .render_cache
-                    .centre_values(|| lattice.centre_values(higher_order));
-                CellSource::new(centre, lattice.plain())
-            } else {
-                CellSource::new(higher_order, lattice)
-            };
-            Box::new((first, source))
-        }
+        (ScatteredField::Isotropic { higher_order, .. }, _) => Box::new((
+            first,
+            CellSource::cached(
+                higher_order,
+                CellLattice::of(solution, c, ch)?,
+                &ch.render_cache,
+            ),
+        )),
         (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
             let logs = ch.render_cache.log_source(higher_order);
             Box::new((
