@@ -29,10 +29,10 @@ fn scene() -> Scene {
 
 /// The zonal solution rendered with 16 spp (box filter, like the reference), against the
 /// reference, its noise taken out: issue #4's floor is 3 % relative RMS over the pixels above
-/// 1 % of the maximum. Measured 1.3 % (mean +1.1 %) since a `nearest` medium's solved source
-/// is drawn as its cells' σs times the in-scattered radiance interpolated between centres,
-/// keeping each cell's mean; 1.6 % with the source constant per cell (the code before),
-/// which the bound refuses.
+/// 1 % of the maximum. Measured 1.0 % (mean +0.1 %) since the far field's correction; 1.3 %
+/// (+1.1 %) before it, since a `nearest` medium's solved source is drawn as its cells' σs
+/// times the in-scattered radiance interpolated between centres, keeping each cell's mean;
+/// 1.6 % with the source constant per cell (the code before that), which the bound refuses.
 #[test]
 fn zonal_render_matches_mitsuba_reference() {
     let scene = scene();
@@ -172,7 +172,7 @@ fn forward_scattering_cloud_seen_against_the_light_is_within_ten_percent() {
 /// The far-field form factors once over-estimated the light each cell passes to cells more
 /// than four cells away (the mean chord in the cells' interception and escape, the centre
 /// line's depth outside the end cells), which albedo 0.99 compounded into a bright bias:
-/// +2.3 % RMS 2.5 % (zonal, the 180° view) before the far field was corrected, +1.0 … +1.3 %
+/// +2.3 % (RMS 2.5 %; zonal, the 180° view) before the far field was corrected, +1.0 … +1.3 %
 /// (RMS 1.6–1.8 %) after. The mean's bound sits between: at this test's 128 × 96 the mean is
 /// a little higher than at the report's 256 × 192 (+0.9 … +1.0 %, `volrad validate`).
 #[test]
@@ -207,6 +207,7 @@ fn zonal_methods_keep_the_image_mean_of_the_back_lit_cloud() {
         }
     }
 }
+
 /// `view` rendered from `solution` (16 spp) against volrad's path tracer (512 spp, fixed
 /// seed, its noise taken out), over the pixels above 1 % of the reference's maximum.
 fn against_the_path_tracer(

@@ -1,9 +1,10 @@
 //! The hierarchical zonal operator: an octree of cell clusters linked by an error oracle.
 //!
 //! Clusters form a regular pyramid: level 0 is the cells, level `l` the `2^l`-cell blocks. A
-//! cluster carries its interception sum `Σ α_i` (α the chord-averaged interception; extinction in the thin
-//! limit), the largest escape factor `β` of its cells, its α-weighted centroid and its mean
-//! σt (the optical-depth pyramid used for transmittance between clusters).
+//! cluster carries its interception sum `Σ α_i` (α the chord-averaged interception;
+//! extinction in the thin limit), the largest escape factor `β` of its cells, its α-weighted
+//! centroid, the spread of its cells about it and its mean σt (the optical-depth pyramid used
+//! for transmittance between clusters).
 //!
 //! Refinement starts from the root pair and splits both clusters of a pair together (so links
 //! join clusters of one level). A pair becomes a link when (Barnes–Hut opening test, then the

@@ -3,7 +3,8 @@
 //! `F_ij = σt_i/(4π V_i) ∫_{V_i}∫_{V_j} T(x,y)/|x−y|² dx dy`, built as:
 //! - near pairs (Chebyshev offset ≤ R, the self term included) by the ray quadrature of
 //!   [`kernel::NearStencil`], symmetrised in the reciprocal form `S = F/σt`;
-//! - far pairs by the thick-cell estimate `α_i β_j G T_ij / r² · (1 + h²/6r²)` (exactly reciprocal);
+//! - far pairs by the thick-cell estimate `α_i β_j G T_ij / r² · (1 + h²/6r²)` (exactly
+//!   reciprocal);
 //! - then, only where a column sum exceeds 1 (quadrature error at large σt·h), the symmetric
 //!   diagonal scaling `F ← D F D`, `d_j = min(1, 1/c_j)`, which keeps `F/σt` symmetric and makes
 //!   every column sum ≤ 1 (`Σ_i d_i F_ij d_j ≤ d_j c_j ≤ 1`).
