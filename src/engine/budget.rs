@@ -62,14 +62,16 @@ const LIGHT_PASS_KEPT_BYTES_PER_CELL: u64 = 24;
 /// rows it is assembled from.
 const ZONAL_BYTES_PER_PAIR: u64 = 32;
 /// Hierarchical zonal: per non-empty cell (its links, the cluster tree, the diffusion
-/// operator), and per cell of the grid. Links per cell vary with the medium (measured 24–30
-/// kB per non-empty cell from a 12 %-full cloud to a uniform block).
-const HIERARCHICAL_BYTES_PER_OCCUPIED_CELL: u64 = 26_000;
-const HIERARCHICAL_BYTES_PER_CELL: u64 = 1_500;
-/// Hierarchical zonal: what the build holds whatever the grid (measured: solves of 24³ and
-/// 32 × 32 × 24 clouds, 2,700–3,000 non-empty cells, peak 25–35 MiB above the parts counted
-/// per cell).
-const HIERARCHICAL_FIXED_BYTES: u64 = 25 << 20;
+/// operator), per non-empty cell whose near-field row is stored rather than shared (the row,
+/// and its traced column while the rows are made), per cell of the grid, and what the build
+/// holds whatever the grid. Fitted (worst ±11 % on the operator) to solves of 32 × 32 × 24
+/// and 64 × 64 × 48 clouds (12 % non-empty, no row shared), uniform 24³ and 40³ blocks (every
+/// row shared) and Kobayashi's 60³ source in a void (78 % of rows shared): 83, 378, 130, 359
+/// and 1,660 MiB for the operator.
+const HIERARCHICAL_BYTES_PER_OCCUPIED_CELL: u64 = 5_500;
+const HIERARCHICAL_NEAR_BYTES_PER_STORED_ROW: u64 = 5_750;
+const HIERARCHICAL_BYTES_PER_CELL: u64 = 300;
+const HIERARCHICAL_FIXED_BYTES: u64 = 40 << 20;
 /// Hierarchical zonal: each further channel builds its operator again while the allocator
 /// still holds part of the last one's pages (measured: 5–30 % of the operator per channel,
 /// varying from run to run).
@@ -116,18 +118,26 @@ struct Sizes {
     /// The transport grid's cells and non-empty cells (what the solve's state grows with).
     transport_cells: u64,
     transport_occupied: u64,
+    /// Non-empty transport cells whose near-field row the hierarchy shares (0 for the
+    /// other methods, which do not count them).
+    transport_shared_rows: u64,
     /// Data cells per side of a transport cell.
     scale: usize,
     channels: u64,
 }
 
 impl Sizes {
-    fn of(scene: &Scene, occupancy: &Occupancy, scale: usize) -> Sizes {
+    fn of(scene: &Scene, settings: &SolveSettings, occupancy: &Occupancy, scale: usize) -> Sizes {
         let medium = &scene.medium;
         Sizes {
             cells: medium.grid().cell_count() as u64,
             transport_cells: Coarsening::cell_count_of(medium.grid(), scale) as u64,
             transport_occupied: occupancy.at(scale) as u64,
+            transport_shared_rows: if settings.method == SolveMethod::ZonalHierarchical {
+                hierarchy_shared_rows(medium, scale) as u64
+            } else {
+                0
+            },
             scale,
             channels: medium.channels().len() as u64,
         }
@@ -168,6 +178,37 @@ impl Occupancy {
     }
 }
 
+/// The non-empty cells of the transport grid at `scale` whose near-field row the
+/// hierarchical operator shares with every cell of the same σt (their near neighbourhood is
+/// uniform: `formfactor::zonal::uniform_neighbourhoods`), the fewest over the channels. Such
+/// cells cost the operator no near-field memory and no near-field build time.
+pub fn hierarchy_shared_rows(medium: &medium::Medium, scale: usize) -> usize {
+    let radius = formfactor::HierarchicalOptions::default().near.radius;
+    let coarse;
+    let medium = if scale > 1 {
+        match Coarsening::new(medium.grid(), scale).and_then(|k| k.medium(medium)) {
+            Ok(m) => {
+                coarse = m;
+                &coarse
+            }
+            Err(_) => return 0,
+        }
+    } else {
+        medium
+    };
+    medium
+        .channels()
+        .iter()
+        .map(|c| {
+            formfactor::zonal::uniform_neighbourhoods(medium.grid(), &c.sigma_t, radius)
+                .into_iter()
+                .filter(|&u| u)
+                .count()
+        })
+        .min()
+        .unwrap_or(0)
+}
+
 /// Transport grids up to this many cells (64³) are solved at the data's resolution by
 /// `transport_scale = "auto"`; beyond, auto takes the smallest scale that brings the transport
 /// grid within it (the size class whose solves take seconds to a minute and about 1–2 GB).
@@ -199,7 +240,11 @@ pub fn solve_peak(
     occupancy: &Occupancy,
 ) -> MemoryEstimate {
     let scale = transport_scale(scene, settings);
-    peak_of(&Sizes::of(scene, occupancy, scale), scene, settings)
+    peak_of(
+        &Sizes::of(scene, settings, occupancy, scale),
+        scene,
+        settings,
+    )
 }
 
 fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate {
@@ -263,12 +308,17 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                 .transport_occupied
                 .saturating_mul(HIERARCHICAL_BYTES_PER_OCCUPIED_CELL)
                 .saturating_add(
+                    s.transport_occupied
+                        .saturating_sub(s.transport_shared_rows)
+                        .saturating_mul(HIERARCHICAL_NEAR_BYTES_PER_STORED_ROW),
+                )
+                .saturating_add(
                     s.transport_cells
                         .saturating_mul(HIERARCHICAL_BYTES_PER_CELL),
                 )
                 .saturating_add(HIERARCHICAL_FIXED_BYTES);
             parts.push(MemoryPart {
-                what: "the hierarchical operator (links per non-empty cell)",
+                what: "the hierarchical operator (links and stored near rows per non-empty cell)",
                 bytes: operator,
             });
             if s.channels > 1 {

@@ -346,6 +346,9 @@ pub fn solve_zonal(
             .context("building the hierarchical form factors")?;
             tracing::info!(
                 links = op.report().entries,
+                near_entries = op.near_entries(),
+                shared_near_rows = op.shared_near_rows(),
+                links_per_level = ?op.links_per_level(),
                 seconds = op.report().seconds,
                 "hierarchy built"
             );

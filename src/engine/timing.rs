@@ -219,7 +219,10 @@ pub fn solve_time(
         ),
         SolveMethod::ZonalHierarchical => operator(
             "the hierarchical operator",
-            transport_occupied * links_per_occupied_cell(transport_occupied),
+            transport_occupied * far_links_per_occupied_cell(transport_occupied)
+                + (transport_occupied - super::budget::hierarchy_shared_rows(medium, scale) as f64)
+                    .max(0.0)
+                    * NEAR_ENTRIES_PER_STORED_ROW,
             HIERARCHICAL_BUILD_SECONDS_PER_LINK,
             HIERARCHICAL_APPLY_SECONDS_PER_LINK,
         ),
@@ -262,12 +265,18 @@ pub fn solve_time(
     }
 }
 
-/// Links of the hierarchical operator per non-empty cell: they grow with the log of the cells
-/// (each level of the cluster tree adds its interactions; measured 640 per cell at 3 × 10³
-/// non-empty cells, 960–1,070 at 2.4 × 10⁴).
-fn links_per_occupied_cell(occupied: f64) -> f64 {
-    (106.0 * occupied.max(2.0).log2() - 590.0).max(100.0)
+/// Links of the hierarchical operator beyond the near field per non-empty cell: they grow
+/// with the log of the cells (each level of the cluster tree adds its interactions; measured
+/// 208 per cell at 3 × 10³ non-empty cells and 396 at 2.4 × 10⁴ on clouds; fewer in uniform
+/// and dense media: 191 and 244 on uniform 24³ and 40³ blocks, 349 on Kobayashi's 60³).
+fn far_links_per_occupied_cell(occupied: f64) -> f64 {
+    (50.0 * occupied.max(2.0).log2() - 370.0).max(100.0)
 }
+
+/// Near-field entries of a non-empty cell whose row is stored (not shared): its non-empty
+/// neighbours within the near radius (measured 434–568 on clouds, 728 of 728 in a dense
+/// shield's mixed border).
+const NEAR_ENTRIES_PER_STORED_ROW: f64 = 600.0;
 
 /// Applications of the operator per iteration.
 fn applications_per_iteration(iteration: &solver::Method) -> f64 {

@@ -17,9 +17,16 @@
 //! stored once and applied both ways. Column sums are accounted per cell after the build and
 //! any above 1 corrected by the symmetric scaling `D F D` (as for the exact matrix).
 //!
+//! Memory goes to the near rows and the leaf links. A near entry depends only on σt between
+//! its two cells, so cells whose whole near neighbourhood has one σt share one row per σt
+//! ([`NearField`]); likewise the leaf pairs refinement always reaches just beyond R (the
+//! *ring*) for cells uniform out to it. Leaf links are counted first and then written in
+//! batches straight into their receiver-sorted arrays, so the build never holds them twice.
+//!
 //! `apply` is pull (gather `β x` up the pyramid), link transfer per level (parallel over
 //! receivers), push (scatter down), plus the near field.
 
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
 use glam::DVec3;
@@ -31,8 +38,8 @@ use crate::zonal::kernel::{
     escape, geometry_factor, interception, self_shielding_depth, NearStencil,
 };
 use crate::zonal::{
-    active_cells, albedo_vec, channel_of, far_entry, near_columns, near_entry, symmetrizer_weights,
-    validate_near, BuildReport, FormFactorError, NearQuadrature,
+    active_cells, albedo_vec, channel_of, far_entry, symmetrizer_weights, uniform_neighbourhoods,
+    validate_near, BuildReport, FormFactorError, NearColumns, NearQuadrature,
 };
 
 /// Options of [`HierarchicalOperator::build`].
@@ -43,6 +50,11 @@ pub struct HierarchicalOptions {
     pub tolerance: f64,
     /// Largest opening ratio `(r_A + r_B)/d` of any cluster link.
     pub max_opening: f64,
+    /// Store one near-field row per σt for the cells whose whole near neighbourhood has that
+    /// σt ([`crate::zonal::uniform_neighbourhoods`]) instead of a row per cell: the same
+    /// numbers (the row depends only on σt along the segments between the cells), traced
+    /// once. Uniform regions (shields, slabs, blocks) then cost no near-field memory.
+    pub share_uniform_rows: bool,
 }
 
 impl Default for HierarchicalOptions {
@@ -57,6 +69,7 @@ impl Default for HierarchicalOptions {
             },
             tolerance: 3e-4,
             max_opening: 0.8,
+            share_uniform_rows: true,
         }
     }
 }
@@ -117,9 +130,7 @@ pub struct HierarchicalOperator {
     beta: Vec<f64>,
     /// Symmetric energy correction `d` (1 almost everywhere).
     scale: Vec<f64>,
-    near_ptr: Vec<usize>,
-    near_col: Vec<u32>,
-    near_val: Vec<f64>,
+    near: NearField,
     weights: Option<Vec<f64>>,
     /// Coarse aggregates for the solver's two-level methods: the clusters of level
     /// [`COARSE_LEVEL`] (blocks of `2^COARSE_LEVEL` cells per edge).
@@ -132,11 +143,19 @@ pub struct HierarchicalOperator {
 /// `data/cloud.toml`: see docs/albedo.md.)
 pub const COARSE_LEVEL: usize = 3;
 
-enum Outcome {
-    /// `(level, a, b, K)`.
-    Link(usize, u32, u32, f32),
-    Refine(u32, u32),
+/// What refining one chunk of candidate pairs made: links at the level refined and the pairs
+/// to refine at the next level (at level 1: the pairs to split into leaf pairs).
+#[derive(Default)]
+struct Refined {
+    links: Vec<(u32, u32, f32)>,
+    refine: Vec<(u32, u32)>,
 }
+
+/// Candidate pairs refined per task.
+const CANDIDATE_CHUNK: usize = 1024;
+/// Level-1 pairs split into leaf links per batch (a batch's links, about 30 per pair, are
+/// held once before they are written into the link arrays).
+const LEAF_BATCH: usize = 1 << 16;
 
 impl HierarchicalOperator {
     /// Builds the operator for channel `channel` of `medium`.
@@ -164,61 +183,33 @@ impl HierarchicalOperator {
         let sigma_t = &channel.sigma_t;
         let h = grid.cell_size;
         let n = grid.cell_count();
-        let (active, active_index) = active_cells(sigma_t);
+        let (active, _) = active_cells(sigma_t);
         let alpha: Vec<f64> = sigma_t.iter().map(|&s| interception(s as f64, h)).collect();
         let beta: Vec<f64> = sigma_t
             .iter()
             .map(|&s| if s > 0.0 { escape(s as f64, h) } else { 0.0 })
             .collect();
 
-        // Near field at leaf level: symmetrised rows over the (2R+1)³ neighbourhood.
+        // Near field at leaf level: symmetrised rows over the (2R+1)³ neighbourhood, one
+        // shared row per σt for cells whose neighbourhood is uniform.
         let stencil = NearStencil::new(&options.near);
-        let slots = stencil.slots();
-        let columns = near_columns(grid, sigma_t, &stencil, &active);
-        let near_rows: Vec<(Vec<u32>, Vec<f64>, f64)> = active
-            .par_iter()
-            .map_init(
-                || vec![0u32; slots],
-                |nb, &i| {
-                    stencil.neighbours(grid, i, nb);
-                    let (mut cols, mut vals, mut colsum) = (Vec::new(), Vec::new(), 0.0);
-                    for (slot, &j) in nb.iter().enumerate() {
-                        if j == u32::MAX || active_index[j as usize] == u32::MAX {
-                            continue;
-                        }
-                        let f = near_entry(
-                            &columns,
-                            slots,
-                            sigma_t,
-                            &active_index,
-                            i,
-                            j as usize,
-                            slot,
-                        );
-                        colsum += f * sigma_t[j as usize] as f64 / sigma_t[i] as f64;
-                        cols.push(j);
-                        vals.push(f);
-                    }
-                    (cols, vals, colsum)
-                },
-            )
-            .collect();
+        let radius = options.near.radius;
+        let ring_radius = ring_radius(radius);
+        let uniform = options
+            .share_uniform_rows
+            .then(|| uniform_neighbourhoods(grid, sigma_t, radius));
+        let columns = NearColumns::build(grid, sigma_t, &stencil, &active, uniform.as_deref());
+        drop(uniform);
+        // Cells whose ring (the leaf pairs just beyond R that refinement always reaches) is
+        // shared too: uniform out to the ring's radius.
+        let ring_cells: Vec<bool> = if options.share_uniform_rows {
+            uniform_neighbourhoods(grid, sigma_t, ring_radius)
+        } else {
+            Vec::new()
+        };
+        let (near, near_colsum) =
+            NearField::build(grid, sigma_t, &stencil, &columns, &active, &ring_cells);
         drop(columns);
-        let mut near_ptr = vec![0usize; n + 1];
-        let mut near_colsum = vec![0.0f64; n];
-        for (&i, r) in active.iter().zip(&near_rows) {
-            near_ptr[i + 1] = r.0.len();
-            near_colsum[i] = r.2;
-        }
-        for i in 0..n {
-            near_ptr[i + 1] += near_ptr[i];
-        }
-        let mut near_col = Vec::with_capacity(near_ptr[n]);
-        let mut near_val = Vec::with_capacity(near_ptr[n]);
-        for r in near_rows {
-            near_col.extend_from_slice(&r.0);
-            near_val.extend_from_slice(&r.1);
-        }
 
         // The pyramid.
         let cell_spread = h * h / 12.0;
@@ -288,9 +279,9 @@ impl HierarchicalOperator {
 
         // Refinement, level by level from the root pair.
         let top = levels.len() - 1;
-        let radius = options.near.radius;
         let g = geometry_factor(h);
-        let mut unordered: Vec<Vec<(u32, u32, f32)>> = vec![Vec::new(); levels.len()];
+        // Cluster links per level (1 and above), in the chunks of candidates that made them.
+        let mut unordered: Vec<Vec<Vec<(u32, u32, f32)>>> = vec![Vec::new(); levels.len()];
         let mut candidates: Vec<(u32, u32)> = if levels[top].alpha_sum[0] > 0.0 {
             vec![(0, 0)]
         } else {
@@ -299,70 +290,126 @@ impl HierarchicalOperator {
         for l in (1..=top).rev() {
             let level = &levels[l];
             let fine = &levels[l - 1];
-            let outcomes: Vec<Outcome> = candidates
-                .par_iter()
-                .flat_map_iter(|&(a, b)| {
-                    let mut out = Vec::new();
-                    let (a, b) = (a as usize, b as usize);
-                    if a != b && box_gap(grid, level, a, b) > radius {
-                        let d = (level.centroid[a] - level.centroid[b]).length();
-                        let rad = 3f64.sqrt() * 0.5 * level.span as f64 * h;
-                        let rho = 2.0 * rad / d;
-                        if rho <= options.max_opening {
-                            let t = (-cluster_depth(grid, level, a, b)).exp();
-                            // The mean of 1/|x − y|² over the clusters' points exceeds 1/d²
-                            // (it is subharmonic): by (v_A + v_B)/d² to second order.
-                            let spread = level.spread[a] + level.spread[b];
-                            let k = g * t / (d * d) * (1.0 + spread / (d * d));
-                            let m = k
-                                * (level.alpha_sum[a] * level.beta_max[b])
-                                    .max(level.alpha_sum[b] * level.beta_max[a]);
-                            if m * rho * rho <= options.tolerance {
-                                out.push(Outcome::Link(l, a as u32, b as u32, k as f32));
-                                return out;
-                            }
-                        }
-                    }
-                    let ca: Vec<usize> = children(level, fine, a)
-                        .filter(|&c| fine.alpha_sum[c] > 0.0)
-                        .collect();
-                    let cb: Vec<usize> = children(level, fine, b)
-                        .filter(|&c| fine.alpha_sum[c] > 0.0)
-                        .collect();
-                    for &x in &ca {
-                        for &y in &cb {
-                            if a == b && y < x {
-                                continue;
-                            }
-                            if l - 1 == 0 {
-                                // Leaf pairs: near (handled by the near rows) or the exact far estimate.
-                                if x != y && box_gap(grid, fine, x, y) > radius {
-                                    let k = far_entry(grid, sigma_t, x, y) / (alpha[x] * beta[y]);
-                                    out.push(Outcome::Link(0, x as u32, y as u32, k as f32));
+            let parts: Vec<Refined> = candidates
+                .par_chunks(CANDIDATE_CHUNK)
+                .map(|chunk| {
+                    let mut part = Refined::default();
+                    for &(a, b) in chunk {
+                        let (a, b) = (a as usize, b as usize);
+                        // Refined whatever the oracle says (the pair is near).
+                        let forced = a == b || box_gap(grid, level, a, b) <= radius;
+                        if !forced {
+                            let d = (level.centroid[a] - level.centroid[b]).length();
+                            let rad = 3f64.sqrt() * 0.5 * level.span as f64 * h;
+                            let rho = 2.0 * rad / d;
+                            if rho <= options.max_opening {
+                                let t = (-cluster_depth(grid, level, a, b)).exp();
+                                // The mean of 1/|x − y|² over the clusters' points exceeds 1/d²
+                                // (it is subharmonic): by (v_A + v_B)/d² to second order.
+                                let spread = level.spread[a] + level.spread[b];
+                                let k = g * t / (d * d) * (1.0 + spread / (d * d));
+                                let m = k
+                                    * (level.alpha_sum[a] * level.beta_max[b])
+                                        .max(level.alpha_sum[b] * level.beta_max[a]);
+                                if m * rho * rho <= options.tolerance {
+                                    part.links.push((a as u32, b as u32, k as f32));
+                                    continue;
                                 }
-                            } else {
-                                out.push(Outcome::Refine(x as u32, y as u32));
+                            }
+                        }
+                        if l == 1 {
+                            // Split into leaf pairs below, straight into the link arrays.
+                            part.refine.push((a as u32, b as u32));
+                            continue;
+                        }
+                        let (ca, na) = active_children(level, fine, a);
+                        let (cb, nb) = active_children(level, fine, b);
+                        for &x in &ca[..na] {
+                            for &y in &cb[..nb] {
+                                if a == b && y < x {
+                                    continue;
+                                }
+                                part.refine.push((x as u32, y as u32));
                             }
                         }
                     }
-                    out
+                    part.links.shrink_to_fit();
+                    part
                 })
                 .collect();
-            candidates = Vec::new();
-            for o in outcomes {
-                match o {
-                    Outcome::Link(lev, a, b, k) => unordered[lev].push((a, b, k)),
-                    Outcome::Refine(a, b) => candidates.push((a, b)),
+            candidates = Vec::with_capacity(parts.iter().map(|p| p.refine.len()).sum());
+            for part in parts {
+                candidates.extend_from_slice(&part.refine);
+                if !part.links.is_empty() {
+                    unordered[l].push(part.links);
                 }
             }
         }
-        let links_per_level: Vec<usize> = unordered.iter().map(Vec::len).collect();
+        // Leaf pairs of the level-1 pairs left: near (the near rows), in two cells' shared
+        // rings, or a far link with the exact far estimate. Counted first, then computed in
+        // batches and written straight into the receiver-sorted arrays (the most numerous
+        // links, never held twice). A one-cell grid has no level 1: its near row is all.
+        if top == 0 {
+            candidates.clear();
+        }
+        let leaves = LeafPairs {
+            grid,
+            level: &levels[top.min(1)],
+            fine: &levels[0],
+            ring_cells: &ring_cells,
+            radius,
+        };
+        let mut leaf_ptr = vec![0usize; n + 1];
+        {
+            let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+            candidates.par_iter().for_each(|&(a, b)| {
+                leaves.each(a as usize, b as usize, |x, y| {
+                    counts[x].fetch_add(1, Ordering::Relaxed);
+                    counts[y].fetch_add(1, Ordering::Relaxed);
+                })
+            });
+            for (i, c) in counts.into_iter().enumerate() {
+                leaf_ptr[i + 1] = leaf_ptr[i] + c.into_inner() as usize;
+            }
+        }
+        let mut leaf_fill = leaf_ptr.clone();
+        let mut leaf_src = vec![0u32; leaf_ptr[n]];
+        let mut leaf_k = vec![0f32; leaf_ptr[n]];
+        for batch in candidates.chunks(LEAF_BATCH) {
+            let parts: Vec<Vec<(u32, u32, f32)>> = batch
+                .par_chunks(CANDIDATE_CHUNK)
+                .map(|chunk| {
+                    let mut links = Vec::new();
+                    for &(a, b) in chunk {
+                        leaves.each(a as usize, b as usize, |x, y| {
+                            let k = far_entry(grid, sigma_t, x, y) / (alpha[x] * beta[y]);
+                            links.push((x as u32, y as u32, k as f32));
+                        });
+                    }
+                    links
+                })
+                .collect();
+            for (a, b, k) in parts.into_iter().flatten() {
+                for (r, s) in [(a, b), (b, a)] {
+                    let p = &mut leaf_fill[r as usize];
+                    leaf_src[*p] = s;
+                    leaf_k[*p] = k;
+                    *p += 1;
+                }
+            }
+        }
+        drop(candidates);
+        let mut links_per_level: Vec<usize> = unordered
+            .iter()
+            .map(|chunks| chunks.iter().map(Vec::len).sum())
+            .collect();
+        links_per_level[0] = leaf_ptr[n] / 2;
 
         // Receiver-sorted directed links, both directions of each unordered pair.
-        for (level, pairs) in levels.iter_mut().zip(unordered) {
+        for (level, chunks) in levels.iter_mut().zip(unordered).skip(1) {
             let count = level.count();
             let mut ptr = vec![0usize; count + 1];
-            for &(a, b, _) in &pairs {
+            for &(a, b, _) in chunks.iter().flatten() {
                 ptr[a as usize + 1] += 1;
                 ptr[b as usize + 1] += 1;
             }
@@ -372,18 +419,23 @@ impl HierarchicalOperator {
             let mut fill = ptr.clone();
             let mut src = vec![0u32; ptr[count]];
             let mut kk = vec![0f32; ptr[count]];
-            for (a, b, k) in pairs {
-                for (r, s) in [(a, b), (b, a)] {
-                    let p = &mut fill[r as usize];
-                    src[*p] = s;
-                    kk[*p] = k;
-                    *p += 1;
+            for chunk in chunks {
+                for (a, b, k) in chunk {
+                    for (r, s) in [(a, b), (b, a)] {
+                        let p = &mut fill[r as usize];
+                        src[*p] = s;
+                        kk[*p] = k;
+                        *p += 1;
+                    }
                 }
             }
             level.link_ptr = ptr;
             level.link_src = src;
             level.link_k = kk;
         }
+        levels[0].link_ptr = leaf_ptr;
+        levels[0].link_src = leaf_src;
+        levels[0].link_k = leaf_k;
 
         let mut op = HierarchicalOperator {
             grid: *grid,
@@ -399,9 +451,7 @@ impl HierarchicalOperator {
             alpha,
             beta,
             scale: vec![1.0; n],
-            near_ptr,
-            near_col,
-            near_val,
+            near,
             weights: None,
             aggregates: block_aggregates(grid, COARSE_LEVEL),
         };
@@ -423,7 +473,7 @@ impl HierarchicalOperator {
                 op.report.min_scale = op.report.min_scale.min(op.scale[j]);
             }
         }
-        op.report.entries = op.near_val.len() + op.links_per_level.iter().sum::<usize>();
+        op.report.entries = op.near.stored_entries() + op.links_per_level.iter().sum::<usize>();
         op.weights = symmetrizer_weights(sigma_t, &op.albedo);
         op.report.seconds = start.elapsed().as_secs_f64();
         Ok(op)
@@ -453,9 +503,14 @@ impl HierarchicalOperator {
         self.links_per_level.iter().sum()
     }
 
-    /// Stored near-field entries.
+    /// Stored near-field entries (the shared rows' once each).
     pub fn near_entries(&self) -> usize {
-        self.near_val.len()
+        self.near.stored_entries()
+    }
+
+    /// Non-empty cells whose near-field row is shared (their neighbourhood is uniform).
+    pub fn shared_near_rows(&self) -> usize {
+        self.near.shared_cells
     }
 
     /// Bytes held by the operator's arrays.
@@ -465,7 +520,7 @@ impl HierarchicalOperator {
             .iter()
             .map(|l| l.count() * (8 + 8 + 24 + 4 + 8) + l.link_src.len() * 8)
             .sum();
-        lv + self.near_val.len() * 12 + self.near_ptr.len() * 8 + self.alpha.len() * 8 * 5
+        lv + self.near.memory_bytes() + self.alpha.len() * 8 * 5
     }
 
     /// Evaluates `value(level, cluster)` for every cluster and sums it down to the cells:
@@ -529,11 +584,7 @@ impl HierarchicalOperator {
 
     #[inline]
     fn near_dot(&self, i: usize, xs: &[f64]) -> f64 {
-        let mut acc = 0.0;
-        for p in self.near_ptr[i]..self.near_ptr[i + 1] {
-            acc += self.near_val[p] * xs[self.near_col[p] as usize];
-        }
-        acc
+        self.near.dot(i, xs)
     }
 
     /// Column sums `Σ_i F_ij`, by applying the transpose to ones (`Fᵀ1 = diag(σt)⁻¹ F σt`
@@ -552,6 +603,367 @@ impl HierarchicalOperator {
             .map(|(y, s)| if *s > 0.0 { y / s } else { 0.0 })
             .collect()
     }
+}
+
+/// The Chebyshev radius of the leaf pairs that refinement always reaches beyond the near
+/// radius `R`: the cells of level-1 clusters at most `R` cells apart, `2⌊(R+1)/2⌋ + 1` (5
+/// for R = 4). Which of them a cell pairs with depends on its parity (see [`NearField`]).
+fn ring_radius(radius: usize) -> usize {
+    2 * radius.div_ceil(2) + 1
+}
+
+/// The near field's rows: stored per cell (CSR), or for cells with a uniform neighbourhood
+/// one dense `(2R+1)³` row per σt, applied over the neighbourhood clipped to the grid.
+///
+/// A cell uniform out to the [ring radius](ring_radius) also takes its *ring* from its σt's
+/// shared row: the leaf pairs beyond R whose level-1 clusters are at most R cells apart, which
+/// refinement always splits to leaves (their far estimates, otherwise stored as links). Which
+/// cells those are depends only on the cell's parity per axis: with level-1 offset
+/// `⌊(p + o)/2⌋` in `[−D, D]`, `D = ⌊(R+1)/2⌋`, the offset `o` ranges over
+/// `[−2D − p, 2D + 1 − p]`. Both ends of a ring pair must be ring cells (`ring_mask`), as the
+/// build skips exactly those links.
+#[derive(Clone, Debug)]
+struct NearField {
+    dims: [usize; 3],
+    radius: usize,
+    ring_radius: usize,
+    ptr: Vec<usize>,
+    col: Vec<u32>,
+    /// Single precision, as the links' factors: the rows hold most of the near field's
+    /// memory, and the quadrature behind them is good to about 1e-3.
+    val: Vec<f32>,
+    /// Per cell: its shared row in `shared`, or `u32::MAX` (its row is in the CSR arrays).
+    shared_of: Vec<u32>,
+    shared: Vec<Vec<f64>>,
+    /// Per shared row: the far estimates over the ring's `(2·ring_radius + 1)³` box (zero
+    /// within R).
+    ring: Vec<Vec<f64>>,
+    /// 1 for cells whose ring is shared, else 0 (empty when no cell's is).
+    ring_mask: Vec<f64>,
+    shared_cells: usize,
+}
+
+impl NearField {
+    /// The rows of the `active` cells from their raw columns, and each cell's near column sum
+    /// `Σ_j F_ji` (by reciprocity `Σ_j σt_j/σt_i F_ij`). `ring_cells` marks the cells whose
+    /// ring is shared (empty: none).
+    fn build(
+        grid: &Grid,
+        sigma_t: &[f32],
+        stencil: &NearStencil,
+        columns: &NearColumns,
+        active: &[usize],
+        ring_cells: &[bool],
+    ) -> (NearField, Vec<f64>) {
+        let n = grid.cell_count();
+        let slots = stencil.slots();
+        let ring_radius = ring_radius(stencil.radius);
+        let mut near = NearField {
+            dims: grid.dims,
+            radius: stencil.radius,
+            ring_radius,
+            ptr: vec![0; n + 1],
+            col: Vec::new(),
+            val: Vec::new(),
+            shared_of: vec![u32::MAX; n],
+            shared: (0..columns.shared_count())
+                .map(|k| columns.shared_row(k))
+                .collect(),
+            ring: Vec::new(),
+            ring_mask: Vec::new(),
+            shared_cells: 0,
+        };
+        let is_active = |j: u32| j != u32::MAX && sigma_t[j as usize] > 0.0;
+        // Row lengths first, so the rows are written once, in place.
+        let own: Vec<usize> = active
+            .iter()
+            .copied()
+            .filter(|&i| columns.shared_of(i).is_none())
+            .collect();
+        let lengths: Vec<usize> = own
+            .par_iter()
+            .map_init(
+                || vec![0u32; slots],
+                |nb, &i| {
+                    stencil.neighbours(grid, i, nb);
+                    nb.iter().filter(|&&j| is_active(j)).count()
+                },
+            )
+            .collect();
+        for (&i, &len) in own.iter().zip(&lengths) {
+            near.ptr[i + 1] = len;
+        }
+        for i in 0..n {
+            near.ptr[i + 1] += near.ptr[i];
+        }
+        near.col = vec![0; near.ptr[n]];
+        near.val = vec![0.0; near.ptr[n]];
+        let mut rows: Vec<(usize, &mut [u32], &mut [f32])> = Vec::with_capacity(own.len());
+        let (mut col_rest, mut val_rest) = (&mut near.col[..], &mut near.val[..]);
+        for (&i, &len) in own.iter().zip(&lengths) {
+            let (c, cr) = std::mem::take(&mut col_rest).split_at_mut(len);
+            let (v, vr) = std::mem::take(&mut val_rest).split_at_mut(len);
+            rows.push((i, c, v));
+            (col_rest, val_rest) = (cr, vr);
+        }
+        let own_colsums: Vec<f64> = rows
+            .into_par_iter()
+            .map_init(
+                || vec![0u32; slots],
+                |nb, (i, cols, vals)| {
+                    stencil.neighbours(grid, i, nb);
+                    let mut colsum = 0.0;
+                    let mut k = 0;
+                    for (slot, &j) in nb.iter().enumerate() {
+                        if !is_active(j) {
+                            continue;
+                        }
+                        let f = columns.entry(sigma_t, i, j as usize, slot) as f32;
+                        colsum += f as f64 * sigma_t[j as usize] as f64 / sigma_t[i] as f64;
+                        cols[k] = j;
+                        vals[k] = f;
+                        k += 1;
+                    }
+                    colsum
+                },
+            )
+            .collect();
+        let mut colsum = vec![0.0; n];
+        for (&i, c) in own.iter().zip(own_colsums) {
+            colsum[i] = c;
+        }
+        let mut shared_sigma = vec![0f32; near.shared.len()];
+        for &i in active {
+            if let Some(k) = columns.shared_of(i) {
+                near.shared_of[i] = k as u32;
+                near.shared_cells += 1;
+                shared_sigma[k] = sigma_t[i];
+            }
+        }
+        // The rings: far estimates in a uniform medium of each shared σt (a ring cell is
+        // uniform out to the ring, so its far estimates are these).
+        if ring_cells.iter().any(|&r| r) {
+            let w = 2 * ring_radius + 1;
+            let box_grid = Grid {
+                dims: [w; 3],
+                cell_size: grid.cell_size,
+            };
+            let centre = box_grid.index(ring_radius, ring_radius, ring_radius);
+            near.ring = shared_sigma
+                .iter()
+                .map(|&sigma| {
+                    let uniform = vec![sigma; w * w * w];
+                    (0..w * w * w)
+                        .map(|slot| {
+                            let c = box_grid.coords(slot);
+                            let cheb = c
+                                .iter()
+                                .map(|&v| v.abs_diff(ring_radius))
+                                .max()
+                                .unwrap_or(0);
+                            if cheb > stencil.radius {
+                                far_entry(&box_grid, &uniform, centre, slot)
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            near.ring_mask = ring_cells
+                .iter()
+                .zip(&near.shared_of)
+                .map(|(&r, &k)| if r && k != u32::MAX { 1.0 } else { 0.0 })
+                .collect();
+        }
+        // Shared rows: σt is the same at both ends.
+        for &i in active {
+            if near.shared_of[i] != u32::MAX {
+                let mut c = 0.0;
+                near.for_each(i, |_, f| c += f);
+                colsum[i] = c;
+            }
+        }
+        (near, colsum)
+    }
+
+    /// `Σ_j F_ij x_j` over the near neighbours (and the ring) of `i`.
+    #[inline]
+    fn dot(&self, i: usize, xs: &[f64]) -> f64 {
+        let k = self.shared_of[i];
+        if k == u32::MAX {
+            let mut acc = 0.0;
+            for p in self.ptr[i]..self.ptr[i + 1] {
+                acc += self.val[p] as f64 * xs[self.col[p] as usize];
+            }
+            return acc;
+        }
+        let mut acc = 0.0;
+        let row = &self.shared[k as usize];
+        self.runs(i, self.radius, [None; 3], |slot, j, len| {
+            acc += dot(&row[slot..slot + len], &xs[j..j + len]);
+        });
+        if self.has_ring(i) {
+            let ring = &self.ring[k as usize];
+            let mask = &self.ring_mask;
+            self.ring_runs(i, |slot, j, len| {
+                let (r, x, m) = (&ring[slot..slot + len], &xs[j..j + len], &mask[j..j + len]);
+                acc += r
+                    .iter()
+                    .zip(x)
+                    .zip(m)
+                    .map(|((r, x), m)| r * m * x)
+                    .sum::<f64>();
+            });
+        }
+        acc
+    }
+
+    #[inline]
+    fn has_ring(&self, i: usize) -> bool {
+        self.ring_mask.get(i).is_some_and(|&m| m > 0.0)
+    }
+
+    /// Calls `f(j, F_ij)` for every near (and ring) entry of row `i`.
+    fn for_each(&self, i: usize, mut f: impl FnMut(usize, f64)) {
+        let k = self.shared_of[i];
+        if k == u32::MAX {
+            for p in self.ptr[i]..self.ptr[i + 1] {
+                f(self.col[p] as usize, self.val[p] as f64);
+            }
+            return;
+        }
+        let row = &self.shared[k as usize];
+        self.runs(i, self.radius, [None; 3], |slot, j, len| {
+            for t in 0..len {
+                f(j + t, row[slot + t]);
+            }
+        });
+        if self.has_ring(i) {
+            let ring = &self.ring[k as usize];
+            self.ring_runs(i, |slot, j, len| {
+                for t in 0..len {
+                    if self.ring_mask[j + t] > 0.0 && ring[slot + t] != 0.0 {
+                        f(j + t, ring[slot + t]);
+                    }
+                }
+            });
+        }
+    }
+
+    /// The ring's x-runs for cell `i`: the parity box of its level-1 cluster's near
+    /// clusters, skipping the inner runs that lie within R (zero there).
+    fn ring_runs(&self, i: usize, mut run: impl FnMut(usize, usize, usize)) {
+        let d = self.dims;
+        let c = [i % d[0], (i / d[0]) % d[1], i / (d[0] * d[1])];
+        let reach = self.ring_radius as i64 - 1;
+        let bounds = c.map(|v| {
+            let p = (v % 2) as i64;
+            (-reach - p, reach + 1 - p)
+        });
+        self.runs(i, self.ring_radius, bounds.map(Some), &mut run);
+    }
+
+    /// For cell `i` and a dense box row of `radius`: `run(slot, j, len)` for each x-run of
+    /// the box (limited per axis to `bounds`, if given) clipped to the grid: `len` slots from
+    /// `slot` match `len` cells from `j`.
+    #[inline]
+    fn runs(
+        &self,
+        i: usize,
+        radius: usize,
+        bounds: [Option<(i64, i64)>; 3],
+        mut run: impl FnMut(usize, usize, usize),
+    ) {
+        let d = self.dims;
+        let r = radius as i64;
+        let w = 2 * radius + 1;
+        let c = [i % d[0], (i / d[0]) % d[1], i / (d[0] * d[1])].map(|v| v as i64);
+        let range = |a: usize| {
+            let (lo, hi) = bounds[a].unwrap_or((-r, r));
+            (lo.max(-c[a]), hi.min(d[a] as i64 - 1 - c[a]))
+        };
+        let ((x0, x1), (y0, y1), (z0, z1)) = (range(0), range(1), range(2));
+        if x1 < x0 {
+            return;
+        }
+        let len = (x1 - x0 + 1) as usize;
+        for dz in z0..=z1 {
+            for dy in y0..=y1 {
+                let slot = (x0 + r) as usize + w * ((dy + r) as usize + w * (dz + r) as usize);
+                let j = (c[0] + x0) as usize
+                    + d[0] * ((c[1] + dy) as usize + d[1] * (c[2] + dz) as usize);
+                run(slot, j, len);
+            }
+        }
+    }
+
+    /// Entries held: the per-cell rows' and each shared row (and ring) once.
+    fn stored_entries(&self) -> usize {
+        self.val.len()
+            + self.shared.iter().map(Vec::len).sum::<usize>()
+            + self.ring.iter().map(Vec::len).sum::<usize>()
+    }
+
+    fn memory_bytes(&self) -> usize {
+        let shared: usize = self
+            .shared
+            .iter()
+            .chain(&self.ring)
+            .map(|r| r.len() * 8)
+            .sum();
+        self.val.len() * 8
+            + self.ptr.len() * 8
+            + self.shared_of.len() * 4
+            + self.ring_mask.len() * 8
+            + shared
+    }
+}
+
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(a, b)| a * b).sum()
+}
+
+/// The leaf pairs a level-1 pair splits into that are far links: not near (within R), and
+/// not in both cells' shared rings ([`NearField`]).
+struct LeafPairs<'a> {
+    grid: &'a Grid,
+    level: &'a Level,
+    fine: &'a Level,
+    ring_cells: &'a [bool],
+    radius: usize,
+}
+
+impl LeafPairs<'_> {
+    /// Calls `pair(x, y)` for each far leaf pair of level-1 pair `(a, b)` (each unordered
+    /// pair once).
+    fn each(&self, a: usize, b: usize, mut pair: impl FnMut(usize, usize)) {
+        let (level, fine, radius) = (self.level, self.fine, self.radius);
+        // Refinement always splits near level-1 pairs, so their leaf pairs are the rings.
+        let forced = a == b || box_gap(self.grid, level, a, b) <= radius;
+        let ring = |c: usize| self.ring_cells.get(c).is_some_and(|&r| r);
+        let (ca, na) = active_children(level, fine, a);
+        let (cb, nb) = active_children(level, fine, b);
+        for &x in &ca[..na] {
+            for &y in &cb[..nb] {
+                let in_rings = forced && ring(x) && ring(y);
+                if (a != b || y > x) && !in_rings && box_gap(self.grid, fine, x, y) > radius {
+                    pair(x, y);
+                }
+            }
+        }
+    }
+}
+
+/// The children of cluster `c` that hold medium, without allocating.
+fn active_children(level: &Level, fine: &Level, c: usize) -> ([usize; 8], usize) {
+    let (mut out, mut count) = ([0usize; 8], 0);
+    for ch in children(level, fine, c).filter(|&ch| fine.alpha_sum[ch] > 0.0) {
+        out[count] = ch;
+        count += 1;
+    }
+    (out, count)
 }
 
 /// Children (at `fine`) of cluster `c` of `level`.
@@ -798,10 +1210,9 @@ impl TransportOperator for HierarchicalOperator {
             let part = |len: usize| (t * len / tasks)..((t + 1) * len / tasks);
             for i in part(n) {
                 let row = aggregates[i] as usize * nc;
-                for p in self.near_ptr[i]..self.near_ptr[i + 1] {
-                    let j = self.near_col[p] as usize;
-                    kc[row + aggregates[j] as usize] += recv[i] * self.near_val[p] * self.scale[j];
-                }
+                self.near.for_each(i, |j, f| {
+                    kc[row + aggregates[j] as usize] += recv[i] * f * self.scale[j];
+                });
             }
             for (l, level) in self.levels.iter().enumerate() {
                 for a in part(level.count()) {

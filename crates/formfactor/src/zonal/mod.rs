@@ -126,44 +126,171 @@ pub(crate) fn active_cells(sigma_t: &[f32]) -> (Vec<usize>, Vec<u32>) {
     (active, index)
 }
 
-/// Raw near-field columns for every active cell, `slots` values each (active order).
-pub(crate) fn near_columns(
-    grid: &Grid,
-    sigma_t: &[f32],
-    stencil: &NearStencil,
-    active: &[usize],
-) -> Vec<f64> {
-    let slots = stencil.slots();
-    let mut columns = vec![0.0f64; active.len() * slots];
-    columns
-        .par_chunks_mut(slots)
-        .zip(active.par_iter())
-        .for_each_init(
-            || vec![0u32; slots],
-            |nb, (col, &j)| {
-                stencil.neighbours(grid, j, nb);
-                stencil.column(sigma_t, grid.cell_size, nb, col);
-            },
-        );
-    columns
+/// Which cells have a uniform near neighbourhood: σt > 0 and every cell of the grid within
+/// Chebyshev distance `radius` (the `(2R+1)³` block clipped to the grid) has the same σt, bit
+/// for bit. A near-field entry `F_ij` depends only on σt along the segments between the two
+/// cells, which lie inside `i`'s block, so all such cells of one σt share one column and one
+/// row of the near field. Separable: a block is uniform where the x-windows are, then the
+/// y-windows of those, then the z-windows — three passes over the grid.
+pub fn uniform_neighbourhoods(grid: &Grid, sigma_t: &[f32], radius: usize) -> Vec<bool> {
+    let d = grid.dims;
+    let stride = [1, d[0], d[0] * d[1]];
+    if sigma_t.len() != grid.cell_count() {
+        return vec![false; sigma_t.len()];
+    }
+    let mut ok: Vec<bool> = sigma_t.iter().map(|&s| s > 0.0).collect();
+    let (mut line, mut breaks) = (Vec::new(), Vec::new());
+    for axis in 0..3 {
+        let len = d[axis];
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let mut next = vec![false; ok.len()];
+        for a in 0..d[u] {
+            for b in 0..d[v] {
+                let start = a * stride[u] + b * stride[v];
+                line.clear();
+                line.extend((0..len).map(|k| start + k * stride[axis]));
+                // breaks[k]: how many of the first k links (cell k−1 → k) or cells are bad
+                // (σt changes, or the cell's window on the earlier axes was not uniform).
+                breaks.clear();
+                breaks.push(0usize);
+                for k in 0..len {
+                    let cell = line[k];
+                    let changed =
+                        k > 0 && sigma_t[cell].to_bits() != sigma_t[line[k - 1]].to_bits();
+                    let bad = usize::from(changed) + usize::from(!ok[cell]);
+                    breaks.push(breaks[k] + bad);
+                }
+                for k in 0..len {
+                    let (lo, hi) = (k.saturating_sub(radius), (k + radius).min(len - 1));
+                    // Cells lo..=hi all good, and no change on the links lo+1..=hi.
+                    let changes_and_bad = breaks[hi + 1] - breaks[lo];
+                    // A change at the window's first cell (from lo−1) is outside it.
+                    let first_changed =
+                        lo > 0 && sigma_t[line[lo]].to_bits() != sigma_t[line[lo - 1]].to_bits();
+                    next[line[k]] = changes_and_bad == usize::from(first_changed);
+                }
+            }
+        }
+        ok = next;
+    }
+    ok
 }
 
-/// Symmetrised near entry `F_ij` from the raw columns: `½(F_ij + σt_i/σt_j F_ji)`.
-/// `slot` is the slot of `j` relative to `i`.
-#[inline]
-pub(crate) fn near_entry(
-    columns: &[f64],
+/// Raw near-field columns (the fraction of a cell's emission extinguished in each slot of its
+/// neighbourhood) of the active cells: each cell's own, traced through its neighbourhood, or
+/// for cells with a [uniform neighbourhood](uniform_neighbourhoods) the one column of their
+/// σt, traced once.
+pub(crate) struct NearColumns {
     slots: usize,
-    sigma_t: &[f32],
-    active_index: &[u32],
-    i: usize,
-    j: usize,
-    slot: usize,
-) -> f64 {
-    let (ai, aj) = (active_index[i] as usize, active_index[j] as usize);
-    let f_ij = columns[aj * slots + (slots - 1 - slot)];
-    let f_ji = columns[ai * slots + slot];
-    0.5 * (f_ij + sigma_t[i] as f64 / sigma_t[j] as f64 * f_ji)
+    own: Vec<f64>,
+    /// Per cell: its column's index in `own`, or `u32::MAX`.
+    own_index: Vec<u32>,
+    shared: Vec<f64>,
+    /// Per cell: its σt's column in `shared`, or `u32::MAX`.
+    shared_index: Vec<u32>,
+}
+
+impl NearColumns {
+    /// Traces the columns of `active` cells; cells marked in `uniform` (if given) share one
+    /// column per σt.
+    pub fn build(
+        grid: &Grid,
+        sigma_t: &[f32],
+        stencil: &NearStencil,
+        active: &[usize],
+        uniform: Option<&[bool]>,
+    ) -> NearColumns {
+        let slots = stencil.slots();
+        let n = sigma_t.len();
+        let mut shared_index = vec![u32::MAX; n];
+        let mut shared_sigma: Vec<f32> = Vec::new();
+        let mut own_cells = Vec::with_capacity(active.len());
+        let mut by_sigma = std::collections::HashMap::new();
+        for &i in active {
+            if uniform.is_some_and(|u| u[i]) {
+                let k = *by_sigma.entry(sigma_t[i].to_bits()).or_insert_with(|| {
+                    shared_sigma.push(sigma_t[i]);
+                    shared_sigma.len() as u32 - 1
+                });
+                shared_index[i] = k;
+            } else {
+                own_cells.push(i);
+            }
+        }
+        let mut own_index = vec![u32::MAX; n];
+        for (k, &i) in own_cells.iter().enumerate() {
+            own_index[i] = k as u32;
+        }
+        let trace = |cells: &[usize], sigma: &[f32], in_grid: bool| {
+            let mut columns = vec![0.0f64; cells.len() * slots];
+            columns
+                .par_chunks_mut(slots)
+                .zip(cells.par_iter())
+                .for_each_init(
+                    || vec![0u32; slots],
+                    |nb, (col, &j)| {
+                        if in_grid {
+                            stencil.neighbours(grid, j, nb);
+                        } else {
+                            // Every slot holds the one σt: the unclipped neighbourhood. Its
+                            // in-grid slots equal a clipped trace's (a ray leaving the grid
+                            // never comes back into it).
+                            nb.iter_mut().for_each(|c| *c = j as u32);
+                        }
+                        stencil.column(sigma, grid.cell_size, nb, col);
+                    },
+                );
+            columns
+        };
+        let distinct: Vec<usize> = (0..shared_sigma.len()).collect();
+        NearColumns {
+            slots,
+            own: trace(&own_cells, sigma_t, true),
+            own_index,
+            shared: trace(&distinct, &shared_sigma, false),
+            shared_index,
+        }
+    }
+
+    /// The column of active cell `j`.
+    #[inline]
+    pub fn column(&self, j: usize) -> &[f64] {
+        let s = self.shared_index[j];
+        if s != u32::MAX {
+            &self.shared[s as usize * self.slots..][..self.slots]
+        } else {
+            &self.own[self.own_index[j] as usize * self.slots..][..self.slots]
+        }
+    }
+
+    /// The shared column's index of cell `i`, if its neighbourhood is uniform.
+    #[inline]
+    pub fn shared_of(&self, i: usize) -> Option<usize> {
+        let s = self.shared_index[i];
+        (s != u32::MAX).then_some(s as usize)
+    }
+
+    /// Shared columns (one per σt of the cells with uniform neighbourhoods).
+    pub fn shared_count(&self) -> usize {
+        self.shared.len() / self.slots.max(1)
+    }
+
+    /// The symmetrised near row of shared column `k`: `½(F_ij + F_ji)` per slot (σt equal).
+    pub fn shared_row(&self, k: usize) -> Vec<f64> {
+        let col = &self.shared[k * self.slots..][..self.slots];
+        (0..self.slots)
+            .map(|slot| 0.5 * (col[self.slots - 1 - slot] + col[slot]))
+            .collect()
+    }
+
+    /// Symmetrised near entry `F_ij`: `½(F_ij + σt_i/σt_j F_ji)`. `slot` is the slot of `j`
+    /// relative to `i`.
+    #[inline]
+    pub fn entry(&self, sigma_t: &[f32], i: usize, j: usize, slot: usize) -> f64 {
+        let f_ij = self.column(j)[self.slots - 1 - slot];
+        let f_ji = self.column(i)[slot];
+        0.5 * (f_ij + sigma_t[i] as f64 / sigma_t[j] as f64 * f_ji)
+    }
 }
 
 /// The far-field estimate `F_ij = α_i β_j G T_ij / r² · (1 + h²/6r²)` for distinct cells.
@@ -255,10 +382,11 @@ impl FormFactorMatrix {
         let grid = medium.grid();
         let sigma_t = &channel.sigma_t;
         let n = grid.cell_count();
-        let (active, active_index) = active_cells(sigma_t);
+        let (active, _) = active_cells(sigma_t);
         let stencil = NearStencil::new(&options.near);
-        let slots = stencil.slots();
-        let columns = near_columns(grid, sigma_t, &stencil, &active);
+        let uniform = uniform_neighbourhoods(grid, sigma_t, options.near.radius);
+        let columns = NearColumns::build(grid, sigma_t, &stencil, &active, Some(&uniform));
+        drop(uniform);
         let radius = options.near.radius as i64;
         let w = stencil.width as i64;
         let done = AtomicUsize::new(0);
@@ -279,7 +407,7 @@ impl FormFactorMatrix {
                     let f = if cheb <= radius {
                         let slot = ((d[0] + radius) + w * ((d[1] + radius) + w * (d[2] + radius)))
                             as usize;
-                        near_entry(&columns, slots, sigma_t, &active_index, i, j, slot)
+                        columns.entry(sigma_t, i, j, slot)
                     } else {
                         far_entry(grid, sigma_t, i, j)
                     };
@@ -452,5 +580,97 @@ impl TransportOperator for FormFactorMatrix {
 
     fn symmetrizer(&self) -> Option<&[f64]> {
         self.weights.as_deref()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// Every cell of the `(2r+1)³` block around `i` (clipped) has `i`'s σt, and it is > 0.
+    fn uniform_by_search(grid: &Grid, sigma_t: &[f32], r: usize, i: usize) -> bool {
+        let c = grid.coords(i);
+        let range = |a: usize| c[a].saturating_sub(r)..=(c[a] + r).min(grid.dims[a] - 1);
+        sigma_t[i] > 0.0
+            && range(2).all(|z| {
+                range(1).all(|y| range(0).all(|x| sigma_t[grid.index(x, y, z)] == sigma_t[i]))
+            })
+    }
+
+    #[test]
+    fn uniform_neighbourhoods_are_the_blocks_of_one_sigma() {
+        let grid = Grid {
+            dims: [17, 13, 11],
+            cell_size: 0.5,
+        };
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+        // Boxes of a few values (one of them empty) over a uniform background, so that both
+        // uniform and mixed blocks occur at every radius tested.
+        let mut sigma_t = vec![0.8f32; grid.cell_count()];
+        for _ in 0..6 {
+            let lo: [usize; 3] = std::array::from_fn(|a| rng.random_range(0..grid.dims[a]));
+            let size: [usize; 3] = std::array::from_fn(|_| rng.random_range(1..8));
+            let value = [0.0f32, 0.3, 0.8, 2.0][rng.random_range(0..4)];
+            for z in lo[2]..(lo[2] + size[2]).min(grid.dims[2]) {
+                for y in lo[1]..(lo[1] + size[1]).min(grid.dims[1]) {
+                    for x in lo[0]..(lo[0] + size[0]).min(grid.dims[0]) {
+                        sigma_t[grid.index(x, y, z)] = value;
+                    }
+                }
+            }
+        }
+        for r in [1, 2, 4] {
+            let fast = uniform_neighbourhoods(&grid, &sigma_t, r);
+            let mut uniform = 0;
+            for (i, &f) in fast.iter().enumerate() {
+                assert_eq!(
+                    f,
+                    uniform_by_search(&grid, &sigma_t, r, i),
+                    "radius {r} cell {i}"
+                );
+                uniform += usize::from(f);
+            }
+            assert!(
+                uniform > 0 && uniform < grid.cell_count(),
+                "radius {r}: {uniform}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_shared_column_equals_the_traced_one_of_a_uniform_cell() {
+        // A uniform block touching the grid's edges: the clipped trace and the shared column
+        // must agree on every in-grid slot.
+        let grid = Grid {
+            dims: [9, 8, 7],
+            cell_size: 1.0,
+        };
+        let mut sigma_t = vec![0.7f32; grid.cell_count()];
+        sigma_t[grid.index(8, 7, 6)] = 0.2;
+        let q = NearQuadrature {
+            radius: 2,
+            points_per_axis: 2,
+            directions: 16,
+        };
+        let stencil = NearStencil::new(&q);
+        let (active, _) = active_cells(&sigma_t);
+        let uniform = uniform_neighbourhoods(&grid, &sigma_t, q.radius);
+        let shared = NearColumns::build(&grid, &sigma_t, &stencil, &active, Some(&uniform));
+        let traced = NearColumns::build(&grid, &sigma_t, &stencil, &active, None);
+        let mut nb = vec![0u32; stencil.slots()];
+        let mut checked = 0;
+        for &i in active.iter().filter(|&&i| uniform[i]) {
+            assert!(shared.shared_of(i).is_some());
+            stencil.neighbours(&grid, i, &mut nb);
+            for (slot, &j) in nb.iter().enumerate() {
+                if j != u32::MAX {
+                    assert_eq!(shared.column(i)[slot], traced.column(i)[slot], "cell {i}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 1000, "{checked}");
+        assert_eq!(shared.shared_count(), 1);
     }
 }

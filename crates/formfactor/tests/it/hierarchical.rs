@@ -290,3 +290,97 @@ fn block_gauss_seidel_sweep_converges_to_the_jacobi_solution() {
     assert!(err < 1e-8, "GS vs Jacobi {err} after {sweeps} sweeps");
     assert!(sweeps < 600);
 }
+
+/// A shield of one σt around a near-void holding a small dense source, beside a noisy
+/// cloud: uniform regions (whose near rows and rings are shared) next to mixed ones.
+fn shield_and_cloud(grid: &Grid) -> Vec<f32> {
+    let d = grid.dims;
+    let noisy = cloud(d, grid.cell_size, 0.8, 11);
+    let mut sigma_t = vec![0f32; grid.cell_count()];
+    for z in 0..d[2] {
+        for y in 0..d[1] {
+            for x in 0..d[0] {
+                let i = grid.index(x, y, z);
+                let inner = (6..18).contains(&x) && (6..18).contains(&y) && (6..14).contains(&z);
+                let source = (11..13).contains(&x) && (11..13).contains(&y) && (9..11).contains(&z);
+                sigma_t[i] = if x >= 24 {
+                    noisy[i]
+                } else if source {
+                    1.2
+                } else if inner {
+                    0.01
+                } else {
+                    0.45
+                };
+            }
+        }
+    }
+    sigma_t
+}
+
+#[test]
+fn shared_rows_and_rings_are_the_stored_operator() {
+    let grid = Grid {
+        dims: [32, 24, 20],
+        cell_size: 1.0,
+    };
+    let medium = grey(&grid, &channel(shield_and_cloud(&grid), 0.8));
+    let options = |share| HierarchicalOptions {
+        share_uniform_rows: share,
+        ..Default::default()
+    };
+    let shared = HierarchicalOperator::build(&medium, 0, &options(true)).unwrap();
+    let stored = HierarchicalOperator::build(&medium, 0, &options(false)).unwrap();
+    let mut rng = Pcg64::seed_from_u64(5);
+    let x: Vec<f64> = (0..grid.cell_count()).map(|_| rng.random()).collect();
+    let (mut ys, mut yo) = (vec![0.0; x.len()], vec![0.0; x.len()]);
+    shared.apply_form_factors(&x, &mut ys);
+    stored.apply_form_factors(&x, &mut yo);
+    let worst = ys
+        .iter()
+        .zip(&yo)
+        .map(|(a, b)| (a - b).abs() / b.abs().max(1e-12))
+        .fold(0.0, f64::max);
+    println!(
+        "shared rows {} of {} cells; near entries {} vs {}; links {} vs {}; worst {worst:.2e}",
+        shared.shared_near_rows(),
+        shared.report().active_cells,
+        shared.near_entries(),
+        stored.near_entries(),
+        shared.link_count(),
+        stored.link_count()
+    );
+    // The same numbers (single-precision rows and link factors against double-precision
+    // shared ones).
+    assert!(worst < 1e-5, "worst relative difference {worst:e}");
+    let (cs, co) = (shared.column_sums(), stored.column_sums());
+    assert!(
+        rel_l2(&cs, &co) < 1e-6,
+        "column sums differ: {}",
+        rel_l2(&cs, &co)
+    );
+    assert_eq!(stored.shared_near_rows(), 0);
+    // The shield's inside (a quarter of the cells) shares its rows.
+    assert!(shared.shared_near_rows() * 4 > shared.report().active_cells);
+    assert!(shared.near_entries() * 5 < stored.near_entries() * 4);
+    assert!(shared.link_count() < stored.link_count());
+    assert!(shared.memory_bytes() < stored.memory_bytes());
+}
+
+#[test]
+fn grids_of_one_and_two_cells_build() {
+    for dims in [[1, 1, 1], [2, 1, 1], [1, 1, 9]] {
+        let grid = Grid {
+            dims,
+            cell_size: 1.0,
+        };
+        let medium = grey(&grid, &channel(vec![0.7; grid.cell_count()], 0.9));
+        let op = HierarchicalOperator::build(&medium, 0, &HierarchicalOptions::default()).unwrap();
+        let sums = op.column_sums();
+        // A cell intercepts part of its own light and of its neighbours', never all of it.
+        assert!(
+            sums.iter().all(|&c| c > 0.1 && c < 1.0),
+            "{dims:?}: {sums:?}"
+        );
+    }
+}
