@@ -592,6 +592,93 @@ impl InScattering for BinnedSource<'_> {
     }
 }
 
+/// The two-pass method's stored field drawn between cell centres as the other solved fields
+/// are: its mean over directions per cell (the tallies of all bins together, the least noisy
+/// part) as a [`CellSource`], times the cell's own angular shape (its value in the bin of the
+/// direction over its mean). Each cell keeps its mean in every bin, and a bin's Monte Carlo
+/// outlier stays in its cell: interpolating the bins themselves spread such outliers over their
+/// neighbours (13 % off on a view of the g = 0.6 cloud, 5 % drawn constant per cell). Constant
+/// per cell, an emitting cube's neighbourhood was 3.7 % (isotropic) and 4.8 % (g = 0.6) off.
+pub struct TwoPassSource<'a> {
+    field: &'a montecarlo::two_pass::TwoPassSolution,
+    mean: CellSource<'a>,
+    /// The per-cell means (the values `mean` draws).
+    means: &'a [f32],
+    max: f64,
+}
+
+impl<'a> TwoPassSource<'a> {
+    /// `means` is [`TwoPassSource::means_of`] `field`.
+    pub fn new(
+        field: &'a montecarlo::two_pass::TwoPassSolution,
+        means: &'a [f32],
+        lattice: CellLattice<'a>,
+        cache: &'a RenderCache,
+    ) -> Self {
+        let mean = CellSource::cached(means, lattice, cache);
+        let bins = field.bins.count().max(1);
+        let shape = (0..means.len())
+            .filter(|&c| means[c] > 0.0)
+            .map(|c| {
+                (0..bins)
+                    .map(|l| field.source_in_bin(c, l))
+                    .fold(0.0f64, f64::max)
+                    / means[c] as f64
+            })
+            .fold(0.0f64, f64::max);
+        let max = mean.max_source() * shape;
+        TwoPassSource {
+            field,
+            mean,
+            means,
+            max,
+        }
+    }
+
+    /// The field's mean over its (equal) direction bins, per cell.
+    pub fn means_of(field: &montecarlo::two_pass::TwoPassSolution) -> Vec<f32> {
+        let bins = field.bins.count().max(1);
+        (0..field.grid.cell_count())
+            .map(|c| {
+                let sum: f64 = (0..bins).map(|l| field.source_in_bin(c, l)).sum();
+                (sum / bins as f64) as f32
+            })
+            .collect()
+    }
+
+    /// The field in `cell` for light flowing along `w` over the cell's mean.
+    #[inline]
+    fn shape(&self, cell: usize, w: DVec3) -> f64 {
+        let mean = self.means[cell] as f64;
+        if mean > 0.0 {
+            self.field.source(cell, w) / mean
+        } else {
+            0.0
+        }
+    }
+}
+
+impl InScattering for TwoPassSource<'_> {
+    #[inline]
+    fn segment(&self, seg: &ViewSegment, carry: &mut RayCarry) -> f64 {
+        self.mean.segment(seg, carry) * self.shape(seg.cell, -seg.ray.direction)
+    }
+    #[inline]
+    fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
+        self.mean.at(x, cell, w) * self.shape(cell, w)
+    }
+    #[inline]
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
+        self.mean.at_step(step, w) * self.shape(step.corners.cell(), w)
+    }
+    fn max_source(&self) -> f64 {
+        self.max
+    }
+    fn is_zero(&self) -> bool {
+        self.max == 0.0
+    }
+}
+
 /// All scattered light of channel `c` for a render with `model`: the exact first bounce
 /// (true phase function, shadowed or "Utah") plus the solved higher orders.
 pub fn channel_scattering<'a>(
@@ -636,7 +723,14 @@ pub fn channel_scattering<'a>(
                 ),
             ))
         }
-        (ScatteredField::TwoPass(t), _) => Box::new((first, t.as_ref())),
+        (ScatteredField::TwoPass(t), _) => {
+            let means = ch.render_cache.cell_values(|| TwoPassSource::means_of(t));
+            let lattice = CellLattice::of(solution, c, ch)?;
+            Box::new((
+                first,
+                TwoPassSource::new(t, means, lattice, &ch.render_cache),
+            ))
+        }
         _ => Box::new(first),
     })
 }

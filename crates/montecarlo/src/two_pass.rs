@@ -781,14 +781,26 @@ impl TwoPassSolution {
     /// `Q_s` in density cell `cell` for light flowing along `flow` (radiance per length).
     #[inline]
     pub fn source(&self, cell: usize, flow: DVec3) -> f64 {
+        if self.cell_share[cell] == 0.0 {
+            return 0.0;
+        }
+        let l = if self.bins.count() == 1 {
+            0
+        } else {
+            self.bins.bin(flow)
+        };
+        self.source_in_bin(cell, l)
+    }
+
+    /// `Q_s` in density cell `cell` for light flowing in direction bin `bin`.
+    #[inline]
+    pub fn source_in_bin(&self, cell: usize, bin: usize) -> f64 {
         let share = self.cell_share[cell];
         if share == 0.0 {
             return 0.0;
         }
         let o = optical_index(&self.grid, self.storage_factor, self.optical_dims, cell);
-        let m = self.bins.count();
-        let l = if m == 1 { 0 } else { self.bins.bin(flow) };
-        share as f64 * self.voxel_source[o * m + l] as f64
+        share as f64 * self.voxel_source[o * self.bins.count() + bin] as f64
     }
 
     /// Total scattered power the stored source represents, `Σ_c V ∫ Q_s(c, ω) dω`: equals

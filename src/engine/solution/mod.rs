@@ -92,6 +92,9 @@ pub struct RenderCache {
     own_grid: std::sync::OnceLock<InverseScattering>,
     /// A per-cell source's centre values that keep each cell's mean (`nearest` renders).
     centre_values: std::sync::OnceLock<Vec<f32>>,
+    /// One value per cell of a field not stored that way (the two-pass method's isotropic
+    /// field: a share per cell times its optical voxel's tally).
+    cell_values: std::sync::OnceLock<Vec<f32>>,
 }
 
 /// `1/σs` of one channel per cell of the grid a source lives on (0 where a cell does not
@@ -188,6 +191,12 @@ impl RenderCache {
     /// same source on every call).
     pub fn centre_values(&self, make: impl FnOnce() -> Vec<f32>) -> &[f32] {
         self.centre_values.get_or_init(make)
+    }
+
+    /// The channel's field as one value per cell, made by `make` on the first call (the same
+    /// field on every call).
+    pub fn cell_values(&self, make: impl FnOnce() -> Vec<f32>) -> &[f32] {
+        self.cell_values.get_or_init(make)
     }
 
     /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
