@@ -284,9 +284,8 @@ pub struct InfoArgs {
 pub struct ExportArgs {
     pub solution: PathBuf,
     /// fluence (∫ I dω at each cell: the lights' unscattered light, the emitters' uncollided
-    /// light and the scattered light; two-pass solutions without their scattered light),
-    /// source (the solved source per cell, radiance per unit length) or sigma-t (extinction
-    /// per cell).
+    /// light and the scattered light), source (the solved source per cell, radiance per unit
+    /// length) or sigma-t (extinction per cell).
     #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(ExportField::NAMES)
         .map(|s| s.parse::<ExportField>().expect("a listed name parses")))]
     pub field: ExportField,

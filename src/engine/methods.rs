@@ -1092,9 +1092,9 @@ pub fn export_field(
 }
 
 /// `∫ I dω` per cell of channel `c`: the lights' unscattered light, the emitters'
-/// uncollided light and the scattered light. (Two-pass, single scatter and none get the
-/// emitters' light from an emitter pass now; their scattered light is not counted: two-pass
-/// stores it per optical voxel as a directional source, the others do not solve it. An
+/// uncollided light and the scattered light. (Two-pass's from the mean over directions of
+/// its stored field; single scatter and none get the emitters' light from an emitter pass,
+/// and their scattered light is not counted: they do not solve it. An
 /// environment's and a ground's uncollided light are counted where cells scatter, and by
 /// discrete ordinates everywhere.)
 ///
@@ -1158,47 +1158,31 @@ fn fluence_on(
     };
     Ok(match (&ch.scattered, bins) {
         (ScatteredField::Isotropic { source, .. }, _) => {
-            // g = e + σs φ / 4π for isotropic scattering, so φ = 4π (g − e) / σs. Where σs = 0
-            // (empty space around a cloud, absorbing cells) g does not say φ: there the light
-            // of every cell's source g — emitted and scattered — is traced to the cell (an
-            // emitter pass of g), with the lights' unscattered light.
-            let inside = |i: usize| m.sigma_s(i) > 0.0;
-            let outside: Vec<f64> = if (0..unscattered.len()).all(inside) {
-                Vec::new()
-            } else {
-                let g: Vec<f64> = source.iter().map(|&v| (v as f64).max(0.0)).collect();
-                let options = EmitterPassOptions::default();
-                let cost = EmitterPass::estimated_rays_per_cell_of(
-                    medium,
-                    c,
-                    &g,
-                    &options,
-                    EMITTER_COST_SAMPLES,
-                )?;
-                if cost * unscattered.len() as f64 <= MAX_EXPORT_RAYS {
-                    EmitterPass::from_sources(medium, c, &g, &options)
-                        .context("the fluence outside the scattering cells")?
-                        .fluence()
-                        .to_vec()
-                } else {
-                    // A large cloud's source traced to every empty cell would take minutes
-                    // (data/cloud.toml: over 5); there only the uncollided light is counted.
-                    tracing::warn!(
-                        rays_per_cell = cost,
-                        "fluence where cells do not scatter: the uncollided light only (tracing \
-                         the scattered light there would cost too much)"
-                    );
-                    emitted()?
-                }
-            };
+            // g = e + σs φ / 4π for isotropic scattering, so φ = 4π (g − e) / σs.
+            let g: Vec<f64> = source.iter().map(|&v| (v as f64).max(0.0)).collect();
+            let outside = fluence_where_nothing_scatters(medium, c, &g, unscattered, &emitted)?;
             (0..unscattered.len())
-                .map(|i| {
-                    if inside(i) {
-                        4.0 * PI * (source[i] as f64 - m.emission.get(i) as f64)
-                            / m.sigma_s(i) as f64
-                    } else {
-                        unscattered[i] + outside[i]
-                    }
+                .map(|i| match &outside {
+                    Some(o) if m.sigma_s(i) <= 0.0 => unscattered[i] + o[i],
+                    _ => 4.0 * PI * (g[i] - m.emission.get(i) as f64) / m.sigma_s(i) as f64,
+                })
+                .collect()
+        }
+        (ScatteredField::TwoPass(t), _) => {
+            // The stored field holds every interaction but the lights' first (the render's
+            // exact single scattering): its mean over directions Q̄ is σs/4π times the flux of
+            // all light but the lights' unscattered light, so φ = unscattered + 4π Q̄ / σs.
+            let means = crate::engine::sources::TwoPassSource::means_of(t);
+            let g: Vec<f64> = means
+                .iter()
+                .enumerate()
+                .map(|(i, &q)| q as f64 + m.emission.get(i) as f64)
+                .collect();
+            let outside = fluence_where_nothing_scatters(medium, c, &g, unscattered, &emitted)?;
+            (0..unscattered.len())
+                .map(|i| match &outside {
+                    Some(o) if m.sigma_s(i) <= 0.0 => unscattered[i] + o[i],
+                    _ => unscattered[i] + 4.0 * PI * means[i] as f64 / m.sigma_s(i) as f64,
                 })
                 .collect()
         }
@@ -1219,6 +1203,42 @@ fn fluence_on(
             .map(|(u, e)| u + e)
             .collect(),
     })
+}
+
+/// Where cells do not scatter (empty space around a cloud, absorbing cells) a per-cell
+/// source does not say the flux: there the light of every cell's isotropic source `g` —
+/// emitted and scattered — is traced to the cell (an emitter pass of `g`); add the lights'
+/// unscattered light. `None` when every cell scatters. A large cloud's source traced to every
+/// empty cell would take minutes (data/cloud.toml: over 5): there only the emitters'
+/// uncollided light (`emitted`) is counted, with a warning.
+fn fluence_where_nothing_scatters(
+    medium: &Medium,
+    c: usize,
+    g: &[f64],
+    unscattered: &[f64],
+    emitted: &dyn Fn() -> Result<Vec<f64>>,
+) -> Result<Option<Vec<f64>>> {
+    let m = &medium.channels()[c];
+    if (0..unscattered.len()).all(|i| m.sigma_s(i) > 0.0) {
+        return Ok(None);
+    }
+    let options = EmitterPassOptions::default();
+    let cost =
+        EmitterPass::estimated_rays_per_cell_of(medium, c, g, &options, EMITTER_COST_SAMPLES)?;
+    if cost * unscattered.len() as f64 <= MAX_EXPORT_RAYS {
+        return Ok(Some(
+            EmitterPass::from_sources(medium, c, g, &options)
+                .context("the fluence outside the scattering cells")?
+                .fluence()
+                .to_vec(),
+        ));
+    }
+    tracing::warn!(
+        rays_per_cell = cost,
+        "fluence where cells do not scatter: the uncollided light only (tracing the scattered \
+         light there would cost too much)"
+    );
+    Ok(Some(emitted()?))
 }
 
 /// Refuses a solution whose solve was cancelled in any channel: its fields are partial. (Not
