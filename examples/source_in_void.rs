@@ -17,7 +17,7 @@
 //! flux (chords through the source along 200,000 directions, optical depth through the three
 //! nested boxes in closed form); for case ii an analog Monte Carlo of `--histories` particles
 //! (default 10⁷) scoring track length in each detector cell, with its standard error. Also the
-//! solve's time, the process's peak memory and the peak `volrad info` predicts.
+//! solve's time, the process's peak memory and the peak and time `volrad info` predicts.
 
 use std::f64::consts::PI;
 use std::path::Path;
@@ -31,6 +31,7 @@ use scene::Scene;
 use volrad::engine::budget::{human_bytes, solve_peak, Occupancy};
 use volrad::engine::methods::fluence;
 use volrad::engine::pipeline::solve_scene;
+use volrad::engine::timing::solve_time;
 use volrad::engine::SolveHooks;
 
 const SIDE_CM: f64 = 200.0;
@@ -276,13 +277,21 @@ fn main() -> Result<()> {
                 .map(|l| l.split_whitespace().nth(1).unwrap_or("?").to_string())
         })
         .unwrap_or_else(|| "?".into());
-    let predicted = solve_peak(&scene, &scene.solve, &Occupancy::of(&scene.medium)).total();
+    let occupancy = Occupancy::of(&scene.medium);
+    let predicted = solve_peak(&scene, &scene.solve, &occupancy).total();
+    let predicted_time = solve_time(
+        &scene,
+        &scene.solve,
+        &occupancy,
+        rayon::current_num_threads(),
+    );
     println!(
         "Kobayashi problem 1, case {case}, {method}, {dims}³ cells: solve {seconds:.1} s, peak \
-         resident {} MiB (`volrad info` predicts {})",
+         resident {} MiB (`volrad info` predicts {} and {})",
         peak.parse::<f64>()
             .map_or(peak.clone(), |k| format!("{:.0}", k / 1024.0)),
-        human_bytes(predicted)
+        human_bytes(predicted),
+        predicted_time
     );
     let lines: Vec<(&str, Vec<[f64; 3]>)> = vec![
         (
