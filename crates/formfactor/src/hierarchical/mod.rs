@@ -183,7 +183,7 @@ impl HierarchicalOperator {
         let sigma_t = &channel.sigma_t;
         let h = grid.cell_size;
         let n = grid.cell_count();
-        let (active, _) = active_cells(sigma_t);
+        let active = active_cells(sigma_t);
         let alpha: Vec<f64> = sigma_t.iter().map(|&s| interception(s as f64, h)).collect();
         let beta: Vec<f64> = sigma_t
             .iter()
@@ -359,22 +359,14 @@ impl HierarchicalOperator {
             ring_cells: &ring_cells,
             radius,
         };
-        let mut leaf_ptr = vec![0usize; n + 1];
-        {
-            let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
-            candidates.par_iter().for_each(|&(a, b)| {
-                leaves.each(a as usize, b as usize, |x, y| {
-                    counts[x].fetch_add(1, Ordering::Relaxed);
-                    counts[y].fetch_add(1, Ordering::Relaxed);
-                })
-            });
-            for (i, c) in counts.into_iter().enumerate() {
-                leaf_ptr[i + 1] = leaf_ptr[i] + c.into_inner() as usize;
-            }
-        }
-        let mut leaf_fill = leaf_ptr.clone();
-        let mut leaf_src = vec![0u32; leaf_ptr[n]];
-        let mut leaf_k = vec![0f32; leaf_ptr[n]];
+        let counts: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+        candidates.par_iter().for_each(|&(a, b)| {
+            leaves.each(a as usize, b as usize, |x, y| {
+                counts[x].fetch_add(1, Ordering::Relaxed);
+                counts[y].fetch_add(1, Ordering::Relaxed);
+            })
+        });
+        let mut leaf_links = LinkFill::new(counts.into_iter().map(|c| c.into_inner() as usize));
         for batch in candidates.chunks(LEAF_BATCH) {
             let parts: Vec<Vec<(u32, u32, f32)>> = batch
                 .par_chunks(CANDIDATE_CHUNK)
@@ -389,53 +381,32 @@ impl HierarchicalOperator {
                     links
                 })
                 .collect();
-            for (a, b, k) in parts.into_iter().flatten() {
-                for (r, s) in [(a, b), (b, a)] {
-                    let p = &mut leaf_fill[r as usize];
-                    leaf_src[*p] = s;
-                    leaf_k[*p] = k;
-                    *p += 1;
-                }
-            }
+            parts
+                .into_iter()
+                .flatten()
+                .for_each(|link| leaf_links.push(link));
         }
         drop(candidates);
         let mut links_per_level: Vec<usize> = unordered
             .iter()
             .map(|chunks| chunks.iter().map(Vec::len).sum())
             .collect();
-        links_per_level[0] = leaf_ptr[n] / 2;
-
-        // Receiver-sorted directed links, both directions of each unordered pair.
+        links_per_level[0] = leaf_links.src.len() / 2;
+        leaf_links.into_level(&mut levels[0]);
+        // The cluster links, counted from their chunks.
         for (level, chunks) in levels.iter_mut().zip(unordered).skip(1) {
-            let count = level.count();
-            let mut ptr = vec![0usize; count + 1];
+            let mut counts = vec![0usize; level.count()];
             for &(a, b, _) in chunks.iter().flatten() {
-                ptr[a as usize + 1] += 1;
-                ptr[b as usize + 1] += 1;
+                counts[a as usize] += 1;
+                counts[b as usize] += 1;
             }
-            for c in 0..count {
-                ptr[c + 1] += ptr[c];
-            }
-            let mut fill = ptr.clone();
-            let mut src = vec![0u32; ptr[count]];
-            let mut kk = vec![0f32; ptr[count]];
-            for chunk in chunks {
-                for (a, b, k) in chunk {
-                    for (r, s) in [(a, b), (b, a)] {
-                        let p = &mut fill[r as usize];
-                        src[*p] = s;
-                        kk[*p] = k;
-                        *p += 1;
-                    }
-                }
-            }
-            level.link_ptr = ptr;
-            level.link_src = src;
-            level.link_k = kk;
+            let mut links = LinkFill::new(counts);
+            chunks
+                .into_iter()
+                .flatten()
+                .for_each(|link| links.push(link));
+            links.into_level(level);
         }
-        levels[0].link_ptr = leaf_ptr;
-        levels[0].link_src = leaf_src;
-        levels[0].link_k = leaf_k;
 
         let mut op = HierarchicalOperator {
             grid: *grid,
@@ -624,7 +595,7 @@ fn ring_radius(radius: usize) -> usize {
 /// build skips exactly those links.
 #[derive(Clone, Debug)]
 struct NearField {
-    dims: [usize; 3],
+    grid: Grid,
     radius: usize,
     ring_radius: usize,
     ptr: Vec<usize>,
@@ -659,14 +630,14 @@ impl NearField {
         let slots = stencil.slots();
         let ring_radius = ring_radius(stencil.radius);
         let mut near = NearField {
-            dims: grid.dims,
+            grid: *grid,
             radius: stencil.radius,
             ring_radius,
             ptr: vec![0; n + 1],
             col: Vec::new(),
             val: Vec::new(),
             shared_of: vec![u32::MAX; n],
-            shared: (0..columns.shared_count())
+            shared: (0..columns.shared_sigma().len())
                 .map(|k| columns.shared_row(k))
                 .collect(),
             ring: Vec::new(),
@@ -732,12 +703,10 @@ impl NearField {
         for (&i, c) in own.iter().zip(own_colsums) {
             colsum[i] = c;
         }
-        let mut shared_sigma = vec![0f32; near.shared.len()];
         for &i in active {
             if let Some(k) = columns.shared_of(i) {
                 near.shared_of[i] = k as u32;
                 near.shared_cells += 1;
-                shared_sigma[k] = sigma_t[i];
             }
         }
         // The rings: far estimates in a uniform medium of each shared σt (a ring cell is
@@ -749,7 +718,8 @@ impl NearField {
                 cell_size: grid.cell_size,
             };
             let centre = box_grid.index(ring_radius, ring_radius, ring_radius);
-            near.ring = shared_sigma
+            near.ring = columns
+                .shared_sigma()
                 .iter()
                 .map(|&sigma| {
                     let uniform = vec![sigma; w * w * w];
@@ -800,7 +770,7 @@ impl NearField {
         }
         let mut acc = 0.0;
         let row = &self.shared[k as usize];
-        self.runs(i, self.radius, [None; 3], |slot, j, len| {
+        self.runs(i, self.radius, [None; 3], |slot, j, len, _| {
             acc += dot(&row[slot..slot + len], &xs[j..j + len]);
         });
         if self.has_ring(i) {
@@ -834,7 +804,7 @@ impl NearField {
             return;
         }
         let row = &self.shared[k as usize];
-        self.runs(i, self.radius, [None; 3], |slot, j, len| {
+        self.runs(i, self.radius, [None; 3], |slot, j, len, _| {
             for t in 0..len {
                 f(j + t, row[slot + t]);
             }
@@ -843,7 +813,7 @@ impl NearField {
             let ring = &self.ring[k as usize];
             self.ring_runs(i, |slot, j, len| {
                 for t in 0..len {
-                    if self.ring_mask[j + t] > 0.0 && ring[slot + t] != 0.0 {
+                    if self.ring_mask[j + t] > 0.0 {
                         f(j + t, ring[slot + t]);
                     }
                 }
@@ -851,34 +821,48 @@ impl NearField {
         }
     }
 
-    /// The ring's x-runs for cell `i`: the parity box of its level-1 cluster's near
-    /// clusters, skipping the inner runs that lie within R (zero there).
+    /// The ring's x-runs for cell `i`: the parity box of its level-1 cluster's near clusters,
+    /// clipped to the grid, without its cells within R (zero in the ring's row): the box's
+    /// rows within R in y and z keep only their two ends.
     fn ring_runs(&self, i: usize, mut run: impl FnMut(usize, usize, usize)) {
-        let d = self.dims;
-        let c = [i % d[0], (i / d[0]) % d[1], i / (d[0] * d[1])];
+        let r = self.radius as i64;
         let reach = self.ring_radius as i64 - 1;
-        let bounds = c.map(|v| {
+        let bounds = self.grid.coords(i).map(|v| {
             let p = (v % 2) as i64;
-            (-reach - p, reach + 1 - p)
+            Some((-reach - p, reach + 1 - p))
         });
-        self.runs(i, self.ring_radius, bounds.map(Some), &mut run);
+        self.runs(i, self.ring_radius, bounds, |slot, j, len, [x0, dy, dz]| {
+            if dy.abs() > r || dz.abs() > r {
+                return run(slot, j, len);
+            }
+            let x1 = x0 + len as i64 - 1;
+            let below = x1.min(-r - 1);
+            if below >= x0 {
+                run(slot, j, (below - x0 + 1) as usize);
+            }
+            let above = x0.max(r + 1);
+            if above <= x1 {
+                let skip = (above - x0) as usize;
+                run(slot + skip, j + skip, (x1 - above + 1) as usize);
+            }
+        });
     }
 
-    /// For cell `i` and a dense box row of `radius`: `run(slot, j, len)` for each x-run of
-    /// the box (limited per axis to `bounds`, if given) clipped to the grid: `len` slots from
-    /// `slot` match `len` cells from `j`.
+    /// For cell `i` and a dense box row of `radius`: `run(slot, j, len, [dx, dy, dz])` for
+    /// each x-run of the box (limited per axis to `bounds`, if given) clipped to the grid:
+    /// `len` slots from `slot` match `len` cells from `j`, the first at offset `(dx, dy, dz)`.
     #[inline]
     fn runs(
         &self,
         i: usize,
         radius: usize,
         bounds: [Option<(i64, i64)>; 3],
-        mut run: impl FnMut(usize, usize, usize),
+        mut run: impl FnMut(usize, usize, usize, [i64; 3]),
     ) {
-        let d = self.dims;
+        let d = self.grid.dims;
         let r = radius as i64;
         let w = 2 * radius + 1;
-        let c = [i % d[0], (i / d[0]) % d[1], i / (d[0] * d[1])].map(|v| v as i64);
+        let c = self.grid.coords(i).map(|v| v as i64);
         let range = |a: usize| {
             let (lo, hi) = bounds[a].unwrap_or((-r, r));
             (lo.max(-c[a]), hi.min(d[a] as i64 - 1 - c[a]))
@@ -893,7 +877,7 @@ impl NearField {
                 let slot = (x0 + r) as usize + w * ((dy + r) as usize + w * (dz + r) as usize);
                 let j = (c[0] + x0) as usize
                     + d[0] * ((c[1] + dy) as usize + d[1] * (c[2] + dz) as usize);
-                run(slot, j, len);
+                run(slot, j, len, [x0, dy, dz]);
             }
         }
     }
@@ -923,6 +907,49 @@ impl NearField {
 #[inline]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(a, b)| a * b).sum()
+}
+
+/// One level's receiver-sorted directed links as they are written: each unordered link
+/// `(a, b, K)` goes in both ways, `a ← b` and `b ← a`, at the next free place of its
+/// receiver's row (rows sized beforehand by counting).
+struct LinkFill {
+    ptr: Vec<usize>,
+    next: Vec<usize>,
+    src: Vec<u32>,
+    k: Vec<f32>,
+}
+
+impl LinkFill {
+    /// Rows of `counts` directed links each, one per cluster of the level.
+    fn new(counts: impl IntoIterator<Item = usize>) -> LinkFill {
+        let mut ptr = vec![0usize];
+        for c in counts {
+            ptr.push(ptr[ptr.len() - 1] + c);
+        }
+        let total = ptr[ptr.len() - 1];
+        LinkFill {
+            next: ptr[..ptr.len() - 1].to_vec(),
+            ptr,
+            src: vec![0; total],
+            k: vec![0.0; total],
+        }
+    }
+
+    #[inline]
+    fn push(&mut self, (a, b, k): (u32, u32, f32)) {
+        for (receiver, source) in [(a, b), (b, a)] {
+            let p = &mut self.next[receiver as usize];
+            self.src[*p] = source;
+            self.k[*p] = k;
+            *p += 1;
+        }
+    }
+
+    fn into_level(self, level: &mut Level) {
+        level.link_ptr = self.ptr;
+        level.link_src = self.src;
+        level.link_k = self.k;
+    }
 }
 
 /// The leaf pairs a level-1 pair splits into that are far links: not near (within R), and

@@ -113,17 +113,9 @@ pub struct BuildReport {
     pub seconds: f64,
 }
 
-/// The cells with σt > 0 and the map cell → active index (`u32::MAX` when inactive).
-pub(crate) fn active_cells(sigma_t: &[f32]) -> (Vec<usize>, Vec<u32>) {
-    let mut index = vec![u32::MAX; sigma_t.len()];
-    let mut active = Vec::new();
-    for (i, &s) in sigma_t.iter().enumerate() {
-        if s > 0.0 {
-            index[i] = active.len() as u32;
-            active.push(i);
-        }
-    }
-    (active, index)
+/// The cells with σt > 0 (the others neither emit scattered light nor intercept).
+pub(crate) fn active_cells(sigma_t: &[f32]) -> Vec<usize> {
+    (0..sigma_t.len()).filter(|&i| sigma_t[i] > 0.0).collect()
 }
 
 /// Which cells have a uniform near neighbourhood: σt > 0 and every cell of the grid within
@@ -186,6 +178,8 @@ pub(crate) struct NearColumns {
     /// Per cell: its column's index in `own`, or `u32::MAX`.
     own_index: Vec<u32>,
     shared: Vec<f64>,
+    /// The σt of each shared column.
+    shared_sigma: Vec<f32>,
     /// Per cell: its σt's column in `shared`, or `u32::MAX`.
     shared_index: Vec<u32>,
 }
@@ -248,6 +242,7 @@ impl NearColumns {
             own: trace(&own_cells, sigma_t, true),
             own_index,
             shared: trace(&distinct, &shared_sigma, false),
+            shared_sigma,
             shared_index,
         }
     }
@@ -270,9 +265,9 @@ impl NearColumns {
         (s != u32::MAX).then_some(s as usize)
     }
 
-    /// Shared columns (one per σt of the cells with uniform neighbourhoods).
-    pub fn shared_count(&self) -> usize {
-        self.shared.len() / self.slots.max(1)
+    /// The σt of each shared column (one per σt of the cells with uniform neighbourhoods).
+    pub fn shared_sigma(&self) -> &[f32] {
+        &self.shared_sigma
     }
 
     /// The symmetrised near row of shared column `k`: `½(F_ij + F_ji)` per slot (σt equal).
@@ -382,7 +377,7 @@ impl FormFactorMatrix {
         let grid = medium.grid();
         let sigma_t = &channel.sigma_t;
         let n = grid.cell_count();
-        let (active, _) = active_cells(sigma_t);
+        let active = active_cells(sigma_t);
         let stencil = NearStencil::new(&options.near);
         let uniform = uniform_neighbourhoods(grid, sigma_t, options.near.radius);
         let columns = NearColumns::build(grid, sigma_t, &stencil, &active, Some(&uniform));
@@ -654,7 +649,7 @@ mod tests {
             directions: 16,
         };
         let stencil = NearStencil::new(&q);
-        let (active, _) = active_cells(&sigma_t);
+        let active = active_cells(&sigma_t);
         let uniform = uniform_neighbourhoods(&grid, &sigma_t, q.radius);
         let shared = NearColumns::build(&grid, &sigma_t, &stencil, &active, Some(&uniform));
         let traced = NearColumns::build(&grid, &sigma_t, &stencil, &active, None);
@@ -671,6 +666,6 @@ mod tests {
             }
         }
         assert!(checked > 1000, "{checked}");
-        assert_eq!(shared.shared_count(), 1);
+        assert_eq!(shared.shared_sigma(), &[0.7]);
     }
 }
