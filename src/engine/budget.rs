@@ -134,7 +134,7 @@ impl Sizes {
             transport_cells: Coarsening::cell_count_of(medium.grid(), scale) as u64,
             transport_occupied: occupancy.at(scale) as u64,
             transport_shared_rows: if settings.method == SolveMethod::ZonalHierarchical {
-                hierarchy_shared_rows(medium, scale) as u64
+                occupancy.hierarchy_shared_rows(scale) as u64
             } else {
                 0
             },
@@ -146,25 +146,43 @@ impl Sizes {
 
 /// Where a medium is non-empty (σt > 0 in any channel), to count its non-empty cells on the
 /// data grid and on any transport grid: what the zonal operators and the two-pass tallies
-/// grow with.
-pub struct Occupancy {
-    grid: medium::Grid,
+/// grow with; and how many of them the hierarchy's shared near rows cover.
+pub struct Occupancy<'a> {
+    medium: &'a medium::Medium,
     occupied: Vec<bool>,
+    /// [`hierarchy_shared_rows`](Occupancy::hierarchy_shared_rows) per transport scale asked
+    /// for: the memory check, its alternatives and the predicted time all ask.
+    shared_rows: std::sync::Mutex<Vec<(usize, usize)>>,
 }
 
-impl Occupancy {
-    pub fn of(medium: &medium::Medium) -> Occupancy {
+impl<'a> Occupancy<'a> {
+    pub fn of(medium: &'a medium::Medium) -> Occupancy<'a> {
         Occupancy {
-            grid: *medium.grid(),
+            medium,
             occupied: (0..medium.grid().cell_count())
                 .map(|i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
                 .collect(),
+            shared_rows: std::sync::Mutex::new(Vec::new()),
         }
+    }
+
+    /// The non-empty cells of the transport grid at `scale` whose near-field row the
+    /// hierarchical operator shares with every cell of the same σt (their near neighbourhood
+    /// is uniform: `formfactor::zonal::uniform_neighbourhoods`), the fewest over the channels.
+    /// Such cells cost the operator no near-field memory and no near-field build time.
+    pub fn hierarchy_shared_rows(&self, scale: usize) -> usize {
+        let mut known = self.shared_rows.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(&(_, count)) = known.iter().find(|(s, _)| *s == scale) {
+            return count;
+        }
+        let count = shared_rows_of(self.medium, scale);
+        known.push((scale, count));
+        count
     }
 
     /// Non-empty cells of the transport grid at `scale` (1: the data grid's).
     pub fn at(&self, scale: usize) -> usize {
-        let Ok(k) = Coarsening::new(&self.grid, scale) else {
+        let Ok(k) = Coarsening::new(self.medium.grid(), scale) else {
             return 0;
         };
         if scale == 1 {
@@ -178,11 +196,8 @@ impl Occupancy {
     }
 }
 
-/// The non-empty cells of the transport grid at `scale` whose near-field row the
-/// hierarchical operator shares with every cell of the same σt (their near neighbourhood is
-/// uniform: `formfactor::zonal::uniform_neighbourhoods`), the fewest over the channels. Such
-/// cells cost the operator no near-field memory and no near-field build time.
-pub fn hierarchy_shared_rows(medium: &medium::Medium, scale: usize) -> usize {
+/// [`Occupancy::hierarchy_shared_rows`], counted.
+fn shared_rows_of(medium: &medium::Medium, scale: usize) -> usize {
     let radius = formfactor::HierarchicalOptions::default().near.radius;
     let coarse;
     let medium = if scale > 1 {

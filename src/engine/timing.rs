@@ -220,8 +220,7 @@ pub fn solve_time(
         SolveMethod::ZonalHierarchical => operator(
             "the hierarchical operator",
             transport_occupied * far_links_per_occupied_cell(transport_occupied)
-                + (transport_occupied - super::budget::hierarchy_shared_rows(medium, scale) as f64)
-                    .max(0.0)
+                + (transport_occupied - occupancy.hierarchy_shared_rows(scale) as f64).max(0.0)
                     * NEAR_ENTRIES_PER_STORED_ROW,
             HIERARCHICAL_BUILD_SECONDS_PER_LINK,
             HIERARCHICAL_APPLY_SECONDS_PER_LINK,
