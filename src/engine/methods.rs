@@ -1172,7 +1172,9 @@ fn fluence_on(
             // The stored field holds every interaction but the lights' first (the render's
             // exact single scattering): its mean over directions Q̄ is σs/4π times the flux of
             // all light but the lights' unscattered light, so φ = unscattered + 4π Q̄ / σs.
-            let means = crate::engine::sources::TwoPassSource::means_of(t);
+            let (means, _) = ch
+                .render_cache
+                .two_pass_means(|| crate::engine::sources::TwoPassSource::means_of(t));
             let g: Vec<f64> = means
                 .iter()
                 .enumerate()

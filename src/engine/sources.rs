@@ -596,9 +596,8 @@ impl InScattering for BinnedSource<'_> {
 /// are: its mean over directions per cell (the tallies of all bins together, the least noisy
 /// part) as a [`CellSource`], times the cell's own angular shape (its value in the bin of the
 /// direction over its mean). Each cell keeps its mean in every bin, and a bin's Monte Carlo
-/// outlier stays in its cell: interpolating the bins themselves spread such outliers over their
-/// neighbours (13 % off on a view of the g = 0.6 cloud, 5 % drawn constant per cell). Constant
-/// per cell, an emitting cube's neighbourhood was 3.7 % (isotropic) and 4.8 % (g = 0.6) off.
+/// outlier stays in its cell (interpolating the bins themselves would spread it over the
+/// neighbours).
 pub struct TwoPassSource<'a> {
     field: &'a montecarlo::two_pass::TwoPassSolution,
     mean: CellSource<'a>,
@@ -608,25 +607,16 @@ pub struct TwoPassSource<'a> {
 }
 
 impl<'a> TwoPassSource<'a> {
-    /// `means` is [`TwoPassSource::means_of`] `field`.
+    /// `means` and `largest_ratio` are [`TwoPassSource::means_of`] `field` (kept per solution
+    /// in `cache`).
     pub fn new(
         field: &'a montecarlo::two_pass::TwoPassSolution,
-        means: &'a [f32],
+        (means, largest_ratio): (&'a [f32], f64),
         lattice: CellLattice<'a>,
         cache: &'a RenderCache,
     ) -> Self {
         let mean = CellSource::cached(means, lattice, cache);
-        let bins = field.bins.count().max(1);
-        let shape = (0..means.len())
-            .filter(|&c| means[c] > 0.0)
-            .map(|c| {
-                (0..bins)
-                    .map(|l| field.source_in_bin(c, l))
-                    .fold(0.0f64, f64::max)
-                    / means[c] as f64
-            })
-            .fold(0.0f64, f64::max);
-        let max = mean.max_source() * shape;
+        let max = mean.max_source() * largest_ratio;
         TwoPassSource {
             field,
             mean,
@@ -635,15 +625,24 @@ impl<'a> TwoPassSource<'a> {
         }
     }
 
-    /// The field's mean over its (equal) direction bins, per cell.
-    pub fn means_of(field: &montecarlo::two_pass::TwoPassSolution) -> Vec<f32> {
+    /// The field's mean over its (equal) direction bins per cell, and the largest ratio of a
+    /// cell's value in one bin to its mean (what bounds the drawn source).
+    pub fn means_of(field: &montecarlo::two_pass::TwoPassSolution) -> (Vec<f32>, f64) {
         let bins = field.bins.count().max(1);
-        (0..field.grid.cell_count())
+        let mut largest_ratio = 0.0f64;
+        let means = (0..field.grid.cell_count())
             .map(|c| {
-                let sum: f64 = (0..bins).map(|l| field.source_in_bin(c, l)).sum();
-                (sum / bins as f64) as f32
+                let (sum, top) = (0..bins)
+                    .map(|l| field.source_in_bin(c, l))
+                    .fold((0.0, 0.0f64), |(s, t), v| (s + v, t.max(v)));
+                let mean = sum / bins as f64;
+                if mean > 0.0 {
+                    largest_ratio = largest_ratio.max(top / mean);
+                }
+                mean as f32
             })
-            .collect()
+            .collect();
+        (means, largest_ratio)
     }
 
     /// The field in `cell` for light flowing along `w` over the cell's mean.
@@ -724,7 +723,9 @@ pub fn channel_scattering<'a>(
             ))
         }
         (ScatteredField::TwoPass(t), _) => {
-            let means = ch.render_cache.cell_values(|| TwoPassSource::means_of(t));
+            let means = ch
+                .render_cache
+                .two_pass_means(|| TwoPassSource::means_of(t));
             let lattice = CellLattice::of(solution, c, ch)?;
             Box::new((
                 first,

@@ -92,9 +92,9 @@ pub struct RenderCache {
     own_grid: std::sync::OnceLock<InverseScattering>,
     /// A per-cell source's centre values that keep each cell's mean (`nearest` renders).
     centre_values: std::sync::OnceLock<Vec<f32>>,
-    /// One value per cell of a field not stored that way (the two-pass method's isotropic
-    /// field: a share per cell times its optical voxel's tally).
-    cell_values: std::sync::OnceLock<Vec<f32>>,
+    /// A two-pass field's mean over its direction bins per cell, and the largest ratio of a
+    /// cell's value in one bin to that mean ([`crate::engine::sources::TwoPassSource`]).
+    two_pass_means: std::sync::OnceLock<(Vec<f32>, f64)>,
 }
 
 /// `1/σs` of one channel per cell of the grid a source lives on (0 where a cell does not
@@ -193,10 +193,11 @@ impl RenderCache {
         self.centre_values.get_or_init(make)
     }
 
-    /// The channel's field as one value per cell, made by `make` on the first call (the same
-    /// field on every call).
-    pub fn cell_values(&self, make: impl FnOnce() -> Vec<f32>) -> &[f32] {
-        self.cell_values.get_or_init(make)
+    /// The channel's two-pass field's means over directions and their largest bin ratio,
+    /// made by `make` on the first call (the same field on every call).
+    pub fn two_pass_means(&self, make: impl FnOnce() -> (Vec<f32>, f64)) -> (&[f32], f64) {
+        let (means, ratio) = self.two_pass_means.get_or_init(make);
+        (means, *ratio)
     }
 
     /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
