@@ -64,10 +64,11 @@ const ZONAL_BYTES_PER_PAIR: u64 = 32;
 /// Hierarchical zonal: per non-empty cell (its links, the cluster tree, the diffusion
 /// operator), per non-empty cell whose near-field row is stored rather than shared (the row,
 /// and its traced column while the rows are made), per cell of the grid, and what the build
-/// holds whatever the grid. Fitted (worst ±11 % on the operator) to solves of 32 × 32 × 24
-/// and 64 × 64 × 48 clouds (12 % non-empty, no row shared), uniform 24³ and 40³ blocks (every
-/// row shared) and Kobayashi's 60³ source in a void (78 % of rows shared): 83, 378, 130, 359
-/// and 1,660 MiB for the operator.
+/// holds whatever the grid. Fitted to the peaks of solves of 32 × 32 × 24 and 64 × 64 × 48
+/// clouds (12 % non-empty, no row shared), uniform 24³ and 40³ blocks (every row shared) —
+/// 98, 444, 146 and 373 MiB, `benches/memory.py --only zonal-hierarchical` — and Kobayashi's
+/// 60³ source in a void (78 % of rows shared; 1,720–1,733 MiB, `examples/source_in_void.rs
+/// --case ii --method zonal-hierarchical`).
 const HIERARCHICAL_BYTES_PER_OCCUPIED_CELL: u64 = 5_500;
 const HIERARCHICAL_NEAR_BYTES_PER_STORED_ROW: u64 = 5_750;
 const HIERARCHICAL_BYTES_PER_CELL: u64 = 300;

@@ -267,7 +267,8 @@ pub fn solve_time(
 /// Links of the hierarchical operator beyond the near field per non-empty cell: they grow
 /// with the log of the cells (each level of the cluster tree adds its interactions; measured
 /// 208 per cell at 3 × 10³ non-empty cells and 396 at 2.4 × 10⁴ on clouds; fewer in uniform
-/// and dense media: 191 and 244 on uniform 24³ and 40³ blocks, 349 on Kobayashi's 60³).
+/// and dense media: 191 and 244 on uniform 24³ and 40³ blocks, 349 on Kobayashi's 60³; the
+/// `links_per_level` of `RUST_LOG=info volrad solve`'s `hierarchy built` line).
 fn far_links_per_occupied_cell(occupied: f64) -> f64 {
     (50.0 * occupied.max(2.0).log2() - 370.0).max(100.0)
 }

@@ -148,7 +148,7 @@ fn an_emitting_cube_in_vacuum_and_in_an_absorber_has_the_exact_fluence_in_every_
 /// then has a direction: the beam part of the pass's flux vector) and two-pass. Measured: RMS
 /// 1.8 %, 1.6 % and 1.2 % (zonal-hierarchical, discrete ordinates, two-pass at g = 0; 3.9,
 /// 4.0 and 3.7 % with the solved source drawn constant per cell), 4.6 % and 2.3 % (discrete
-/// ordinates and two-pass at g = 0.6; two-pass 4.8 % drawn constant per cell); image means
+/// ordinates and two-pass at g = 0.6); image means
 /// −2.1 … +1.8 %.
 /// Two-pass sent no photons from emitting cells before, and missed 45 % of this image.
 #[test]
@@ -182,7 +182,7 @@ fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
                 (_, FORWARD) => 0.03,
                 _ => 0.025,
             };
-            // Two-pass at g = 0.6 is 2 % dark (its own bias; −2.7 % drawn constant per cell).
+            // Two-pass at g = 0.6 is 2 % dark (its own bias).
             let mean_bound = if method == &"two-pass" && phase == FORWARD {
                 0.03
             } else {
@@ -350,9 +350,9 @@ fn analog_fluence(scene: &Scene, histories: u64) -> Vec<(f64, f64)> {
             tally
         })
         .collect();
-    // Total source power 4π Σ e V; flux = track length per volume per particle × power.
-    let volume = grid.cell_volume();
-    let scale = 4.0 * std::f64::consts::PI * total * volume / (per_batch as f64 * volume);
+    // Flux = track length per cell volume per particle × the source power 4π Σ e V (unit
+    // volumes cancel).
+    let scale = 4.0 * std::f64::consts::PI * total / per_batch as f64;
     (0..grid.cell_count())
         .map(|c| {
             let values: Vec<f64> = tallies.iter().map(|t| t[c] * scale).collect();
