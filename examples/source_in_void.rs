@@ -14,8 +14,9 @@
 //! ```
 //! Prints, per line and point, the scalar flux of the solve method (`volrad export --field
 //! fluence`) and a reference computed here independently: for case i the exact uncollided
-//! flux (chords through the source along 200,000 directions, optical depth through the three
-//! nested boxes in closed form); for case ii an analog Monte Carlo of `--histories` particles
+//! flux's mean over the detector's cell (3³ Gauss points, each with chords through the source
+//! along 200,000 directions, optical depth through the three nested boxes in closed form; a
+//! cell's value is its mean, and the point value differs by up to about 1 %); for case ii an analog Monte Carlo of `--histories` particles
 //! (default 10⁷) scoring track length in each detector cell, with its standard error. Also the
 //! solve's time, the process's peak memory and the peak and time `volrad info` predicts.
 
@@ -75,8 +76,7 @@ fn optical_depth(a: DVec3, b: DVec3) -> f64 {
 /// The exact uncollided scalar flux of case i at `x` (centred): `∫ S/4π · e^{−τ} ds dω` over
 /// chords through the source cube, along a Fibonacci lattice of directions. Within the source
 /// σt is uniform, so each chord's integral is closed form once the depth to its entry is known.
-fn exact_uncollided(x: DVec3) -> f64 {
-    let n = 200_000;
+fn exact_uncollided(x: DVec3, n: usize) -> f64 {
     let golden = PI * (3.0 - 5f64.sqrt());
     let mut sum = 0.0;
     for i in 0..n {
@@ -100,6 +100,27 @@ fn exact_uncollided(x: DVec3) -> f64 {
         sum += (-tau_in).exp() * (1.0 - (-SIGMA * (t1 - t0)).exp()) / SIGMA;
     }
     sum / (4.0 * PI) * 4.0 * PI / n as f64
+}
+
+/// The mean of [`exact_uncollided`] over the cell of side `h` centred at `x`, at its 3³
+/// Gauss–Legendre points: what a cell's value is (and what the Monte Carlo of case ii
+/// tallies); the point value differs from it by up to about 1 % here.
+fn exact_uncollided_cell_mean(x: DVec3, h: f64) -> f64 {
+    const NODES: [(f64, f64); 3] = [
+        (-0.774_596_669_241_483_4, 5.0 / 18.0),
+        (0.0, 8.0 / 18.0),
+        (0.774_596_669_241_483_4, 5.0 / 18.0),
+    ];
+    let mut sum = 0.0;
+    for (a, wa) in NODES {
+        for (b, wb) in NODES {
+            for (c, wc) in NODES {
+                let at = x + DVec3::new(a, b, c) * (0.5 * h);
+                sum += wa * wb * wc * exact_uncollided(at, 200_000);
+            }
+        }
+    }
+    sum
 }
 
 /// splitmix64: a small, good generator for the Monte Carlo reference (one stream per batch).
@@ -317,8 +338,13 @@ fn main() -> Result<()> {
         .collect::<Result<_>>()?;
     let reference: Vec<(f64, f64)> = if albedo == 0.0 {
         points
-            .iter()
-            .map(|(_, p, _)| (exact_uncollided(DVec3::from(*p)), 0.0))
+            .par_iter()
+            .map(|(_, p, _)| {
+                (
+                    exact_uncollided_cell_mean(DVec3::from(*p), grid.cell_size),
+                    0.0,
+                )
+            })
             .collect()
     } else {
         let cells: Vec<usize> = points.iter().map(|(_, _, c)| *c).collect();
@@ -331,7 +357,7 @@ fn main() -> Result<()> {
         r
     };
     let what = if albedo == 0.0 {
-        "exact uncollided"
+        "exact uncollided, the cell's mean"
     } else {
         "Monte Carlo ± 1 s.e."
     };

@@ -174,7 +174,7 @@ fn emission_info(scene: &Scene) -> Option<String> {
                 .iter()
                 .any(|p| p.runs);
             if runs {
-                "uncollided light traced to every cell centre (emitter pass), its first \
+                "uncollided light traced to every cell, its mean (emitter pass), its first \
                  collision the solve's source"
             } else {
                 "an extended source, carried by the operator (an emitter pass would trace \

@@ -63,7 +63,7 @@ pub struct ChannelSolution {
     pub light_pass: LightPass,
     pub scattered: ScatteredField,
     pub report: Option<solver::SolveReport>,
-    /// The emitters' uncollided fluence at each cell centre (the emitter pass), when the
+    /// The emitters' uncollided fluence as each cell's mean (the emitter pass), when the
     /// method solved with it as its first-collision source (zonal methods and discrete
     /// ordinates in a channel that emits); `None` otherwise.
     pub emitted_fluence: Option<Vec<f32>>,
