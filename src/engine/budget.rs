@@ -195,6 +195,30 @@ impl<'a> Occupancy<'a> {
         }
         block.iter().filter(|&&o| o).count()
     }
+
+    /// The cells of the transport grid at `scale` that the discrete-ordinates scattering
+    /// product multiplies each sweep ([`formfactor::ordinates::scattering_product_cells`]):
+    /// those of blocks that hold a scattering cell (σt > 0 and albedo > 0 in any channel).
+    pub fn ordinates_product_cells(&self, scale: usize) -> usize {
+        let scatters = |i: usize| {
+            self.medium
+                .channels()
+                .iter()
+                .any(|c| c.sigma_t[i] > 0.0 && c.albedo.get(i) > 0.0)
+        };
+        let n = self.medium.grid().cell_count();
+        let mask: Vec<bool> = match Coarsening::new(self.medium.grid(), scale) {
+            Ok(k) if scale > 1 => {
+                let mut block = vec![false; k.coarse().cell_count()];
+                for i in (0..n).filter(|&i| scatters(i)) {
+                    block[k.coarse_cell_of(i)] = true;
+                }
+                block
+            }
+            _ => (0..n).map(scatters).collect(),
+        };
+        formfactor::ordinates::scattering_product_cells(&mask)
+    }
 }
 
 /// [`Occupancy::hierarchy_shared_rows`], counted.

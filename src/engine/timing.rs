@@ -116,11 +116,18 @@ const ZONAL_APPLY_SECONDS_PER_PAIR: f64 = 8.0e-10;
 const HIERARCHICAL_BUILD_SECONDS_PER_LINK: f64 = 1.3e-7;
 const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
 /// Discrete ordinates: the set-up (first-scattering source, the stored field, the file) per
-/// cell and bin, and one sweep per cell and bin, which grows with the bins (the sweep's
-/// tables leave the caches).
+/// cell and bin; per sweep, the transport per cell and bin, the scattering product per cell
+/// it multiplies ([`Occupancy::ordinates_product_cells`]) and `bins^1.5` (an `M²` product
+/// that runs faster per multiply-add the larger `M` is), and the cost of a state larger than
+/// the caches, per cell and bin, growing to its full value at
+/// [`ORDINATES_CACHED_CELL_BINS`]. Fitted on nine solves from 0.6 M to 21 M cell-bins (clouds,
+/// uniform blocks, Kobayashi's shield; 24–384 bins; every per-sweep time within 19 %;
+/// docs/performance.md, "Time").
 const ORDINATES_SETUP_SECONDS_PER_CELL_BIN: f64 = 7.0e-8;
-const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 8.0e-9;
-const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN2: f64 = 4.5e-11;
+const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 4.3e-9;
+const ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN: f64 = 1.2e-9;
+const ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN: f64 = 8.8e-9;
+const ORDINATES_CACHED_CELL_BINS: f64 = 2.0e7;
 /// Two-pass: per cell and tally bin (the tallies and their sum), and per photon and cell
 /// along the grid's longest side (a photon's path crosses cells in proportion to it).
 const TWO_PASS_SECONDS_PER_CELL_BIN: f64 = 6.0e-8;
@@ -232,9 +239,15 @@ pub fn solve_time(
                 what: "the sweeps' set-up and stored field",
                 seconds: channels * cell_bins * ORDINATES_SETUP_SECONDS_PER_CELL_BIN,
             });
+            let product_cells = occupancy.ordinates_product_cells(scale) as f64;
+            let uncached = (cell_bins / ORDINATES_CACHED_CELL_BINS).min(1.0);
             let per_sweep = cell_bins
                 * (ORDINATES_SWEEP_SECONDS_PER_CELL_BIN
-                    + bins * ORDINATES_SWEEP_SECONDS_PER_CELL_BIN2);
+                    + uncached * ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN)
+                + product_cells
+                    * bins
+                    * bins.sqrt()
+                    * ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN;
             parts.push(TimePart {
                 what: iterations_label,
                 seconds: channels * applications * per_sweep,

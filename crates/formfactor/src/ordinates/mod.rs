@@ -20,8 +20,8 @@ pub use bins::{DirectionBins, VALID_BINS};
 pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
     default_forward_truncation_degrees, forward_peak_fraction, forward_truncation_fraction,
-    EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve,
-    MAX_TRANSPORT_REFINEMENT,
+    scattering_product_cells, EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy,
+    SweepSolve, MAX_TRANSPORT_REFINEMENT,
 };
 
 /// What was wrong with an ordinates set-up.

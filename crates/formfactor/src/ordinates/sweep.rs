@@ -537,6 +537,18 @@ const TRANSPOSE_BLOCK: usize = 64;
 /// Cells per block of the scattering product (one GEMM call each).
 const SCATTER_BLOCK: usize = 512;
 
+/// The cells the scattering product multiplies each sweep (`M²` multiply-adds each), given
+/// which cells scatter (cell index order): every cell of a block of [`SCATTER_BLOCK`] that
+/// holds one. Blocks of empty or absorbing cells are skipped; a medium that scatters
+/// everywhere (a shield, a uniform block) costs its every cell.
+pub fn scattering_product_cells(scatters: &[bool]) -> usize {
+    scatters
+        .chunks(SCATTER_BLOCK)
+        .filter(|block| block.iter().any(|&s| s))
+        .map(<[bool]>::len)
+        .sum()
+}
+
 /// Where [`OrdinatesOperator::scatter_into`] writes: `S[c·M + l]` or `S[l·N + c]`.
 #[derive(Clone, Copy, PartialEq)]
 enum Layout {

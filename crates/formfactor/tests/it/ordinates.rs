@@ -748,3 +748,19 @@ fn truncated_forward_peak_keeps_energy_and_the_solution() {
     assert!(matches!(make(12.0, &iso), Err(OrdinatesError::Option(_))));
     assert!(matches!(make(95.0, &blob), Err(OrdinatesError::Option(_))));
 }
+
+/// What `volrad info`'s time model counts for the scattering product: every cell of a
+/// 512-cell block that holds a scattering cell, none of a block without one, and the last,
+/// shorter block's own length.
+#[test]
+fn the_scattering_product_counts_the_blocks_that_scatter() {
+    use formfactor::ordinates::scattering_product_cells;
+    let mut scatters = vec![false; 3 * 512 + 100];
+    assert_eq!(scattering_product_cells(&scatters), 0);
+    scatters[511] = true; // block 0
+    assert_eq!(scattering_product_cells(&scatters), 512);
+    scatters[3 * 512 + 99] = true; // the short last block
+    assert_eq!(scattering_product_cells(&scatters), 612);
+    scatters.iter_mut().for_each(|s| *s = true);
+    assert_eq!(scattering_product_cells(&scatters), scatters.len());
+}
