@@ -408,7 +408,8 @@ fn flux_agreement(
 /// 0.5 and 0.99, isotropic and g = 0.85. Printed per method for the scattering cells and the
 /// empty ones; asserted where the methods hold today (docs/validation.md, *Light from emitting
 /// cells*, has the table): in the scattering cells every method's median ratio is within 3 %
-/// of 1 (two-pass's `fluence` had no scattered light before: medians 0.49–0.73).
+/// of 1 (two-pass's `fluence` had no scattered light before: medians 0.49–0.73), and 98 % of
+/// all cells agree for zonal-hierarchical and for isotropic discrete ordinates.
 #[test]
 fn every_cells_scalar_flux_against_an_analog_monte_carlo() {
     let cases: [(&str, f32, &[&str]); 4] = [
@@ -449,11 +450,24 @@ fn every_cells_scalar_flux_against_an_analog_monte_carlo() {
                 outside.3 * 100.0
             );
             assert!(inside.0 > 400 && outside.0 > 3000);
+            assert!(
+                (inside.1 - 1.0).abs() < 0.03,
+                "{method}, albedo {albedo}: median ratio {:.3} in the scattering cells",
+                inside.1
+            );
+            // Where the flux is every cell's source traced to the cell (the zonal methods;
+            // discrete ordinates with isotropic scattering) and each cell's uncollided light
+            // is its mean, nearly every cell agrees: 87 % and 73 % of the scattering cells did
+            // at albedo 0.5 with centre values and the bins' own flux.
+            if *method == "zonal-hierarchical"
+                || (*method == "discrete-ordinates" && phase == ISOTROPIC)
             {
                 assert!(
-                    (inside.1 - 1.0).abs() < 0.03,
-                    "{method}, albedo {albedo}: median ratio {:.3} in the scattering cells",
-                    inside.1
+                    inside.2 >= 0.98 && outside.2 >= 0.98,
+                    "{method}, albedo {albedo}: {:.1} % of the scattering cells and {:.1} % of \
+                     the empty ones within 3 %",
+                    inside.2 * 100.0,
+                    outside.2 * 100.0
                 );
             }
         }
