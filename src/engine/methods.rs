@@ -1175,11 +1175,28 @@ fn fluence_on(
             let (means, _) = ch
                 .render_cache
                 .two_pass_means(|| crate::engine::sources::TwoPassSource::means_of(t));
+            // Each cell's isotropic source: its emission, the stored field's mean and the
+            // lights' first scattering, which the field leaves to the render.
             let g: Vec<f64> = means
                 .iter()
                 .enumerate()
-                .map(|(i, &q)| q as f64 + m.emission.get(i) as f64)
+                .map(|(i, &q)| {
+                    q as f64
+                        + m.emission.get(i) as f64
+                        + m.sigma_s(i) as f64 * unscattered[i] / (4.0 * PI)
+                })
                 .collect();
+            if medium.phase().is_isotropic() {
+                // As for discrete ordinates: the sources traced to every cell, where the
+                // photons' own noise in each cell's tally averages out along the rays.
+                if let Some(traced) = traced_sources(medium, c, &g)? {
+                    return Ok(unscattered
+                        .iter()
+                        .zip(&traced)
+                        .map(|(u, t)| u + t)
+                        .collect());
+                }
+            }
             let outside = fluence_where_nothing_scatters(medium, c, &g, unscattered, &emitted)?;
             (0..unscattered.len())
                 .map(|i| match &outside {
