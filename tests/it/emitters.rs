@@ -94,7 +94,14 @@ height = 64
 /// uniform σt (a cell's value is its mean; at the cube's corners the centre's is 10 % above).
 fn exact_fluence(grid: &Grid, c: usize, lo: f64, hi: f64, sigma: f64) -> f64 {
     let (lo, hi) = (DVec3::splat(lo), DVec3::splat(hi));
-    uniform_box_cell_fluence(grid.cell_min(c), grid.cell_size, lo, hi, sigma, 2.0, 20_000)
+    uniform_box_cell_fluence(
+        grid.cell_min(c),
+        grid.cell_size,
+        [lo, hi],
+        sigma,
+        2.0,
+        20_000,
+    )
 }
 
 /// Max's emission in a non-scattering medium: a uniformly emitting cube in vacuum and in a
