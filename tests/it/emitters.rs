@@ -478,3 +478,109 @@ fn every_cells_scalar_flux_against_an_analog_monte_carlo() {
         }
     }
 }
+
+/// Of the pixels above 10⁻⁴ of the reference's peak: how many, the share within 3 % plus three
+/// standard errors of the path tracer, the median of `value / reference` and the worst error.
+fn pixel_agreement(
+    image: &gather::Image,
+    traced: &montecarlo::path_trace::PathTraced,
+) -> (usize, f64, f64, f64) {
+    let n = image.channels as usize;
+    let peak = traced.mean.pixels.iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+    let (mut ratios, mut within, mut worst) = (Vec::new(), 0usize, 0.0f64);
+    for (i, (&r, &e)) in traced
+        .mean
+        .pixels
+        .iter()
+        .zip(&traced.std_error.pixels)
+        .enumerate()
+    {
+        let (x, r, e) = (image.pixels[n * i] as f64, r as f64, e as f64);
+        if r <= 1e-4 * peak {
+            continue;
+        }
+        ratios.push(x / r);
+        within += usize::from((x - r).abs() <= 0.03 * r + 3.0 * e);
+        worst = worst.max((x - r).abs() / r);
+    }
+    ratios.sort_by(f64::total_cmp);
+    let count = ratios.len();
+    (
+        count,
+        within as f64 / count.max(1) as f64,
+        ratios.get(count / 2).copied().unwrap_or(f64::NAN),
+        worst,
+    )
+}
+
+/// #23's per-pixel measure: two views (the side and from above) of the cube emitting inside
+/// the cloud at albedo 0.5 and 0.99, isotropic and g = 0.85, rendered from each method's
+/// stored solution (16 samples per pixel) against the path tracer with emission as a source
+/// (256 paths per pixel), pixel by pixel over the pixels above 10⁻⁴ of the peak (a pixel
+/// agrees within 3 % plus three of the reference's standard errors). Printed per method and
+/// view (docs/validation.md, *Light from emitting cells*, has the table); asserted where the
+/// methods hold today (below).
+#[test]
+fn two_views_of_an_emitting_cube_pixel_by_pixel() {
+    let cases: [(&str, f32, &[&str]); 4] = [
+        (
+            ISOTROPIC,
+            0.5,
+            &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
+        ),
+        (
+            ISOTROPIC,
+            0.99,
+            &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
+        ),
+        (FORWARD_PEAKED, 0.5, &["discrete-ordinates", "two-pass"]),
+        (FORWARD_PEAKED, 0.99, &["discrete-ordinates", "two-pass"]),
+    ];
+    for (phase, albedo, methods) in cases {
+        let (scene, _) = emitting_cube(16, 4, None, albedo, phase, methods[0]);
+        let side = scene.cameras[0].clone();
+        let mut above = side.clone();
+        above.name = "above".into();
+        above.eye = DVec3::new(8.0, 8.0 - 10.0, 8.0 + 38.0);
+        above.up = DVec3::Y;
+        let views = [side, above];
+        let traced: Vec<_> = views
+            .iter()
+            .map(|v| crate::fixtures::path_traced_view(&scene, v, 0, 256))
+            .collect();
+        for method in methods {
+            let (scene, _) = emitting_cube(16, 4, None, albedo, phase, method);
+            let solution = solve_scene(&scene, &scene.solve, &SolveHooks::default()).unwrap();
+            for (view, reference) in views.iter().zip(&traced) {
+                let image = render_view(&solution, view, Some(16)).unwrap();
+                let (count, within, median, worst) = pixel_agreement(&image, reference);
+                eprintln!(
+                    "pixels, {phase}, albedo {albedo}, {method}, {}: {count} pixels, {:.1} % \
+                     within, median {median:.3}, worst {:.1} %",
+                    view.name,
+                    within * 100.0,
+                    worst * 100.0
+                );
+                assert!(count > 300);
+                // With isotropic scattering every method is right in the median and in at
+                // least 90 % of the pixels (93–94 % measured; the others are dim ones, 10⁻⁴ …
+                // 10⁻² of the peak, where the path tracer's own standard error is 30–100 %: it
+                // finds the cube's light there only on rare paths). At g = 0.85 discrete
+                // ordinates are 3–6 % dark in the median (their bins' angular error) and two-pass
+                // up to 4 %.
+                let (median_bound, share) = if phase == ISOTROPIC {
+                    (0.03, 0.9)
+                } else {
+                    (0.08, 0.7)
+                };
+                assert!(
+                    (median - 1.0).abs() < median_bound && within > share,
+                    "{phase}, albedo {albedo}, {method}, {}: median {median:.3}, {:.1} % of \
+                     pixels within 3 %",
+                    view.name,
+                    within * 100.0
+                );
+            }
+        }
+    }
+}
