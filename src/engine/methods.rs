@@ -1105,14 +1105,19 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let unscattered = ch.light_pass.total_cell_irradiance();
     let transport = &solution.transport;
     if transport.scale() == 1 {
-        return fluence_on(&solution.medium, c, ch, &unscattered, &solution.bins);
+        return Ok(ch
+            .render_cache
+            .fluence(|| fluence_on(&solution.medium, c, ch, &unscattered, &solution.bins))?
+            .to_vec());
     }
     let cache = ch.render_cache.transport(&solution.medium, transport, c)?;
     let coarse_pass = transport
         .light_pass(&solution.medium, c, &ch.light_pass, &cache.medium)
         .context("the light pass on the transport grid")?;
     let coarse_unscattered = coarse_pass.total_cell_irradiance();
-    let collided: Vec<f64> = fluence_on(&cache.medium, c, ch, &coarse_unscattered, &solution.bins)?
+    let collided: Vec<f64> = ch
+        .render_cache
+        .fluence(|| fluence_on(&cache.medium, c, ch, &coarse_unscattered, &solution.bins))?
         .iter()
         .zip(&coarse_unscattered)
         .map(|(f, u)| f - u)

@@ -95,6 +95,10 @@ pub struct RenderCache {
     /// A two-pass field's mean over its direction bins per cell, and the largest ratio of a
     /// cell's value in one bin to that mean ([`crate::engine::sources::TwoPassSource`]).
     two_pass_means: std::sync::OnceLock<(Vec<f32>, f64)>,
+    /// `fluence` on the grid the channel's fields live on (the transport grid's, at most a
+    /// few MB): tracing the cells' sources there can take seconds, and the service's slices
+    /// ask for it again for every plane.
+    fluence: std::sync::OnceLock<Result<Vec<f64>, String>>,
 }
 
 /// `1/σs` of one channel per cell of the grid a source lives on (0 where a cell does not
@@ -198,6 +202,18 @@ impl RenderCache {
     pub fn two_pass_means(&self, make: impl FnOnce() -> (Vec<f32>, f64)) -> (&[f32], f64) {
         let (means, ratio) = self.two_pass_means.get_or_init(make);
         (means, *ratio)
+    }
+
+    /// The channel's `fluence` on the grid its fields live on, made by `make` on the first
+    /// call (the same on every call; an error is kept and reported again).
+    pub fn fluence(
+        &self,
+        make: impl FnOnce() -> anyhow::Result<Vec<f64>>,
+    ) -> anyhow::Result<&[f64]> {
+        self.fluence
+            .get_or_init(|| make().map_err(|e| format!("{e:#}")))
+            .as_deref()
+            .map_err(|e| anyhow::anyhow!("{e}"))
     }
 
     /// `ln` of `values` (the channel's binned higher-order source, the same on every call).
@@ -628,5 +644,39 @@ impl Solution {
 
     pub fn from_bytes(bytes: &[u8], label: &Path) -> Result<Solution, SolutionError> {
         Self::from_container(Container::from_bytes(bytes, label)?, label)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RenderCache;
+
+    /// A slice asks for the fluence once per plane: it is made once per solution, and a
+    /// failure is reported again rather than made again.
+    #[test]
+    fn the_fluence_is_made_once() {
+        let cache = RenderCache::default();
+        let made = std::cell::Cell::new(0);
+        for _ in 0..3 {
+            let values = cache
+                .fluence(|| {
+                    made.set(made.get() + 1);
+                    Ok(vec![1.0, 2.0])
+                })
+                .unwrap();
+            assert_eq!(values, [1.0, 2.0]);
+        }
+        assert_eq!(made.get(), 1);
+        let failing = RenderCache::default();
+        for _ in 0..2 {
+            let e = failing
+                .fluence(|| {
+                    made.set(made.get() + 1);
+                    anyhow::bail!("too costly")
+                })
+                .unwrap_err();
+            assert!(e.to_string().contains("too costly"));
+        }
+        assert_eq!(made.get(), 2);
     }
 }
