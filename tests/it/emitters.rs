@@ -479,15 +479,32 @@ fn every_cells_scalar_flux_against_an_analog_monte_carlo() {
     }
 }
 
-/// Of the pixels above 10⁻⁴ of the reference's peak: how many, the share within 3 % plus three
-/// standard errors of the path tracer, the median of `value / reference` and the worst error.
+/// How a rendered view agrees with the path tracer over the pixels above 10⁻⁴ of the image's
+/// peak (chosen by the render: choosing by the reference's own noisy values would keep the
+/// pixels where it happens to be low): the pixels, the share within 3 % plus three standard
+/// errors, and per band of brightness (bright: above 10⁻² of the peak; dim: below) the ratio
+/// of the band's summed radiance to the reference's with its standard error. A single dim
+/// pixel's reference is 20–60 % uncertain even at hundreds of paths and skewed (its median
+/// lies below its mean), so the bands' sums, not the pixels' median, say whether a method is
+/// biased there.
+struct PixelAgreement {
+    count: usize,
+    within: f64,
+    bright: (f64, f64),
+    dim: (f64, f64),
+}
+
 fn pixel_agreement(
     image: &gather::Image,
     traced: &montecarlo::path_trace::PathTraced,
-) -> (usize, f64, f64, f64) {
+) -> PixelAgreement {
     let n = image.channels as usize;
-    let peak = traced.mean.pixels.iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
-    let (mut ratios, mut within, mut worst) = (Vec::new(), 0usize, 0.0f64);
+    let peak = (0..traced.mean.pixels.len())
+        .map(|i| image.pixels[n * i] as f64)
+        .fold(0.0, f64::max);
+    let (mut count, mut within) = (0usize, 0usize);
+    // Per band: Σ value, Σ reference, Σ variance.
+    let mut bands = [(0.0, 0.0, 0.0); 2];
     for (i, (&r, &e)) in traced
         .mean
         .pixels
@@ -496,28 +513,30 @@ fn pixel_agreement(
         .enumerate()
     {
         let (x, r, e) = (image.pixels[n * i] as f64, r as f64, e as f64);
-        if r <= 1e-4 * peak {
+        if x <= 1e-4 * peak {
             continue;
         }
-        ratios.push(x / r);
+        count += 1;
         within += usize::from((x - r).abs() <= 0.03 * r + 3.0 * e);
-        worst = worst.max((x - r).abs() / r);
+        let band = &mut bands[usize::from(x < 1e-2 * peak)];
+        band.0 += x;
+        band.1 += r;
+        band.2 += e * e;
     }
-    ratios.sort_by(f64::total_cmp);
-    let count = ratios.len();
-    (
+    let ratio = |(x, r, v): (f64, f64, f64)| (x / r, x * v.sqrt() / (r * r));
+    PixelAgreement {
         count,
-        within as f64 / count.max(1) as f64,
-        ratios.get(count / 2).copied().unwrap_or(f64::NAN),
-        worst,
-    )
+        within: within as f64 / count.max(1) as f64,
+        bright: ratio(bands[0]),
+        dim: ratio(bands[1]),
+    }
 }
 
 /// #23's per-pixel measure: two views (the side and from above) of the cube emitting inside
 /// the cloud at albedo 0.5 and 0.99, isotropic and g = 0.85, rendered from each method's
 /// stored solution (16 samples per pixel) against the path tracer with emission as a source
-/// (256 paths per pixel), pixel by pixel over the pixels above 10⁻⁴ of the peak (a pixel
-/// agrees within 3 % plus three of the reference's standard errors). Printed per method and
+/// (1024 paths per pixel, with next-event estimation toward the emitting cells), over the
+/// pixels above 10⁻⁴ of the peak ([`pixel_agreement`]). Printed per method and
 /// view (docs/validation.md, *Light from emitting cells*, has the table); asserted where the
 /// methods hold today (below).
 #[test]
@@ -546,39 +565,57 @@ fn two_views_of_an_emitting_cube_pixel_by_pixel() {
         let views = [side, above];
         let traced: Vec<_> = views
             .iter()
-            .map(|v| crate::fixtures::path_traced_view(&scene, v, 0, 256))
+            .map(|v| {
+                let options = montecarlo::PathTraceOptions {
+                    spp: 1024,
+                    emitter_sampling: true,
+                    ..Default::default()
+                };
+                crate::fixtures::path_traced_with(&scene, v, 0, &options)
+            })
             .collect();
         for method in methods {
             let (scene, _) = emitting_cube(16, 4, None, albedo, phase, method);
             let solution = solve_scene(&scene, &scene.solve, &SolveHooks::default()).unwrap();
             for (view, reference) in views.iter().zip(&traced) {
                 let image = render_view(&solution, view, Some(16)).unwrap();
-                let (count, within, median, worst) = pixel_agreement(&image, reference);
+                let a = pixel_agreement(&image, reference);
                 eprintln!(
-                    "pixels, {phase}, albedo {albedo}, {method}, {}: {count} pixels, {:.1} % \
-                     within, median {median:.3}, worst {:.1} %",
+                    "pixels, {phase}, albedo {albedo}, {method}, {}: {} pixels, {:.1} % within; \
+                     bright {:.3} ± {:.3}, dim {:.3} ± {:.3}",
                     view.name,
-                    within * 100.0,
-                    worst * 100.0
+                    a.count,
+                    a.within * 100.0,
+                    a.bright.0,
+                    a.bright.1,
+                    a.dim.0,
+                    a.dim.1
                 );
-                assert!(count > 300);
-                // With isotropic scattering every method is right in the median and in at
-                // least 90 % of the pixels (93–94 % measured; the others are dim ones, 10⁻⁴ …
-                // 10⁻² of the peak, where the path tracer's own standard error is 30–100 %: it
-                // finds the cube's light there only on rare paths). At g = 0.85 discrete
-                // ordinates are 3–6 % dark in the median (their bins' angular error) and two-pass
-                // up to 4 %.
-                let (median_bound, share) = if phase == ISOTROPIC {
-                    (0.03, 0.9)
+                assert!(a.count > 300);
+                // With isotropic scattering every method agrees with the reference in each band
+                // (within 3 % plus three standard errors; measured −0.3 … +1.4 % bright, 0 …
+                // +7 % dim) and in most pixels (87–96 %; the rest are dim ones whose reference
+                // is 10–30 % uncertain). At g = 0.85 discrete ordinates and two-pass are 2–5 %
+                // off in the bright pixels and 0 … +30 % in the dim ones, which the scattered
+                // light reaches at wide angles from the forward peak (their bins' angular
+                // error: #18).
+                let (bright_bound, dim_bound, share) = if phase == ISOTROPIC {
+                    (0.03, 0.03, 0.8)
                 } else {
-                    (0.08, 0.7)
+                    (0.05, 0.25, 0.6)
                 };
+                let agrees =
+                    |(ratio, se): (f64, f64), bound: f64| (ratio - 1.0).abs() < bound + 3.0 * se;
                 assert!(
-                    (median - 1.0).abs() < median_bound && within > share,
-                    "{phase}, albedo {albedo}, {method}, {}: median {median:.3}, {:.1} % of \
-                     pixels within 3 %",
+                    agrees(a.bright, bright_bound) && agrees(a.dim, dim_bound) && a.within > share,
+                    "{phase}, albedo {albedo}, {method}, {}: bright {:.3} ± {:.3}, dim {:.3} ± \
+                     {:.3}, {:.1} % of pixels within 3 %",
                     view.name,
-                    within * 100.0
+                    a.bright.0,
+                    a.bright.1,
+                    a.dim.0,
+                    a.dim.1,
+                    a.within * 100.0
                 );
             }
         }

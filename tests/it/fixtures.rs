@@ -67,7 +67,25 @@ pub fn path_traced_view(
     c: usize,
     spp: u32,
 ) -> montecarlo::path_trace::PathTraced {
-    use montecarlo::path_trace::{path_trace_with_error, PathTraceOptions, Surroundings};
+    path_traced_with(
+        scene,
+        camera,
+        c,
+        &montecarlo::PathTraceOptions {
+            spp,
+            ..Default::default()
+        },
+    )
+}
+
+/// [`path_traced_view`] with `options` (next-event estimation toward emitters, seeds).
+pub fn path_traced_with(
+    scene: &scene::Scene,
+    camera: &scene::CameraSpec,
+    c: usize,
+    options: &montecarlo::PathTraceOptions,
+) -> montecarlo::path_trace::PathTraced {
+    use montecarlo::path_trace::{path_trace_with_error, Surroundings};
     let camera = gather::Camera::from_spec(camera).unwrap();
     path_trace_with_error(
         &scene.medium,
@@ -79,10 +97,7 @@ pub fn path_traced_view(
             ground: scene.ground,
         },
         &camera,
-        &PathTraceOptions {
-            spp,
-            ..PathTraceOptions::default()
-        },
+        options,
     )
     .unwrap()
 }

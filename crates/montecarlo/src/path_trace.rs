@@ -51,6 +51,14 @@ pub struct PathTraceOptions {
     pub max_depth: Option<u32>,
     /// Russian roulette starts after this many scattering events.
     pub rr_start_depth: u32,
+    /// Next-event estimation toward the emitting cells: after each collision two or more
+    /// cells from every emitter, one point of an emitting cell (chosen by its power) is
+    /// connected to it, and the next flight's emission is not counted. Without it a path
+    /// meets a small emitter's light only when one of its flights crosses the emitter, and
+    /// pixels lit by that light after scattering have standard errors of 30–100 % at
+    /// hundreds of paths. Collisions next to an emitter keep the flight's emission (there
+    /// the connection's `1/r²` would have unbounded variance).
+    pub emitter_sampling: bool,
 }
 
 impl Default for PathTraceOptions {
@@ -60,6 +68,7 @@ impl Default for PathTraceOptions {
             seed: 0,
             max_depth: None,
             rr_start_depth: 3,
+            emitter_sampling: false,
         }
     }
 }
@@ -91,6 +100,58 @@ pub struct PathTracer<'a> {
     channel: (usize, usize),
     max_depth: u32,
     rr_start_depth: u32,
+    emitters: Option<EmitterSampler>,
+}
+
+/// The emitting cells of a channel, for next-event estimation
+/// ([`PathTraceOptions::emitter_sampling`]).
+#[derive(Clone, Debug)]
+struct EmitterSampler {
+    cells: Vec<u32>,
+    /// Cumulative share of the emitted power, per entry of `cells`.
+    cumulative: Vec<f64>,
+    /// `Σ e V` over the grid.
+    power: f64,
+    /// Cells within one cell (Chebyshev) of an emitting cell: no connection from there.
+    near: Vec<bool>,
+}
+
+impl EmitterSampler {
+    fn new(grid: &Grid, emission: &CellValues) -> Option<EmitterSampler> {
+        let n = grid.cell_count();
+        let cells: Vec<u32> = (0..n as u32)
+            .filter(|&c| emission.get(c as usize) > 0.0)
+            .collect();
+        if cells.is_empty() {
+            return None;
+        }
+        let volume = grid.cell_volume();
+        let mut cumulative = Vec::with_capacity(cells.len());
+        let mut power = 0.0;
+        for &c in &cells {
+            power += emission.get(c as usize) as f64 * volume;
+            cumulative.push(power);
+        }
+        cumulative.iter_mut().for_each(|v| *v /= power);
+        let [nx, ny, nz] = grid.dims;
+        let mut near = vec![false; n];
+        for &c in &cells {
+            let [i, j, k] = grid.coords(c as usize);
+            for kk in k.saturating_sub(1)..(k + 2).min(nz) {
+                for jj in j.saturating_sub(1)..(j + 2).min(ny) {
+                    for ii in i.saturating_sub(1)..(i + 2).min(nx) {
+                        near[grid.index(ii, jj, kk)] = true;
+                    }
+                }
+            }
+        }
+        Some(EmitterSampler {
+            cells,
+            cumulative,
+            power,
+            near,
+        })
+    }
 }
 
 /// What a path meets where it leaves the grid.
@@ -170,6 +231,10 @@ impl<'a> PathTracer<'a> {
             channel: (channel, medium.channels().len()),
             max_depth: options.max_depth.unwrap_or(u32::MAX),
             rr_start_depth: options.rr_start_depth,
+            emitters: options
+                .emitter_sampling
+                .then(|| EmitterSampler::new(medium.grid(), &ch.emission))
+                .flatten(),
         })
     }
 
@@ -202,6 +267,40 @@ impl<'a> PathTracer<'a> {
         sum
     }
 
+    /// Radiance in-scattered toward `-travel` at `x` from the emitting cells, one point of
+    /// one cell chosen by its power (NEE): `P p(ω · (−travel)) T / r²`, `P = Σ e V`, `ω` the
+    /// direction from the point to `x` and `r` its distance.
+    fn emitted_toward<R: Rng + ?Sized>(
+        &self,
+        sampler: &EmitterSampler,
+        x: DVec3,
+        travel: DVec3,
+        rng: &mut R,
+    ) -> f64 {
+        let u: f64 = rng.random();
+        let k = sampler
+            .cumulative
+            .partition_point(|&c| c < u)
+            .min(sampler.cells.len() - 1);
+        let corner = self.grid.cell_min(sampler.cells[k] as usize);
+        let y = corner + DVec3::new(rng.random(), rng.random(), rng.random()) * self.grid.cell_size;
+        let to_x = x - y;
+        let r = to_x.length();
+        if r <= 0.0 {
+            return 0.0;
+        }
+        let flow = to_x / r;
+        let phase = self.phase.eval(-flow.dot(travel));
+        if phase <= 0.0 {
+            return 0.0;
+        }
+        let shadow = Ray {
+            origin: x,
+            direction: -flow,
+        };
+        sampler.power * phase * transmittance(&self.grid, self.sigma_t, &shadow, r) / (r * r)
+    }
+
     /// Radiance a Lambertian ground of albedo 1 at `x` reflects from the lights (NEE):
     /// `Σ_L E_L cos θ_L T_L / π`.
     #[inline]
@@ -227,6 +326,9 @@ impl<'a> PathTracer<'a> {
         let mut throughput = 1.0f64;
         let mut radiance = 0.0f64;
         let mut depth = 0u32;
+        // False after a collision connected to the emitters: its next flight's emission was
+        // counted by the connection.
+        let mut count_emission = true;
         loop {
             // 1 − u ∈ (0, 1]: the target depth is finite.
             let target = -(1.0 - rng.random::<f64>()).ln();
@@ -238,7 +340,10 @@ impl<'a> PathTracer<'a> {
                 f64::INFINITY,
                 target,
             );
-            radiance += throughput * emitted;
+            if count_emission {
+                radiance += throughput * emitted;
+            }
+            count_emission = true;
             let (t, cell) = match flight {
                 Flight::Escaped => {
                     let hit = self.surroundings.ground.as_ref().and_then(|g| {
@@ -288,6 +393,10 @@ impl<'a> PathTracer<'a> {
             let x = ray.at(t);
             if !self.lights.is_empty() {
                 radiance += throughput * self.direct(x, ray.direction);
+            }
+            if let Some(sampler) = self.emitters.as_ref().filter(|e| !e.near[cell]) {
+                radiance += throughput * self.emitted_toward(sampler, x, ray.direction, rng);
+                count_emission = false;
             }
             let Some(t) = self.roulette(depth, throughput, rng) else {
                 break;

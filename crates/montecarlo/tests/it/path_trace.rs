@@ -388,3 +388,109 @@ fn progress_counts_rows_and_can_cancel() {
     );
     assert!(matches!(stopped, Err(MonteCarloError::Cancelled)));
 }
+
+/// Next-event estimation toward the emitters gives the same image as counting each flight's
+/// emission (the image mean within four combined standard errors), with far smaller errors
+/// in the pixels a small emitter lights only through scattering.
+#[test]
+fn emitter_sampling_keeps_the_image_and_shrinks_its_noise() {
+    let grid = Grid::new([16, 16, 16], 1.0).unwrap();
+    let emission: Vec<f32> = (0..grid.cell_count())
+        .map(|c| {
+            let [i, j, k] = grid.coords(c);
+            if (7..9).contains(&i) && (7..9).contains(&j) && (7..9).contains(&k) {
+                5.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let medium = Medium::new(
+        grid,
+        vec![ChannelMedium {
+            sigma_t: vec![0.3; grid.cell_count()],
+            albedo: CellValues::Uniform(0.9),
+            emission: CellValues::PerCell(emission),
+        }],
+        PhaseFunction::HenyeyGreenstein { g: 0.5 },
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let camera = Camera::perspective(
+        DVec3::new(8.0, -30.0, 8.0),
+        DVec3::new(8.0, 8.0, 8.0),
+        DVec3::Z,
+        // Every pixel sees the grid.
+        22.0,
+        24,
+        24,
+    )
+    .unwrap();
+    let traced = |emitter_sampling| {
+        let options = PathTraceOptions {
+            spp: 256,
+            seed: 9,
+            emitter_sampling,
+            ..Default::default()
+        };
+        path_trace_with_error(&medium, 0, &[], 0.0, &camera, &options).unwrap()
+    };
+    let (plain, sampled) = (traced(false), traced(true));
+    let summary = |t: &montecarlo::PathTraced| {
+        let n = t.mean.pixels.len() as f64;
+        let mean = t.mean.pixels.iter().map(|&v| v as f64).sum::<f64>() / n;
+        let se = t
+            .std_error
+            .pixels
+            .iter()
+            .map(|&s| (s as f64).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            / n;
+        (mean, se)
+    };
+    let ((m0, s0), (m1, s1)) = (summary(&plain), summary(&sampled));
+    assert!(
+        (m0 - m1).abs() < 4.0 * (s0 * s0 + s1 * s1).sqrt(),
+        "image mean {m1} ± {s1} with emitter sampling, {m0} ± {s0} without"
+    );
+    // Relative errors of the pixels that do not see the emitter (below 5 % of the peak, by
+    // the low-noise image): lit by scattered light only.
+    let peak = sampled.mean.pixels.iter().fold(0.0f32, |a, &b| a.max(b));
+    let dim: Vec<usize> = (0..sampled.mean.pixels.len())
+        .filter(|&i| sampled.mean.pixels[i] < 0.05 * peak)
+        .collect();
+    assert!(dim.len() > 200);
+    let relative = |t: &montecarlo::PathTraced| {
+        let mut r: Vec<f64> = dim
+            .iter()
+            .map(|&i| {
+                // A pixel no path lit is 100 % off (its standard error says 0).
+                let (m, e) = (t.mean.pixels[i] as f64, t.std_error.pixels[i] as f64);
+                if m > 0.0 {
+                    e / m
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        r.sort_by(f64::total_cmp);
+        r[r.len() / 2]
+    };
+    let unlit =
+        |t: &montecarlo::PathTraced| dim.iter().filter(|&&i| t.mean.pixels[i] <= 0.0).count();
+    let (r0, r1, u0, u1) = (
+        relative(&plain),
+        relative(&sampled),
+        unlit(&plain),
+        unlit(&sampled),
+    );
+    eprintln!(
+        "{} pixels lit by scattering only: median relative error {r1:.3} with emitter \
+         sampling, {r0:.3} without; no path found the emitter in {u1} of them with it, {u0} \
+         without",
+        dim.len()
+    );
+    assert!(u1 == 0 && r1 < 0.5 * r0);
+}
