@@ -381,6 +381,23 @@ fn analog_fluence(scene: &Scene, histories: u64) -> Vec<(f64, f64)> {
 
 const FORWARD_PEAKED: &str = r#"{ kind = "henyey-greenstein", g = 0.85 }"#;
 
+/// #23's scattering cases for a cube emitting inside the cloud: phase function, albedo and
+/// the methods that solve it (zonal-hierarchical is isotropic only).
+const SCATTERING_CASES: [(&str, f32, &[&str]); 4] = [
+    (
+        ISOTROPIC,
+        0.5,
+        &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
+    ),
+    (
+        ISOTROPIC,
+        0.99,
+        &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
+    ),
+    (FORWARD_PEAKED, 0.5, &["discrete-ordinates", "two-pass"]),
+    (FORWARD_PEAKED, 0.99, &["discrete-ordinates", "two-pass"]),
+];
+
 /// Of the cells above 10⁻⁴ of the reference's peak that `select` picks: how many, the median
 /// of `value / reference`, the share within 3 % plus three standard errors of the reference,
 /// and the worst relative error.
@@ -419,21 +436,7 @@ fn flux_agreement(
 /// all cells agree for zonal-hierarchical and for every method with isotropic scattering.
 #[test]
 fn every_cells_scalar_flux_against_an_analog_monte_carlo() {
-    let cases: [(&str, f32, &[&str]); 4] = [
-        (
-            ISOTROPIC,
-            0.5,
-            &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
-        ),
-        (
-            ISOTROPIC,
-            0.99,
-            &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
-        ),
-        (FORWARD_PEAKED, 0.5, &["discrete-ordinates", "two-pass"]),
-        (FORWARD_PEAKED, 0.99, &["discrete-ordinates", "two-pass"]),
-    ];
-    for (phase, albedo, methods) in cases {
+    for (phase, albedo, methods) in SCATTERING_CASES {
         let (scene, _) = emitting_cube(16, 4, None, albedo, phase, methods[0]);
         let reference = analog_fluence(&scene, 4_000_000);
         let sigma_t = &scene.medium.channels()[0].sigma_t;
@@ -505,14 +508,7 @@ fn pixel_agreement(
     let (mut count, mut within) = (0usize, 0usize);
     // Per band: Σ value, Σ reference, Σ variance.
     let mut bands = [(0.0, 0.0, 0.0); 2];
-    for (i, (&r, &e)) in traced
-        .mean
-        .pixels
-        .iter()
-        .zip(&traced.std_error.pixels)
-        .enumerate()
-    {
-        let (x, r, e) = (image.pixels[n * i] as f64, r as f64, e as f64);
+    for (_, x, r, e) in crate::fixtures::pixels_against(image, 0, traced) {
         if x <= 1e-4 * peak {
             continue;
         }
@@ -541,21 +537,7 @@ fn pixel_agreement(
 /// methods hold today (below).
 #[test]
 fn two_views_of_an_emitting_cube_pixel_by_pixel() {
-    let cases: [(&str, f32, &[&str]); 4] = [
-        (
-            ISOTROPIC,
-            0.5,
-            &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
-        ),
-        (
-            ISOTROPIC,
-            0.99,
-            &["zonal-hierarchical", "discrete-ordinates", "two-pass"],
-        ),
-        (FORWARD_PEAKED, 0.5, &["discrete-ordinates", "two-pass"]),
-        (FORWARD_PEAKED, 0.99, &["discrete-ordinates", "two-pass"]),
-    ];
-    for (phase, albedo, methods) in cases {
+    for (phase, albedo, methods) in SCATTERING_CASES {
         let (scene, _) = emitting_cube(16, 4, None, albedo, phase, methods[0]);
         let side = scene.cameras[0].clone();
         let mut above = side.clone();

@@ -25,6 +25,22 @@ pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// Per pixel `i` of channel `c` of `image`: `(i, value, reference, its standard error)`.
+pub fn pixels_against<'a>(
+    image: &'a gather::Image,
+    c: usize,
+    traced: &'a montecarlo::path_trace::PathTraced,
+) -> impl Iterator<Item = (usize, f64, f64, f64)> + 'a {
+    let n = image.channels as usize;
+    traced
+        .mean
+        .pixels
+        .iter()
+        .zip(&traced.std_error.pixels)
+        .enumerate()
+        .map(move |(i, (&r, &e))| (i, image.pixels[n * i + c] as f64, r as f64, e as f64))
+}
+
 /// Relative RMS (the reference's noise taken out), relative mean difference and pixel count
 /// of channel `c` of `image` against `traced` over the pixels `counts(i, reference)` selects.
 pub fn masked_error(
@@ -33,16 +49,8 @@ pub fn masked_error(
     traced: &montecarlo::path_trace::PathTraced,
     counts: impl Fn(usize, f64) -> bool,
 ) -> (f64, f64, usize) {
-    let n = image.channels as usize;
     let (mut err2, mut ref2, mut diff, mut sum, mut count) = (0.0, 0.0, 0.0, 0.0, 0);
-    for (i, (&r, &e)) in traced
-        .mean
-        .pixels
-        .iter()
-        .zip(&traced.std_error.pixels)
-        .enumerate()
-    {
-        let (x, r, e) = (image.pixels[n * i + c] as f64, r as f64, e as f64);
+    for (i, x, r, e) in pixels_against(image, c, traced) {
         if counts(i, r) {
             err2 += (x - r).powi(2) - e * e;
             ref2 += r * r;

@@ -15,6 +15,14 @@ fn columns(albedo: f32) -> Medium {
     Medium::grey(grid, sigma_t, albedo, PhaseFunction::Isotropic).unwrap()
 }
 
+/// The image's mean radiance and its standard error (the pixels' errors in quadrature).
+fn image_mean(t: &montecarlo::PathTraced) -> (f64, f64) {
+    let n = t.mean.pixels.len() as f64;
+    let mean = t.mean.pixels.iter().map(|&v| v as f64).sum::<f64>() / n;
+    let variance: f64 = t.std_error.pixels.iter().map(|&s| (s as f64).powi(2)).sum();
+    (mean, variance.sqrt() / n)
+}
+
 /// Orthographic camera looking down −z whose 8×8 pixels are exactly the grid's columns.
 fn top_camera() -> Camera {
     Camera::orthographic(
@@ -90,16 +98,7 @@ fn slab_reflection(albedo: f32, g: f64, max_depth: Option<u32>, spp: u32) -> (f6
         ..Default::default()
     };
     let out = path_trace_with_error(&medium, 0, &lights, 0.0, &camera, &options).unwrap();
-    let n = out.mean.pixels.len() as f64;
-    let mean = out.mean.pixels.iter().map(|&v| v as f64).sum::<f64>() / n;
-    let se = out
-        .std_error
-        .pixels
-        .iter()
-        .map(|&s| (s as f64).powi(2))
-        .sum::<f64>()
-        .sqrt()
-        / n;
+    let (mean, se) = image_mean(&out);
     let (mu0, mu) = (theta0.cos(), -view.z);
     let tau = sigma_t as f64 * thickness as f64;
     let p = phase.eval(light_dir.dot(-view));
@@ -160,16 +159,7 @@ fn infinite_emitting_medium_reaches_e_over_absorption() {
         ..Default::default()
     };
     let out = path_trace_with_error(&medium, 0, &[], 0.0, &camera, &options).unwrap();
-    let n = out.mean.pixels.len() as f64;
-    let mean = out.mean.pixels.iter().map(|&v| v as f64).sum::<f64>() / n;
-    let se = out
-        .std_error
-        .pixels
-        .iter()
-        .map(|&s| (s as f64).powi(2))
-        .sum::<f64>()
-        .sqrt()
-        / n;
+    let (mean, se) = image_mean(&out);
     assert!(
         (mean - 1.0).abs() < 4.0 * se && se < 0.01,
         "{mean} ± {se} vs 1"
@@ -204,16 +194,7 @@ fn point_and_spot_lights_follow_inverse_square_and_cone() {
     };
     let render = |light: Light| {
         let out = path_trace_with_error(&medium, 0, &[light], 0.0, &camera, &options).unwrap();
-        let mean = out.mean.pixels.iter().map(|&v| v as f64).sum::<f64>() / 4.0;
-        let se = out
-            .std_error
-            .pixels
-            .iter()
-            .map(|&s| (s as f64).powi(2))
-            .sum::<f64>()
-            .sqrt()
-            / 4.0;
-        (mean, se)
+        image_mean(&out)
     };
     let exact = sigma_t * intensity * (-4.0 * sigma_t).exp() / (32.0 * std::f64::consts::PI);
     let (point, se) = render(Light::Point {
@@ -437,20 +418,7 @@ fn emitter_sampling_keeps_the_image_and_shrinks_its_noise() {
         path_trace_with_error(&medium, 0, &[], 0.0, &camera, &options).unwrap()
     };
     let (plain, sampled) = (traced(false), traced(true));
-    let summary = |t: &montecarlo::PathTraced| {
-        let n = t.mean.pixels.len() as f64;
-        let mean = t.mean.pixels.iter().map(|&v| v as f64).sum::<f64>() / n;
-        let se = t
-            .std_error
-            .pixels
-            .iter()
-            .map(|&s| (s as f64).powi(2))
-            .sum::<f64>()
-            .sqrt()
-            / n;
-        (mean, se)
-    };
-    let ((m0, s0), (m1, s1)) = (summary(&plain), summary(&sampled));
+    let ((m0, s0), (m1, s1)) = (image_mean(&plain), image_mean(&sampled));
     assert!(
         (m0 - m1).abs() < 4.0 * (s0 * s0 + s1 * s1).sqrt(),
         "image mean {m1} ± {s1} with emitter sampling, {m0} ± {s0} without"
