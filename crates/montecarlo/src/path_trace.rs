@@ -133,23 +133,11 @@ impl EmitterSampler {
             cumulative.push(power);
         }
         cumulative.iter_mut().for_each(|v| *v /= power);
-        let [nx, ny, nz] = grid.dims;
-        let mut near = vec![false; n];
-        for &c in &cells {
-            let [i, j, k] = grid.coords(c as usize);
-            for kk in k.saturating_sub(1)..(k + 2).min(nz) {
-                for jj in j.saturating_sub(1)..(j + 2).min(ny) {
-                    for ii in i.saturating_sub(1)..(i + 2).min(nx) {
-                        near[grid.index(ii, jj, kk)] = true;
-                    }
-                }
-            }
-        }
         Some(EmitterSampler {
+            near: medium::emitter_pass::near_emitting_cells(grid, &cells),
             cells,
             cumulative,
             power,
-            near,
         })
     }
 }
