@@ -183,41 +183,40 @@ impl<'a> Occupancy<'a> {
 
     /// Non-empty cells of the transport grid at `scale` (1: the data grid's).
     pub fn at(&self, scale: usize) -> usize {
-        let Ok(k) = Coarsening::new(self.medium.grid(), scale) else {
-            return 0;
-        };
-        if scale == 1 {
-            return self.occupied.iter().filter(|&&o| o).count();
-        }
-        let mut block = vec![false; k.coarse().cell_count()];
-        for (i, _) in self.occupied.iter().enumerate().filter(|(_, &o)| o) {
-            block[k.coarse_cell_of(i)] = true;
-        }
-        block.iter().filter(|&&o| o).count()
+        self.on_transport_grid(scale, |i| self.occupied[i])
+            .iter()
+            .filter(|&&o| o)
+            .count()
     }
 
     /// The cells of the transport grid at `scale` that the discrete-ordinates scattering
     /// product multiplies each sweep ([`formfactor::ordinates::scattering_product_cells`]):
     /// those of blocks that hold a scattering cell (σt > 0 and albedo > 0 in any channel).
     pub fn ordinates_product_cells(&self, scale: usize) -> usize {
-        let scatters = |i: usize| {
+        let scatters = self.on_transport_grid(scale, |i| {
             self.medium
                 .channels()
                 .iter()
                 .any(|c| c.sigma_t[i] > 0.0 && c.albedo.get(i) > 0.0)
-        };
+        });
+        formfactor::ordinates::scattering_product_cells(&scatters)
+    }
+
+    /// Per cell of the transport grid at `scale`: whether any of its data cells is `marked`
+    /// (empty when the scale does not fit the grid).
+    fn on_transport_grid(&self, scale: usize, marked: impl Fn(usize) -> bool) -> Vec<bool> {
         let n = self.medium.grid().cell_count();
-        let mask: Vec<bool> = match Coarsening::new(self.medium.grid(), scale) {
-            Ok(k) if scale > 1 => {
-                let mut block = vec![false; k.coarse().cell_count()];
-                for i in (0..n).filter(|&i| scatters(i)) {
-                    block[k.coarse_cell_of(i)] = true;
-                }
-                block
-            }
-            _ => (0..n).map(scatters).collect(),
+        if scale == 1 {
+            return (0..n).map(marked).collect();
+        }
+        let Ok(k) = Coarsening::new(self.medium.grid(), scale) else {
+            return Vec::new();
         };
-        formfactor::ordinates::scattering_product_cells(&mask)
+        let mut block = vec![false; k.coarse().cell_count()];
+        for i in (0..n).filter(|&i| marked(i)) {
+            block[k.coarse_cell_of(i)] = true;
+        }
+        block
     }
 }
 
