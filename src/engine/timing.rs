@@ -121,8 +121,8 @@ const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
 /// that runs faster per multiply-add the larger `M` is), and the cost of a state larger than
 /// the caches, per cell and bin, growing to its full value at
 /// [`ORDINATES_CACHED_CELL_BINS`]. Fitted on nine solves from 0.6 M to 21 M cell-bins (clouds,
-/// uniform blocks, Kobayashi's shield; 24–384 bins; every per-sweep time within 19 %;
-/// docs/performance.md, "Time").
+/// uniform blocks, Kobayashi's shield; 24–384 bins): `benches/ordinates_sweep.py` prints the
+/// model against the measured sweeps (docs/performance.md, "Time").
 const ORDINATES_SETUP_SECONDS_PER_CELL_BIN: f64 = 7.0e-8;
 const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 4.3e-9;
 const ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN: f64 = 1.2e-9;
