@@ -1161,17 +1161,17 @@ fn fluence_on(
             None => vec![0.0; unscattered.len()],
         })
     };
+    let isotropic = medium.phase().is_isotropic();
     Ok(match (&ch.scattered, bins) {
         (ScatteredField::Isotropic { source, .. }, _) => {
-            // g = e + σs φ / 4π for isotropic scattering, so φ = 4π (g − e) / σs.
+            // g = e + σs φ / 4π for isotropic scattering, so φ = 4π (g − e) / σs where cells
+            // scatter.
             let g: Vec<f64> = source.iter().map(|&v| (v as f64).max(0.0)).collect();
-            let outside = fluence_where_nothing_scatters(medium, c, &g, unscattered, &emitted)?;
-            (0..unscattered.len())
-                .map(|i| match &outside {
-                    Some(o) if m.sigma_s(i) <= 0.0 => unscattered[i] + o[i],
-                    _ => 4.0 * PI * (g[i] - m.emission.get(i) as f64) / m.sigma_s(i) as f64,
-                })
-                .collect()
+            let inside = |i: usize| {
+                let s = m.sigma_s(i) as f64;
+                (s > 0.0).then(|| 4.0 * PI * (g[i] - m.emission.get(i) as f64) / s)
+            };
+            flux_of_sources(medium, c, &g, unscattered, &emitted, false, inside)?
         }
         (ScatteredField::TwoPass(t), _) => {
             // The stored field holds every interaction but the lights' first (the render's
@@ -1191,24 +1191,13 @@ fn fluence_on(
                         + m.sigma_s(i) as f64 * unscattered[i] / (4.0 * PI)
                 })
                 .collect();
-            if medium.phase().is_isotropic() {
-                // As for discrete ordinates: the sources traced to every cell, where the
-                // photons' own noise in each cell's tally averages out along the rays.
-                if let Some(traced) = traced_sources(medium, c, &g)? {
-                    return Ok(unscattered
-                        .iter()
-                        .zip(&traced)
-                        .map(|(u, t)| u + t)
-                        .collect());
-                }
-            }
-            let outside = fluence_where_nothing_scatters(medium, c, &g, unscattered, &emitted)?;
-            (0..unscattered.len())
-                .map(|i| match &outside {
-                    Some(o) if m.sigma_s(i) <= 0.0 => unscattered[i] + o[i],
-                    _ => unscattered[i] + 4.0 * PI * means[i] as f64 / m.sigma_s(i) as f64,
-                })
-                .collect()
+            let inside = |i: usize| {
+                let s = m.sigma_s(i) as f64;
+                (s > 0.0).then(|| unscattered[i] + 4.0 * PI * means[i] as f64 / s)
+            };
+            // With isotropic scattering traced everywhere: the photons' own noise in each
+            // cell's tally averages out along the rays.
+            flux_of_sources(medium, c, &g, unscattered, &emitted, isotropic, inside)?
         }
         (ScatteredField::Binned { radiance, .. }, Some(bins)) => {
             let binned: Vec<f64> = radiance
@@ -1222,12 +1211,11 @@ fn fluence_on(
                             .sum::<f64>()
                 })
                 .collect();
-            if !medium.phase().is_isotropic() {
+            if !isotropic {
                 return Ok(binned);
             }
-            // Scattering is isotropic, so every cell's source is g = e + σs φ / 4π and the
-            // flux anywhere is g traced there plus the lights' unscattered light: the bins'
-            // flux enters only through the sources it feeds, and their ray effects (the
+            // Scattering is isotropic, so every cell's source is g = e + σs φ / 4π: the
+            // bins' flux enters only through the sources it feeds, and their ray effects (the
             // scattered light of a compact source carried on a few directions: 20–45 % from
             // cell to cell) average out along the traced rays.
             let g: Vec<f64> = binned
@@ -1237,20 +1225,9 @@ fn fluence_on(
                     m.emission.get(i) as f64 + m.sigma_s(i) as f64 * phi.max(0.0) / (4.0 * PI)
                 })
                 .collect();
-            match traced_sources(medium, c, &g)? {
-                Some(traced) => unscattered
-                    .iter()
-                    .zip(&traced)
-                    .map(|(u, t)| u + t)
-                    .collect(),
-                None => {
-                    tracing::warn!(
-                        "fluence: the discrete-ordinates bins' own flux (tracing every cell's \
-                         source would cost too much)"
-                    );
-                    binned
-                }
-            }
+            flux_of_sources(medium, c, &g, unscattered, &emitted, true, |i| {
+                Some(binned[i])
+            })?
         }
         _ => unscattered
             .iter()
@@ -1260,52 +1237,55 @@ fn fluence_on(
     })
 }
 
-/// Where cells do not scatter (empty space around a cloud, absorbing cells) a per-cell
-/// source does not say the flux: there the light of every cell's isotropic source `g` —
-/// emitted and scattered — is traced to the cell (an emitter pass of `g`); add the lights'
-/// unscattered light. `None` when every cell scatters. A large cloud's source traced to every
-/// empty cell would take minutes (data/cloud.toml: over 5): there only the emitters'
-/// uncollided light (`emitted`) is counted, with a warning.
-fn fluence_where_nothing_scatters(
+/// The flux per cell from every cell's isotropic source `g` (emitted and scattered) traced to
+/// it by an emitter pass of `g`, plus the lights' unscattered light: in every cell when
+/// `everywhere`, else where `inside(i)` has no value (cells that do not scatter: empty space
+/// around a cloud, absorbing cells, where a per-cell source does not say the flux) and
+/// `inside(i)` elsewhere. When tracing would cost more than [`MAX_EXPORT_RAYS`] (a large
+/// cloud's source traced to every empty cell: minutes), `inside(i)` where it has a value and
+/// the emitters' uncollided light (`emitted`) elsewhere, with a warning.
+fn flux_of_sources(
     medium: &Medium,
     c: usize,
     g: &[f64],
     unscattered: &[f64],
     emitted: &dyn Fn() -> Result<Vec<f64>>,
-) -> Result<Option<Vec<f64>>> {
-    let m = &medium.channels()[c];
-    if (0..unscattered.len()).all(|i| m.sigma_s(i) > 0.0) {
-        return Ok(None);
+    everywhere: bool,
+    inside: impl Fn(usize) -> Option<f64>,
+) -> Result<Vec<f64>> {
+    let n = unscattered.len();
+    let own: Vec<Option<f64>> = (0..n).map(inside).collect();
+    if !everywhere && own.iter().all(Option::is_some) {
+        return Ok(own.into_iter().flatten().collect());
     }
-    if let Some(traced) = traced_sources(medium, c, g)? {
-        return Ok(Some(traced));
-    }
-    tracing::warn!(
-        "fluence where cells do not scatter: the uncollided light only (tracing the scattered \
-         light there would cost too much)"
-    );
-    Ok(Some(emitted()?))
-}
-
-/// The fluence of every cell's isotropic source `g` traced to every cell (an emitter pass of
-/// `g`), or `None` when its estimated rays exceed [`MAX_EXPORT_RAYS`].
-fn traced_sources(medium: &Medium, c: usize, g: &[f64]) -> Result<Option<Vec<f64>>> {
     let options = EmitterPassOptions::default();
     let cost =
         EmitterPass::estimated_rays_per_cell_of(medium, c, g, &options, EMITTER_COST_SAMPLES)?;
-    if cost * g.len() as f64 > MAX_EXPORT_RAYS {
-        tracing::debug!(
+    let (traced, fallback) = if cost * n as f64 <= MAX_EXPORT_RAYS {
+        let pass = EmitterPass::from_sources(medium, c, g, &options)
+            .context("tracing the cells' sources")?;
+        (Some(pass.fluence().to_vec()), Vec::new())
+    } else {
+        tracing::warn!(
             rays_per_cell = cost,
-            "tracing the cells' sources: too costly"
+            "fluence: each cell's own value, and where it has none only the uncollided light \
+             (tracing every cell's source would cost too much)"
         );
-        return Ok(None);
-    }
-    Ok(Some(
-        EmitterPass::from_sources(medium, c, g, &options)
-            .context("tracing the cells' sources")?
-            .fluence()
-            .to_vec(),
-    ))
+        let fallback = if own.iter().all(Option::is_some) {
+            Vec::new()
+        } else {
+            emitted()?
+        };
+        (None, fallback)
+    };
+    Ok((0..n)
+        .map(|i| match (&traced, own[i]) {
+            (Some(t), _) if everywhere => unscattered[i] + t[i],
+            (_, Some(v)) => v,
+            (Some(t), None) => unscattered[i] + t[i],
+            (None, None) => unscattered[i] + fallback[i],
+        })
+        .collect())
 }
 
 /// Refuses a solution whose solve was cancelled in any channel: its fields are partial. (Not
