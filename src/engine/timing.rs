@@ -124,9 +124,9 @@ const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
 /// uniform blocks, Kobayashi's shield; 24–384 bins): `benches/ordinates_sweep.py` prints the
 /// model against the measured sweeps (docs/performance.md, "Time").
 const ORDINATES_SETUP_SECONDS_PER_CELL_BIN: f64 = 7.0e-8;
-const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 4.3e-9;
+const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 6.3e-9;
 const ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN: f64 = 1.2e-9;
-const ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN: f64 = 8.8e-9;
+const ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN: f64 = 11.8e-9;
 const ORDINATES_CACHED_CELL_BINS: f64 = 2.0e7;
 /// Two-pass: per cell and tally bin (the tallies and their sum), and per photon and cell
 /// along the grid's longest side (a photon's path crosses cells in proportion to it).

@@ -103,8 +103,9 @@ fn hierarchical_matches_exact_source_terms() {
 }
 
 /// Discrete ordinates (Max's 96 bins) against the forward-scattering reference
-/// (tests/data/cloud24-anisotropic, Henyey–Greenstein g = 0.6): issue #5's target is 5 %
-/// (measured 2.8 %, mean +2.9 %, with the true-phase final gather; 2.2 % with 384 before it).
+/// (tests/data/cloud24-anisotropic, Henyey–Greenstein g = 0.6): issue #5's target was 5 %.
+/// The face-coupled sweep gives 1.9 %, mean +1.1 %; with Max's fixed face shares, which spread
+/// each beam sideways at every cell, it was 2.8 %, mean +2.9 % (the bounds sit between).
 #[test]
 fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-anisotropic");
@@ -125,12 +126,12 @@ fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
     .unwrap();
     println!("discrete ordinates (96 bins) vs Mitsuba, g = 0.6: {c:?}");
     assert!(
-        c.relative_rms_error < 0.05,
+        c.relative_rms_error < 0.025,
         "relative RMS {:.4}",
         c.relative_rms_error
     );
     assert!(
-        c.relative_mean_difference.abs() < 0.04,
+        c.relative_mean_difference.abs() < 0.02,
         "mean off by {:.4}",
         c.relative_mean_difference
     );
@@ -139,7 +140,8 @@ fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
 /// Issue #18's worst case: the cloud made strongly forward-scattering (g = 0.85) and seen from
 /// behind (the first camera turned 225° about its up axis, so the sun shines through the cloud
 /// towards the camera). Against volrad's own path tracer (512 spp, its noise taken out), the
-/// image mean of discrete ordinates with 96 bins is +9.3 % ± 0.9 %; with linear interpolation
+/// image mean of discrete ordinates with 96 bins is +8.4 % ± 0.9 % (+9.3 % with Max's fixed
+/// face shares); with linear interpolation
 /// between bin centres and no δ-M truncation (the code before) it was +13.2 % here (+12.8 % on
 /// the full-size view, docs/validation.md). The bound sits between the two.
 #[test]

@@ -16,6 +16,8 @@
 //!   folded onto that column (the build is O(cells²): 3–90 s per τ);
 //! - `DISORT_CONE`: the δ-M forward-peak cone in degrees (`auto`: one bin's, as volrad's
 //!   default; unset or 0: none), for the g > 0 cases;
+//! - `DISORT_MAX_SHARES=1`: the sweep without face coupling (Max's fixed face shares,
+//!   `OrdinatesOptions::face_coupling` off);
 //! - `DISORT_DETAIL=1`: every radiance.
 //!
 //! The transmitted radiances and T of cases whose DISORT `T_diffuse` is below 1e-6 (τ = 64 at
@@ -117,10 +119,16 @@ fn main() {
             let base = OrdinatesOptions {
                 phase_quadrature: pq,
                 match_asymmetry,
+                face_coupling: std::env::var("DISORT_MAX_SHARES").is_err(),
                 ..Default::default()
             };
             println!(
-                "\n## discrete ordinates, {nb} bins, {nz} layers{}{}{}",
+                "\n## discrete ordinates, {nb} bins, {nz} layers{}{}{}{}",
+                if base.face_coupling {
+                    ""
+                } else {
+                    ", Max's face shares"
+                },
                 if match_asymmetry {
                     ""
                 } else {

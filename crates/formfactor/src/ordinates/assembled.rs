@@ -44,18 +44,15 @@ impl AssembledOrdinates {
                 "the assembled operator supports vacuum sides only".into(),
             ));
         }
-        let h = grid.cell_size;
-        let sigma_t = op.sigma_t();
         let sigma_s = op.sigma_s();
         let matrix = op.phase_matrix();
         let omega = op.bins().solid_angles();
         let mut tri = TriMat::new((n * m, n * m));
-        let mut out = vec![0.0f64; n];
+        // Each cell's outflow through its downstream x, y and z faces, and its response.
+        let mut out = vec![[0.0f64; 3]; n];
         let mut response = vec![0.0f64; n];
-        for piece in op.pieces() {
+        for (p, piece) in op.pieces().iter().enumerate() {
             let l = piece.bin;
-            let [fx, fy, fz] = piece.fractions;
-            let s = piece.projected;
             for (src, &sigma_s_src) in sigma_s.iter().enumerate() {
                 if sigma_s_src == 0.0 {
                     continue;
@@ -87,20 +84,18 @@ impl AssembledOrdinates {
                     for &j in &ys {
                         for &i in &xs {
                             let c = grid.index(i, j, k);
-                            let mut inflow = 0.0;
+                            let mut inflow = [0.0; 3];
                             if let Some(u) = up(i, piece.forward[0], si) {
-                                inflow += fx * out[grid.index(u, j, k)];
+                                inflow[0] = out[grid.index(u, j, k)][0];
                             }
                             if let Some(u) = up(j, piece.forward[1], sj) {
-                                inflow += fy * out[grid.index(i, u, k)];
+                                inflow[1] = out[grid.index(i, u, k)][1];
                             }
                             if let Some(u) = up(k, piece.forward[2], sk) {
-                                inflow += fz * out[grid.index(i, j, u)];
+                                inflow[2] = out[grid.index(i, j, u)][2];
                             }
-                            let (t, esc, src_esc, track) = piece.cell_terms(sigma_t[c] * h);
                             let unit = if c == src { 1.0 } else { 0.0 };
-                            out[c] = inflow * t + unit * h * src_esc;
-                            response[c] = inflow / s * esc + unit * h * track;
+                            (out[c], response[c]) = op.cell_response(p, c, inflow, unit);
                         }
                     }
                 }
@@ -115,7 +110,7 @@ impl AssembledOrdinates {
                                     tri.add_triplet(c * m + l, src * m + jb, v);
                                 }
                             }
-                            out[c] = 0.0;
+                            out[c] = [0.0; 3];
                             response[c] = 0.0;
                         }
                     }
