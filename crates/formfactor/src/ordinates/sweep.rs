@@ -368,60 +368,38 @@ const COUPLING_FACE_POINTS: usize = 16;
 /// upstream faces), with volume element `|ω_b| dA dt`, so the depth integrals are closed
 /// forms (a midpoint rule in depth would miss a thick cell's thin escaping layer).
 fn coupling_of(dirs: &[(DVec3, f64)]) -> Coupling {
-    let g = COUPLING_FACE_POINTS;
     let total_w: f64 = dirs.iter().map(|d| d.1).sum();
     // (entry or exit axis, weight, chord, the other end's axis)
     let mut entries: Vec<(usize, f64, f64, usize)> = Vec::new();
     let mut exits: Vec<(usize, f64, f64)> = Vec::new();
-    for &(w, wt) in dirs {
-        let w = w.to_array();
-        for face in 0..3 {
-            if w[face] == 0.0 {
-                continue;
+    for_face_points(dirs, COUPLING_FACE_POINTS, |face, w, wt, y| {
+        let weight = wt / total_w * w[face];
+        // Coordinates along the travel direction: 0 at the upstream face. Entering at face
+        // `face` (coordinate 0 there), travelling `w`, the distance to each downstream face:
+        let to_face = [0, 1, 2].map(|ax| {
+            let start = if ax == face { 0.0 } else { y[ax] };
+            if w[ax] == 0.0 {
+                f64::INFINITY
+            } else {
+                (1.0 - start) / w[ax]
             }
-            let (u, v) = ((face + 1) % 3, (face + 2) % 3);
-            for a in 0..g {
-                for b in 0..g {
-                    let mut y = [0.0; 3];
-                    y[u] = (a as f64 + 0.5) / g as f64;
-                    y[v] = (b as f64 + 0.5) / g as f64;
-                    let weight = wt / total_w * w[face].abs() / (g * g) as f64;
-                    // Coordinates along the travel direction: 0 at the upstream face.
-                    // Entering at face `face` (coordinate 0 there), travelling |w|, the
-                    // distance to each downstream face:
-                    let to_face = [0, 1, 2].map(|ax| {
-                        let start = if ax == face { 0.0 } else { y[ax] };
-                        if w[ax] == 0.0 {
-                            f64::INFINITY
-                        } else {
-                            (1.0 - start) / w[ax].abs()
-                        }
-                    });
-                    let chord = to_face.into_iter().fold(f64::INFINITY, f64::min);
-                    // A point whose chord ends on an edge (the bins' rational directions
-                    // meet the midpoints exactly) leaves through both faces equally, so
-                    // that images of one piece get the same shares whatever the rounding.
-                    let ends = |ax: usize| to_face[ax] <= chord * (1.0 + 1e-9);
-                    let shared = (0..3).filter(|&ax| ends(ax)).count() as f64;
-                    for out in (0..3).filter(|&ax| ends(ax)) {
-                        entries.push((face, weight / shared, chord, out));
-                    }
-                    // Leaving at face `face` (coordinate 1 there), back along −|w|:
-                    let back = (0..3)
-                        .filter(|&ax| w[ax] != 0.0)
-                        .map(|ax| {
-                            if ax == face {
-                                1.0 / w[ax].abs()
-                            } else {
-                                y[ax] / w[ax].abs()
-                            }
-                        })
-                        .fold(f64::INFINITY, f64::min);
-                    exits.push((face, weight, back));
-                }
-            }
+        });
+        let chord = to_face.into_iter().fold(f64::INFINITY, f64::min);
+        // A point whose chord ends on an edge (the bins' rational directions meet the
+        // midpoints exactly) leaves through both faces equally, so that images of one piece
+        // get the same shares whatever the rounding.
+        let ends = |ax: usize| to_face[ax] <= chord * (1.0 + 1e-9);
+        let shared = (0..3).filter(|&ax| ends(ax)).count() as f64;
+        for out in (0..3).filter(|&ax| ends(ax)) {
+            entries.push((face, weight / shared, chord, out));
         }
-    }
+        // Leaving at face `face` (coordinate 1 there), back along −w:
+        let back = (0..3)
+            .filter(|&ax| w[ax] != 0.0)
+            .map(|ax| (if ax == face { 1.0 } else { y[ax] }) / w[ax])
+            .fold(f64::INFINITY, f64::min);
+        exits.push((face, weight, back));
+    });
     // Entry weights per face, so that each face's unit inflow is spread over its samples.
     let mut face_w = [0.0; 3];
     for &(a, w, ..) in &entries {
@@ -528,33 +506,43 @@ impl Coupling {
     }
 }
 
+/// Visits `points²` midpoints of each face of the unit cube that the directions `dirs` cross,
+/// per direction: `visit(face axis, |ω| per axis, the direction's weight / points², the point)`,
+/// the point's coordinate along the face's own axis left 0.
+fn for_face_points(
+    dirs: &[(DVec3, f64)],
+    points: usize,
+    mut visit: impl FnMut(usize, [f64; 3], f64, [f64; 3]),
+) {
+    for &(w, wt) in dirs {
+        let w = w.abs().to_array();
+        for face in (0..3).filter(|&face| w[face] != 0.0) {
+            let (u, v) = ((face + 1) % 3, (face + 2) % 3);
+            for a in 0..points {
+                for b in 0..points {
+                    let mut y = [0.0; 3];
+                    y[u] = (a as f64 + 0.5) / points as f64;
+                    y[v] = (b as f64 + 0.5) / points as f64;
+                    visit(face, w, wt / (points * points) as f64, y);
+                }
+            }
+        }
+    }
+}
+
 /// Chords of flux entering the unit cube's upwind faces (`ENTRY_POINTS²` midpoints per face,
 /// each face weighted by `|w_a|`) along directions `dirs`: the transmission table and the
 /// chord moments `⟨ℓ⟩`, `⟨ℓ²⟩` (see [`Piece::transmission`]).
 fn transmission_table_of(dirs: &[(DVec3, f64)]) -> ([f64; SOURCE_TABLE_LEN], [f64; 2]) {
     const ENTRY_POINTS: usize = 12;
     let mut samples = Vec::with_capacity(3 * ENTRY_POINTS * ENTRY_POINTS * dirs.len());
-    for &(w, wt) in dirs {
-        let w = w.abs().to_array();
-        for entry in 0..3 {
-            if w[entry] == 0.0 {
-                continue;
-            }
-            let (u, v) = ((entry + 1) % 3, (entry + 2) % 3);
-            for a in 0..ENTRY_POINTS {
-                for b in 0..ENTRY_POINTS {
-                    let mut x = [0.0; 3];
-                    x[u] = (a as f64 + 0.5) / ENTRY_POINTS as f64;
-                    x[v] = (b as f64 + 0.5) / ENTRY_POINTS as f64;
-                    let chord = (0..3)
-                        .filter(|&ax| w[ax] > 0.0)
-                        .map(|ax| (1.0 - x[ax]) / w[ax])
-                        .fold(f64::INFINITY, f64::min);
-                    samples.push((chord, wt * w[entry]));
-                }
-            }
-        }
-    }
+    for_face_points(dirs, ENTRY_POINTS, |entry, w, wt, x| {
+        let chord = (0..3)
+            .filter(|&ax| w[ax] > 0.0)
+            .map(|ax| (1.0 - x[ax]) / w[ax])
+            .fold(f64::INFINITY, f64::min);
+        samples.push((chord, wt * w[entry] * (ENTRY_POINTS * ENTRY_POINTS) as f64));
+    });
     let total: f64 = samples.iter().map(|s| s.1).sum();
     let l1 = samples.iter().map(|(l, w)| l * w).sum::<f64>() / total;
     let l2 = samples.iter().map(|(l, w)| l * l * w).sum::<f64>() / total;
