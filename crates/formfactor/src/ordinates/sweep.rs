@@ -369,9 +369,14 @@ const COUPLING_FACE_POINTS: usize = 16;
 /// forms (a midpoint rule in depth would miss a thick cell's thin escaping layer).
 fn coupling_of(dirs: &[(DVec3, f64)]) -> Coupling {
     let total_w: f64 = dirs.iter().map(|d| d.1).sum();
-    // (entry or exit axis, weight, chord, the other end's axis)
-    let mut entries: Vec<(usize, f64, f64, usize)> = Vec::new();
-    let mut exits: Vec<(usize, f64, f64)> = Vec::new();
+    let mut c = Coupling::zeroed();
+    let nodes: [f64; SOURCE_TABLE_LEN] = std::array::from_fn(|i| {
+        10f64.powf(SOURCE_TABLE_MIN_LOG10 + i as f64 / SOURCE_TABLE_PER_DECADE)
+    });
+    // Each sample is added to the tables as it is met (no list of samples: a few hundred kB
+    // made on rayon's threads stayed committed by the allocator); the entry rows are
+    // normalised per face at the end.
+    let mut face_w = [0.0; 3];
     for_face_points(dirs, COUPLING_FACE_POINTS, |face, w, wt, y| {
         let weight = wt / total_w * w[face];
         // Coordinates along the travel direction: 0 at the upstream face. Entering at face
@@ -384,52 +389,53 @@ fn coupling_of(dirs: &[(DVec3, f64)]) -> Coupling {
                 (1.0 - start) / w[ax]
             }
         });
-        let chord = to_face.into_iter().fold(f64::INFINITY, f64::min);
+        let l = to_face.into_iter().fold(f64::INFINITY, f64::min);
         // A point whose chord ends on an edge (the bins' rational directions meet the
         // midpoints exactly) leaves through both faces equally, so that images of one piece
         // get the same shares whatever the rounding.
-        let ends = |ax: usize| to_face[ax] <= chord * (1.0 + 1e-9);
+        let ends = |ax: usize| to_face[ax] <= l * (1.0 + 1e-9);
         let shared = (0..3).filter(|&ax| ends(ax)).count() as f64;
+        face_w[face] += weight;
+        c.thin_inflow[0][face] += weight * l;
+        c.thin_inflow[1][face] += weight * l * l / 2.0;
+        for (i, &tau0) in nodes.iter().enumerate() {
+            c.inflow_track[i][face] += weight * -(-tau0 * l).exp_m1() / tau0;
+        }
         for out in (0..3).filter(|&ax| ends(ax)) {
-            entries.push((face, weight / shared, chord, out));
+            let w = weight / shared;
+            c.thin_transmit[0][3 * face + out] += w;
+            c.thin_transmit[1][3 * face + out] += w * l;
+            for (i, &tau0) in nodes.iter().enumerate() {
+                c.transmit[i][3 * face + out] += w * (-tau0 * l).exp();
+            }
         }
         // Leaving at face `face` (coordinate 1 there), back along −w:
-        let back = (0..3)
+        let l = (0..3)
             .filter(|&ax| w[ax] != 0.0)
             .map(|ax| (if ax == face { 1.0 } else { y[ax] }) / w[ax])
             .fold(f64::INFINITY, f64::min);
-        exits.push((face, weight, back));
-    });
-    // Entry weights per face, so that each face's unit inflow is spread over its samples.
-    let mut face_w = [0.0; 3];
-    for &(a, w, ..) in &entries {
-        face_w[a] += w;
-    }
-    let mut c = Coupling::zeroed();
-    for &(a, w, l, b) in &entries {
-        let w = w / face_w[a];
-        c.thin_transmit[0][3 * a + b] += w;
-        c.thin_transmit[1][3 * a + b] += w * l;
-        c.thin_inflow[0][a] += w * l;
-        c.thin_inflow[1][a] += w * l * l / 2.0;
-    }
-    for &(b, w, l) in &exits {
-        c.thin_exit[0][b] += w * l;
-        c.thin_exit[1][b] += w * l * l / 2.0;
-        c.thin_source[0] += w * l * l / 2.0;
-        c.thin_source[1] += w * l * l * l / 6.0;
-    }
-    for i in 0..SOURCE_TABLE_LEN {
-        let tau0 = 10f64.powf(SOURCE_TABLE_MIN_LOG10 + i as f64 / SOURCE_TABLE_PER_DECADE);
-        for &(a, w, l, b) in &entries {
-            let w = w / face_w[a];
-            c.transmit[i][3 * a + b] += w * (-tau0 * l).exp();
-            c.inflow_track[i][a] += w * -(-tau0 * l).exp_m1() / tau0;
-        }
-        for &(b, w, l) in &exits {
+        c.thin_exit[0][face] += weight * l;
+        c.thin_exit[1][face] += weight * l * l / 2.0;
+        c.thin_source[0] += weight * l * l / 2.0;
+        c.thin_source[1] += weight * l * l * l / 6.0;
+        for (i, &tau0) in nodes.iter().enumerate() {
             let tl = tau0 * l;
-            c.exit[i][b] += w * -(-tl).exp_m1() / tau0;
-            c.source_track[i] += w * (tl + (-tl).exp_m1()) / (tau0 * tau0);
+            c.exit[i][face] += weight * -(-tl).exp_m1() / tau0;
+            c.source_track[i] += weight * (tl + (-tl).exp_m1()) / (tau0 * tau0);
+        }
+    });
+    // Per unit inflow through each face.
+    for a in 0..3 {
+        if face_w[a] > 0.0 {
+            let scale = 1.0 / face_w[a];
+            for row in c.transmit.iter_mut().chain(c.thin_transmit.iter_mut()) {
+                for v in &mut row[3 * a..3 * a + 3] {
+                    *v *= scale;
+                }
+            }
+            for row in c.inflow_track.iter_mut().chain(c.thin_inflow.iter_mut()) {
+                row[a] *= scale;
+            }
         }
     }
     c
