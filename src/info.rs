@@ -119,7 +119,7 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64) -> String {
         format!(
             "about 8 % per view, back-lit views up to +8 % bright at g = 0.85 with 96 bins \
              (216 bins: 6 %, +3 %; {bins} bins here): set [solve] bins = 384 for about 6 %, \
-             within 2 % in the mean (about 6× the solve)"
+             within 2 % in the mean (about 7× the solve)"
         )
     };
     if tau_cell > 0.25 {
