@@ -50,10 +50,12 @@ pub struct OrdinatesOptions {
     /// Tilt the phase matrix so its discrete mean cosine equals the phase function's
     /// ([`PhaseMatrix::match_asymmetry`]).
     pub match_asymmetry: bool,
-    /// Transmit each cell's inflow by the exact mean `⟨e^{−σt ℓ}⟩` over its chords
-    /// ([`Piece`]), not by `e^{−σt ⟨ℓ⟩}` of the mean chord. Off by default: on the 7³ blob
-    /// of `tests/it/ordinates_zonal.rs` it doubles the gap to zonal (3.5 % → 7.3 % RMS), because
-    /// the mean chord's smaller transmission partly offsets the scheme's sideways spreading.
+    /// With Max's face shares (`face_coupling` off): transmit each cell's inflow by the exact
+    /// mean `⟨e^{−σt ℓ}⟩` over its chords ([`Piece`]), not by `e^{−σt ⟨ℓ⟩}` of the mean chord.
+    /// Off by default: on the 7³ blob of `tests/it/ordinates_zonal.rs` it doubles that sweep's
+    /// gap to zonal (3.5 % → 7.3 % RMS), because the mean chord's smaller transmission partly
+    /// offsets the shares' sideways spreading. The face-coupled sweep attenuates along the
+    /// chords already, and ignores it.
     pub exact_transmission: bool,
     /// Sweep each cell as `r × r × r` sub-cells (1..=4; the unknowns stay per cell, the
     /// source uniform in it): the step scheme's sideways spreading (numerical diffusion)
@@ -336,7 +338,8 @@ fn source_table_of(dirs: &[(DVec3, f64)]) -> ([f64; SOURCE_TABLE_LEN], [f64; 2])
     (table, [d1, d2])
 }
 
-/// Face-coupled transport tables of one piece, in its own axes, at the source table's nodes
+/// Face-coupled transport tables of one piece, in its canonical axes ([`Piece::canonical_axes`];
+/// one table serves the piece's images under the cube's symmetries), at the source table's nodes
 /// `τ0 = σt h` ([`OrdinatesOptions::face_coupling`]). Faces are named by axis: the upstream
 /// face of axis `a` (where the piece's flux enters) and the downstream face of `b` (where it
 /// leaves).
