@@ -764,3 +764,63 @@ fn the_scattering_product_counts_the_blocks_that_scatter() {
     scatters.iter_mut().for_each(|s| *s = true);
     assert_eq!(scattering_product_cells(&scatters), scatters.len());
 }
+
+/// Max's fixed face shares spread a beam sideways at every cell (numerical diffusion); the
+/// face-coupled sweep passes the flux that entered by one face on by the piece's own chords.
+/// A unit source in a corner cell, swept along one bin's diagonal through a 16³ void: the
+/// beam's spread across its direction (the weighted variance of the cells it reaches,
+/// perpendicular to the bin's centre) is measured for both: 4.6 against 10.1 cells².
+#[test]
+fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
+    let grid = Grid::new([16, 16, 16], 1.0).unwrap();
+    let n = grid.cell_count();
+    let ch = ChannelMedium {
+        sigma_t: vec![0.0; n],
+        albedo: CellValues::Uniform(0.0),
+        emission: CellValues::Uniform(0.0),
+    };
+    let medium = Medium::new(
+        grid,
+        vec![ch],
+        PhaseFunction::Isotropic,
+        Interpolation::Nearest,
+        None,
+    )
+    .unwrap();
+    let bins = DirectionBins::cube(4).unwrap();
+    let m = bins.len();
+    // The most diagonal bin going up all three axes.
+    let (l, d) = bins
+        .centres()
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.min_element() > 0.0)
+        .max_by(|a, b| a.1.min_element().total_cmp(&b.1.min_element()))
+        .map(|(l, c)| (l, c.normalize()))
+        .unwrap();
+    let spread = |face_coupling: bool| -> f64 {
+        let options = OrdinatesOptions {
+            face_coupling,
+            ..Default::default()
+        };
+        let op = OrdinatesOperator::new(&medium, 0, bins.clone(), options).unwrap();
+        let mut density = vec![0.0; n * m];
+        density[l] = 1.0; // cell (0, 0, 0)
+        let mut out = vec![0.0; n * m];
+        let e = op.transport(&density, &mut out);
+        assert!((e.emitted - e.escaped_total()).abs() < 1e-9 * e.emitted);
+        let w: Vec<f64> = (0..n).map(|c| out[c * m + l]).collect();
+        let total: f64 = w.iter().sum();
+        let mean = (0..n).fold(DVec3::ZERO, |a, c| a + grid.cell_center(c) * w[c]) / total;
+        (0..n)
+            .map(|c| {
+                let r = grid.cell_center(c) - mean;
+                w[c] * (r.length_squared() - r.dot(d).powi(2))
+            })
+            .sum::<f64>()
+            / total
+    };
+    let (coupled, shares) = (spread(true), spread(false));
+    println!("lateral variance of the beam: face-coupled {coupled:.3}, Max's shares {shares:.3}");
+    assert!(coupled < 0.6 * shares, "coupled {coupled}, shares {shares}");
+}
