@@ -120,9 +120,11 @@ const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
 /// it multiplies ([`Occupancy::ordinates_product_cells`]) and `bins^1.5` (an `M²` product
 /// that runs faster per multiply-add the larger `M` is), and the cost of a state larger than
 /// the caches, per cell and bin, growing to its full value at
-/// [`ORDINATES_CACHED_CELL_BINS`]. Fitted on nine solves from 0.6 M to 21 M cell-bins (clouds,
-/// uniform blocks, Kobayashi's shield; 24–384 bins): `benches/ordinates_sweep.py` prints the
-/// model against the measured sweeps (docs/performance.md, "Time").
+/// [`ORDINATES_CACHED_CELL_BINS`]. The product and cache terms were fitted on nine solves from
+/// 0.6 M to 21 M cell-bins (clouds, uniform blocks, Kobayashi's shield; 24–384 bins), the sweep
+/// and uncached terms refitted to the face-coupled sweep on the seven cases of
+/// `benches/ordinates_sweep.py`, which prints the model against the measured sweeps
+/// (docs/performance.md, "Time"); Kobayashi's case ii then predicted within 1 %.
 const ORDINATES_SETUP_SECONDS_PER_CELL_BIN: f64 = 7.0e-8;
 const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 6.3e-9;
 const ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN: f64 = 1.2e-9;

@@ -774,19 +774,12 @@ fn the_scattering_product_counts_the_blocks_that_scatter() {
 fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
     let grid = Grid::new([16, 16, 16], 1.0).unwrap();
     let n = grid.cell_count();
-    let ch = ChannelMedium {
+    let void = ChannelMedium {
         sigma_t: vec![0.0; n],
         albedo: CellValues::Uniform(0.0),
         emission: CellValues::Uniform(0.0),
     };
-    let medium = Medium::new(
-        grid,
-        vec![ch],
-        PhaseFunction::Isotropic,
-        Interpolation::Nearest,
-        None,
-    )
-    .unwrap();
+    let medium = medium(grid, &void, PhaseFunction::Isotropic);
     let bins = DirectionBins::cube(4).unwrap();
     let m = bins.len();
     // The most diagonal bin going up all three axes.
