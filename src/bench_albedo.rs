@@ -231,7 +231,12 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
     let channel = &medium.channels()[0];
     match scene.solve.method {
         SolveMethod::DiscreteOrdinates => {
-            let bins = DirectionBins::with_count(scene.solve.bins)?;
+            let bins = DirectionBins::with_count(
+                scene
+                    .solve
+                    .bins
+                    .count(&medium.phase(), medium.grid().cell_count()),
+            )?;
             let options =
                 crate::engine::methods::ordinates_options(&scene.solve, &bins, &medium.phase());
             let op = OrdinatesOperator::new(&medium, 0, bins, options)?;

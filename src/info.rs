@@ -86,6 +86,11 @@ pub struct TransportInfo {
 #[derive(Debug, Serialize)]
 pub struct OrdinatesInfo {
     pub bins: usize,
+    /// Whether volrad chose the bins (`bins = "auto"`, the default): by the phase function's
+    /// mean cosine, within the state it allows itself on this transport grid.
+    pub bins_chosen_by_volrad: bool,
+    /// Why volrad chose these bins (`None`: the scene set them).
+    pub bins_choice: Option<String>,
     /// Half-angle of the δ-M forward-peak cone, degrees (0: none).
     pub forward_peak_cone_degrees: f64,
     /// Whether the cone is volrad's choice (the scene did not set one).
@@ -131,6 +136,41 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64) -> String {
     } else {
         angular
     }
+}
+
+/// Why `volrad` chose `bins` for mean cosine `g` on the transport grid of `scale`: the step
+/// the forward peak asks for, and when the state cap held it lower, what the wanted step
+/// would cost.
+fn bins_choice(g: f64, bins: usize, scale: usize, scene: &Scene) -> String {
+    // No cells: no cap, the step the forward peak alone asks for.
+    let wanted = formfactor::ordinates::auto_bin_count(g, 0);
+    let why = format!("chosen by volrad for mean cosine {g:.2}");
+    if wanted == bins {
+        return why;
+    }
+    let cells = Coarsening::cell_count_of(scene.medium.grid(), scale);
+    let occupancy = budget::Occupancy::of(&scene.medium);
+    let costs: Vec<String> = formfactor::ordinates::AUTO_BIN_STEPS
+        .into_iter()
+        .filter(|&b| b > bins && b <= wanted)
+        .map(|b| {
+            let settings = scene::SolveSettings {
+                bins: scene::BinCount::Fixed(b),
+                ..scene.solve.clone()
+            };
+            let peak = budget::solve_peak(scene, &settings, &occupancy).total();
+            format!(
+                "[solve] bins = {b} needs about {}",
+                budget::human_bytes(peak)
+            )
+        })
+        .collect();
+    format!(
+        "{why}, which asks for {wanted}; held to {bins} so that cells × bins stays within \
+         {:.1} M ({cells} transport cells): {}",
+        formfactor::ordinates::AUTO_BINS_MAX_CELL_BINS as f64 / 1e6,
+        costs.join(", ")
+    )
 }
 
 /// The per-view error measured for the zonal methods (docs/validation.md: the cloud24 orbit
@@ -231,7 +271,8 @@ impl SceneInfo {
             });
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
             let phase = m.phase();
-            let (cone, fraction) = methods::forward_truncation(&scene.solve, &phase);
+            let bins = budget::direction_bins(scene, &scene.solve);
+            let (cone, fraction) = methods::forward_truncation(&scene.solve, bins, &phase);
             // The sweep runs through σt − f σs: its thickest cell.
             let tau_cell = m
                 .channels()
@@ -243,15 +284,14 @@ impl SceneInfo {
                 * h
                 * scale as f64;
             OrdinatesInfo {
-                bins: scene.solve.bins,
+                bins,
+                bins_chosen_by_volrad: scene.solve.bins == scene::BinCount::Auto,
+                bins_choice: (scene.solve.bins == scene::BinCount::Auto)
+                    .then(|| bins_choice(phase.mean_cosine(), bins, scale, scene)),
                 forward_peak_cone_degrees: cone,
                 cone_chosen_by_volrad: scene.solve.forward_peak_cone.is_none(),
                 forward_peak_fraction: fraction,
-                expected_error: expected_ordinates_error(
-                    phase.mean_cosine(),
-                    scene.solve.bins,
-                    tau_cell,
-                ),
+                expected_error: expected_ordinates_error(phase.mean_cosine(), bins, tau_cell),
             }
         });
         let zonal_expected_error = matches!(
@@ -419,6 +459,9 @@ impl fmt::Display for SceneInfo {
                 )?;
             } else {
                 writeln!(f, "direction bins   {}, no forward-peak truncation", o.bins)?;
+            }
+            if let Some(why) = &o.bins_choice {
+                writeln!(f, "                 {why}")?;
             }
             writeln!(f, "expected error   {}", o.expected_error)?;
         }

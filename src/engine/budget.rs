@@ -14,7 +14,7 @@ use std::fmt;
 
 use anyhow::{bail, Result};
 use medium::coarsening::{Coarsening, MAX_TRANSPORT_SCALE};
-use scene::{Scene, SolveMethod, SolveSettings, TransportScale};
+use scene::{BinCount, Scene, SolveMethod, SolveSettings, TransportScale};
 
 /// One term of a prediction.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -271,6 +271,14 @@ pub fn transport_scale(scene: &Scene, settings: &SolveSettings) -> usize {
     }
 }
 
+/// The direction bins a discrete-ordinates solve of `scene` with `settings` sweeps: the
+/// scene's, or for `auto` what [`formfactor::ordinates::auto_bin_count`] chooses for its
+/// phase function on the transport grid.
+pub fn direction_bins(scene: &Scene, settings: &SolveSettings) -> usize {
+    let cells = Coarsening::cell_count_of(scene.medium.grid(), transport_scale(scene, settings));
+    settings.bins.count(&scene.medium.phase(), cells)
+}
+
 /// The predicted peak resident memory of solving `scene` with `settings`; `occupancy` is
 /// [`Occupancy::of`] its medium (a caller that has it passes it).
 pub fn solve_peak(
@@ -371,7 +379,9 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
             parts.push(zonal_vectors);
         }
         SolveMethod::DiscreteOrdinates => {
-            let unknowns = s.transport_cells.saturating_mul(settings.bins as u64);
+            let unknowns = s
+                .transport_cells
+                .saturating_mul(direction_bins(scene, settings) as u64);
             parts.push(MemoryPart {
                 what: "the discrete-ordinates state (cells × direction bins)",
                 bytes: per_channel(
@@ -416,9 +426,9 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
         // outside, the solution with it and the source toward the ground (one vector per
         // unknown each); the patches hold a few numbers per channel.
         let unknowns = match settings.method {
-            SolveMethod::DiscreteOrdinates => {
-                s.transport_cells.saturating_mul(settings.bins as u64)
-            }
+            SolveMethod::DiscreteOrdinates => s
+                .transport_cells
+                .saturating_mul(direction_bins(scene, settings) as u64),
             SolveMethod::Zonal | SolveMethod::ZonalHierarchical => s.transport_cells,
             SolveMethod::None | SolveMethod::SingleScatter | SolveMethod::TwoPass => 0,
         };
@@ -576,12 +586,13 @@ fn alternatives(
                 ));
             }
         }
+        let bins = direction_bins(scene, settings);
         let fewer = formfactor::ordinates::VALID_BINS
             .iter()
             .rev()
             .copied()
-            .filter(|&b| b < settings.bins)
-            .find_map(|b| with(&|o| o.bins = b).map(|bytes| (b, bytes)));
+            .filter(|&b| b < bins)
+            .find_map(|b| with(&|o| o.bins = BinCount::Fixed(b)).map(|bytes| (b, bytes)));
         if let Some((bins, bytes)) = fewer {
             out.push(format!("bins = {bins} (about {})", human_bytes(bytes)));
         }
@@ -600,7 +611,7 @@ fn alternatives(
             ..settings.clone()
         };
         if method == SolveMethod::DiscreteOrdinates {
-            other.bins = SolveSettings::default_for(&scene.medium.phase()).bins;
+            other.bins = BinCount::Auto;
         }
         let bytes = solve_peak(scene, &other, occupancy).total();
         if bytes <= limit {

@@ -654,10 +654,14 @@ pub fn ordinates_options(
     }
 }
 
-/// The forward peak a discrete-ordinates solve with `settings` truncates (δ-M): its cone in
-/// degrees and the fraction of scattering inside it.
-pub fn forward_truncation(settings: &SolveSettings, phase: &PhaseFunction) -> (f64, f64) {
-    let cone = DirectionBins::with_count(settings.bins)
+/// The forward peak a discrete-ordinates solve with `settings` in `bins` direction bins
+/// truncates (δ-M): its cone in degrees and the fraction of scattering inside it.
+pub fn forward_truncation(
+    settings: &SolveSettings,
+    bins: usize,
+    phase: &PhaseFunction,
+) -> (f64, f64) {
+    let cone = DirectionBins::with_count(bins)
         .map(|bins| ordinates_options(settings, &bins, phase))
         .unwrap_or_default()
         .forward_truncation_degrees;
@@ -682,7 +686,12 @@ pub fn solve_ordinates(
         environment,
         ground,
     } = outside;
-    let bins = DirectionBins::with_count(settings.bins)?;
+    // `medium` is the transport grid's: the bins volrad chooses are chosen on it.
+    let bins = DirectionBins::with_count(
+        settings
+            .bins
+            .count(&medium.phase(), medium.grid().cell_count()),
+    )?;
     let options = ordinates_options(settings, &bins, &medium.phase());
     let channels = medium.channels().len();
     hooks.control.phase(&channel_phase(
@@ -918,12 +927,16 @@ pub fn two_pass_bins(phase: &medium::PhaseFunction) -> montecarlo::DirectionBins
     }
 }
 
-/// The direction bins a solution stores (discrete ordinates only).
-pub fn stored_bins(settings: &SolveSettings) -> Option<StoredBins> {
+/// The direction bins a solution of `transport` (the transport grid's medium) stores
+/// (discrete ordinates only).
+pub fn stored_bins(settings: &SolveSettings, transport: &Medium) -> Option<StoredBins> {
     if settings.method != SolveMethod::DiscreteOrdinates {
         return None;
     }
-    let bins = DirectionBins::with_count(settings.bins).ok()?;
+    let count = settings
+        .bins
+        .count(&transport.phase(), transport.grid().cell_count());
+    let bins = DirectionBins::with_count(count).ok()?;
     Some(StoredBins {
         face_resolution: bins.face_divisions(),
         directions: bins.centres().iter().map(|d| d.to_array()).collect(),

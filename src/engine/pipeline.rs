@@ -199,7 +199,7 @@ pub fn solve_scene(
         },
         render: scene.render.clone(),
         cameras: scene.cameras.clone(),
-        bins: crate::engine::methods::stored_bins(settings),
+        bins: crate::engine::methods::stored_bins(settings, transport_medium),
         transport,
         channels,
     })

@@ -235,7 +235,7 @@ pub fn solve_time(
             HIERARCHICAL_APPLY_SECONDS_PER_LINK,
         ),
         SolveMethod::DiscreteOrdinates => {
-            let bins = settings.bins as f64;
+            let bins = super::budget::direction_bins(scene, settings) as f64;
             let cell_bins = transport_cells * bins;
             parts.push(TimePart {
                 what: "the sweeps' set-up and stored field",
@@ -314,7 +314,12 @@ pub fn spectral_radius_estimate(scene: &Scene, settings: &SolveSettings) -> f64 
     let g = phase.mean_cosine();
     let depths = medium.axis_optical_depths();
     let truncated = if settings.method == SolveMethod::DiscreteOrdinates {
-        super::methods::forward_truncation(settings, &phase).1
+        super::methods::forward_truncation(
+            settings,
+            super::budget::direction_bins(scene, settings),
+            &phase,
+        )
+        .1
     } else {
         0.0
     };

@@ -585,6 +585,35 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let f = info["ordinates"]["forward_peak_fraction"].as_f64().unwrap();
     assert!(f > 0.0 && f < 0.85, "{f}");
+    assert_eq!(info["ordinates"]["bins_chosen_by_volrad"], false);
+
+    // Without `bins` volrad chooses them from the forward peak (g = 0.85: 384 on this small
+    // grid; isotropic: Max's 96), says so, and the solve sweeps what `info` printed.
+    let auto = dir.path().join("scene-auto-bins.toml");
+    let text = std::fs::read_to_string(&ordinates).unwrap();
+    std::fs::write(&auto, text.replace("bins = 24\n", "")).unwrap();
+    let o = volrad(&["info", s(&auto)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("direction bins   384, forward peak within 5.9° truncated")
+            && text.contains("chosen by volrad for mean cosine 0.85"),
+        "{text}"
+    );
+    let solution = dir.path().join("auto-bins.volrad");
+    let o = volrad(&["-q", "solve", s(&auto), "-o", s(&solution)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stored = volrad::engine::solution::Solution::read(&solution).unwrap();
+    assert_eq!(stored.bins.as_ref().map(|b| b.directions.len()), Some(384));
+    let iso = dir.path().join("scene-auto-bins-iso.toml");
+    let text = std::fs::read_to_string(&auto).unwrap().replace(
+        r#"{ kind = "henyey-greenstein", g = 0.85 }"#,
+        r#"{ kind = "isotropic" }"#,
+    );
+    std::fs::write(&iso, text).unwrap();
+    let o = volrad(&["info", s(&iso), "--json"]);
+    let info: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(info["ordinates"]["bins"], 96, "{info}");
+    assert_eq!(info["ordinates"]["bins_chosen_by_volrad"], true, "{info}");
 
     // A solve refuses a folder as its output before solving.
     let o = volrad(&["-q", "solve", s(&zonal), "-o", s(dir.path())]);

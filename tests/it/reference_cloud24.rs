@@ -102,15 +102,17 @@ fn hierarchical_matches_exact_source_terms() {
     assert!(rel < 0.01, "relative L2 {rel}");
 }
 
-/// Discrete ordinates (Max's 96 bins) against the forward-scattering reference
-/// (tests/data/cloud24-anisotropic, Henyey–Greenstein g = 0.6): issue #5's target was 5 %.
-/// The face-coupled sweep gives 1.9 %, mean +1.1 %; with Max's fixed face shares, which spread
-/// each beam sideways at every cell, it was 2.8 %, mean +2.9 % (the bounds sit between).
+/// Discrete ordinates with the bins volrad chooses (216 for g = 0.6) against the
+/// forward-scattering reference (tests/data/cloud24-anisotropic, Henyey–Greenstein g = 0.6):
+/// issue #18's floors are 3 % RMS and 1 % in the image mean. With the bins chosen: 1.6 %, mean
+/// −0.0 %; with Max's 96 bins (the default before volrad chose them) 1.9 %, mean +1.1 %; with
+/// Max's fixed face shares, which spread each beam sideways at every cell, 2.8 %, mean +2.9 %.
 #[test]
 fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-anisotropic");
     let scene = Scene::from_file(&dir.join("scene.toml")).unwrap();
     assert_eq!(scene.solve.method, SolveMethod::DiscreteOrdinates);
+    assert_eq!(scene.solve.bins, scene::BinCount::Auto);
     let solution = solve_scene(&scene, &scene.solve, &SolveHooks::default()).unwrap();
     assert!(solution.channels[0].report.as_ref().unwrap().converged);
     let image = render_view(&solution, &scene.cameras[0], Some(16)).unwrap();
@@ -124,14 +126,18 @@ fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
         1,
     )
     .unwrap();
-    println!("discrete ordinates (96 bins) vs Mitsuba, g = 0.6: {c:?}");
+    println!("discrete ordinates (bins chosen) vs Mitsuba, g = 0.6: {c:?}");
+    assert_eq!(
+        solution.bins.as_ref().map(|b| b.directions.len()),
+        Some(216)
+    );
     assert!(
         c.relative_rms_error < 0.025,
         "relative RMS {:.4}",
         c.relative_rms_error
     );
     assert!(
-        c.relative_mean_difference.abs() < 0.02,
+        c.relative_mean_difference.abs() < 0.01,
         "mean off by {:.4}",
         c.relative_mean_difference
     );
@@ -140,12 +146,12 @@ fn discrete_ordinates_render_matches_anisotropic_mitsuba_reference() {
 /// Issue #18's worst case: the cloud made strongly forward-scattering (g = 0.85) and seen from
 /// behind (the first camera turned 225° about its up axis, so the sun shines through the cloud
 /// towards the camera). Against volrad's own path tracer (512 spp, its noise taken out), the
-/// image mean of discrete ordinates with 96 bins is +8.4 % ± 0.9 % (+9.3 % with Max's fixed
-/// face shares); with linear interpolation
-/// between bin centres and no δ-M truncation (the code before) it was +13.2 % here (+12.8 % on
-/// the full-size view, docs/validation.md). The bound sits between the two.
+/// image mean of discrete ordinates with the bins volrad chooses (384 at g = 0.85 on this
+/// grid) is +1.4 % ± 0.9 %; with Max's 96 bins, the default before volrad chose them, +8.4 %;
+/// with linear interpolation between bin centres and no δ-M truncation (the code before that)
+/// +13.2 %.
 #[test]
-fn forward_scattering_cloud_seen_against_the_light_is_within_ten_percent() {
+fn forward_scattering_cloud_seen_against_the_light_keeps_its_image_mean() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-anisotropic");
     let text = std::fs::read_to_string(dir.join("scene.toml"))
         .unwrap()
@@ -161,8 +167,12 @@ fn forward_scattering_cloud_seen_against_the_light_is_within_ten_percent() {
     let solution = solve_scene(&scene, &scene.solve, &SolveHooks::default()).unwrap();
     let c = against_the_path_tracer(&scene, &solution, &back);
     println!("discrete ordinates, g = 0.85, back-lit view vs path tracer: {c:?}");
+    assert_eq!(
+        solution.bins.as_ref().map(|b| b.directions.len()),
+        Some(384)
+    );
     assert!(
-        c.relative_mean_difference < 0.105 && c.relative_mean_difference > -0.05,
+        c.relative_mean_difference.abs() < 0.04,
         "mean off by {:.4}",
         c.relative_mean_difference
     );

@@ -21,7 +21,7 @@ use solver::ParseMethodError;
 
 use crate::check::{broadcast, join, Channels, Ctx, SceneLight};
 use crate::raw::{RawBackground, RawGround, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
-use crate::settings::{TransportScale, UnknownSolveMethod};
+use crate::settings::{BinCount, TransportScale, UnknownSolveMethod};
 use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
 use glam::DVec3;
 
@@ -816,14 +816,7 @@ impl Ctx<'_> {
                     out.iteration = out.method.default_iteration();
                 }
                 if let Some(b) = &s.bins {
-                    let bins = self.integer(b, "solve.bins", 1)? as usize;
-                    if !VALID_BINS.contains(&bins) {
-                        return Err(self.err(
-                            "solve.bins",
-                            format!("{bins}: expected 6n² for n = 1..=8 ({VALID_BINS:?})"),
-                        ));
-                    }
-                    out.bins = bins;
+                    out.bins = self.bins(b)?;
                 }
                 if let Some(it) = &s.iteration {
                     let text = self.string(it, "solve.iteration")?;
@@ -879,6 +872,24 @@ impl Ctx<'_> {
                 out
             }
         })
+    }
+
+    /// `[solve] bins`: `"auto"` or one of [`VALID_BINS`].
+    fn bins(&self, v: &toml::Value) -> Result<BinCount, SceneError> {
+        let key = "solve.bins";
+        let expected = format!("expected \"auto\" or 6n² for n = 1..=8 ({VALID_BINS:?})");
+        if let toml::Value::String(text) = v {
+            return if text == "auto" {
+                Ok(BinCount::Auto)
+            } else {
+                Err(self.err(key, format!("\"{text}\": {expected}")))
+            };
+        }
+        let bins = self.integer(v, key, 1)?;
+        if !VALID_BINS.contains(&(bins as usize)) {
+            return Err(self.err(key, format!("{bins}: {expected}")));
+        }
+        Ok(BinCount::Fixed(bins as usize))
     }
 
     /// `[solve] transport_scale`: `"auto"` or a whole number of data cells per side.

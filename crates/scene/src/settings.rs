@@ -127,9 +127,9 @@ impl FromStr for SolveMethod {
 #[derive(Clone, Debug, PartialEq)]
 pub struct SolveSettings {
     pub method: SolveMethod,
-    /// Direction bins (discrete ordinates only): one of
-    /// [`VALID_BINS`](formfactor::ordinates::VALID_BINS); 96 is Max's set.
-    pub bins: usize,
+    /// Direction bins (discrete ordinates only): chosen from the medium, or one of
+    /// [`VALID_BINS`](formfactor::ordinates::VALID_BINS) (96 is Max's set).
+    pub bins: BinCount,
     /// The linear iteration; [`SolveMethod::default_iteration`] unless the scene names one.
     pub iteration: solver::Method,
     /// Relative residual `‖g − E − aFg‖ / ‖E‖` at which to stop.
@@ -153,6 +153,56 @@ pub struct SolveSettings {
     /// `s³` data cells ([`medium::coarsening::Coarsening`]); the first bounce stays exact at
     /// the data's resolution.
     pub transport_scale: TransportScale,
+}
+
+/// `[solve] bins`: how many direction bins discrete ordinates sweep.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BinCount {
+    /// Chosen from the medium: by the phase function's forward peak, as many as the state
+    /// (transport cells × bins) allows ([`formfactor::ordinates::auto_bin_count`]).
+    #[default]
+    Auto,
+    /// One of [`VALID_BINS`](formfactor::ordinates::VALID_BINS).
+    Fixed(usize),
+}
+
+impl BinCount {
+    /// The bins a solve of a medium with `phase`, swept on `transport_cells` cells, uses.
+    pub fn count(self, phase: &PhaseFunction, transport_cells: usize) -> usize {
+        match self {
+            BinCount::Fixed(n) => n,
+            BinCount::Auto => {
+                formfactor::ordinates::auto_bin_count(phase.mean_cosine(), transport_cells)
+            }
+        }
+    }
+}
+
+impl std::str::FromStr for BinCount {
+    type Err = String;
+
+    /// `auto` or one of [`VALID_BINS`](formfactor::ordinates::VALID_BINS).
+    fn from_str(text: &str) -> Result<Self, String> {
+        let valid = formfactor::ordinates::VALID_BINS;
+        if text == "auto" {
+            return Ok(BinCount::Auto);
+        }
+        match text.parse::<usize>() {
+            Ok(n) if valid.contains(&n) => Ok(BinCount::Fixed(n)),
+            _ => Err(format!(
+                "`{text}`: expected auto or 6n² for n = 1..=8 ({valid:?})"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for BinCount {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BinCount::Auto => f.write_str("auto"),
+            BinCount::Fixed(n) => write!(f, "{n}"),
+        }
+    }
 }
 
 /// `[solve] transport_scale`: how many data cells per side one transport cell spans.
@@ -196,12 +246,12 @@ impl std::fmt::Display for TransportScale {
 
 impl SolveSettings {
     /// `[solve]` absent: the method for `phase`, its default iteration, tolerance 1e-5, 2000
-    /// iterations, 96 bins, no refinement, the two-pass method's default photon count.
+    /// iterations, bins chosen from the medium, no refinement, the two-pass method's default photon count.
     pub fn default_for(phase: &PhaseFunction) -> SolveSettings {
         let method = SolveMethod::default_for(phase);
         SolveSettings {
             method,
-            bins: 96,
+            bins: BinCount::Auto,
             iteration: method.default_iteration(),
             tolerance: 1e-5,
             max_iterations: 2000,

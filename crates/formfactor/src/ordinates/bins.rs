@@ -13,6 +13,46 @@ use super::OrdinatesError;
 /// Discrete-ordinates bin counts volrad supports: the `6 n²` faces of an `n³` block of cubes.
 pub const VALID_BINS: [usize; 8] = [6, 24, 54, 96, 150, 216, 294, 384];
 
+/// The bin counts [`auto_bin_count`] chooses from, each the smallest measured to reach its
+/// error class (docs/validation.md, the cloud24 orbit): Max's 96 up to `g` =
+/// [`AUTO_BINS_ISOTROPIC_BELOW`], 216 up to [`AUTO_BINS_MODERATE_UP_TO`], 384 beyond.
+pub const AUTO_BIN_STEPS: [usize; 3] = [96, 216, 384];
+
+/// Mean cosines up to this take Max's 96 bins: at g = 0 they are within 2 % per view; the
+/// error that more bins remove grows with the forward peak.
+pub const AUTO_BINS_ISOTROPIC_BELOW: f64 = 0.3;
+
+/// Mean cosines up to this take 216 bins (g = 0.6: 2.7 % per view and +0.6 % in the mean
+/// against 3.1 % and +2.0 % with 96); beyond it 384 (g = 0.85: 6.0 %, −2.0 %, against 6.3 %,
+/// +3.1 % with 216 and 7.6 %, +8.1 % with 96).
+pub const AUTO_BINS_MODERATE_UP_TO: f64 = 0.7;
+
+/// The largest state `cells × bins` [`auto_bin_count`] grows the bins to: 2²⁵ cell-bins,
+/// about 2.5 GiB of solver state for three channels; 96 bins on the 64 × 64 × 48 transport
+/// grid are 18.9 M, 216 would be 42.5 M. Past it the bins stay where the state fits (never
+/// under 96, whose cost the memory check reports).
+pub const AUTO_BINS_MAX_CELL_BINS: usize = 1 << 25;
+
+/// The bin count volrad chooses for a medium whose phase function has mean cosine
+/// `mean_cosine`, swept on `cells` transport cells: the steps of [`AUTO_BIN_STEPS`] by the
+/// forward peak, the largest whose state stays within [`AUTO_BINS_MAX_CELL_BINS`], 96 at
+/// least.
+pub fn auto_bin_count(mean_cosine: f64, cells: usize) -> usize {
+    let wanted = if mean_cosine <= AUTO_BINS_ISOTROPIC_BELOW {
+        AUTO_BIN_STEPS[0]
+    } else if mean_cosine <= AUTO_BINS_MODERATE_UP_TO {
+        AUTO_BIN_STEPS[1]
+    } else {
+        AUTO_BIN_STEPS[2]
+    };
+    AUTO_BIN_STEPS
+        .into_iter()
+        .rev()
+        .filter(|&b| b <= wanted)
+        .find(|&b| cells.saturating_mul(b) <= AUTO_BINS_MAX_CELL_BINS)
+        .unwrap_or(AUTO_BIN_STEPS[0])
+}
+
 /// Largest face subdivision supported (`6·8² = 384` bins).
 pub const MAX_FACE_DIVISIONS: usize = 8;
 

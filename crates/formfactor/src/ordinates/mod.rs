@@ -16,7 +16,9 @@ pub mod phase_matrix;
 pub mod sweep;
 
 pub use assembled::AssembledOrdinates;
-pub use bins::{DirectionBins, VALID_BINS};
+pub use bins::{
+    auto_bin_count, DirectionBins, AUTO_BINS_MAX_CELL_BINS, AUTO_BIN_STEPS, VALID_BINS,
+};
 pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
     default_forward_truncation_degrees, forward_peak_fraction, forward_truncation_fraction,

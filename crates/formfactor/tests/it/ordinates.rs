@@ -817,3 +817,35 @@ fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
     println!("lateral variance of the beam: face-coupled {coupled:.3}, Max's shares {shares:.3}");
     assert!(coupled < 0.6 * shares, "coupled {coupled}, shares {shares}");
 }
+
+/// volrad's bin choice follows the forward peak (96 for isotropic-like, 216 for moderate,
+/// 384 for strong forward scattering) and steps down where the state `cells × bins` would
+/// pass its cap, never below Max's 96.
+#[test]
+fn auto_bins_follow_the_forward_peak_within_the_state_cap() {
+    use formfactor::ordinates::{auto_bin_count, AUTO_BINS_MAX_CELL_BINS, VALID_BINS};
+    let small = 24 * 24 * 18;
+    assert_eq!(auto_bin_count(0.0, small), 96);
+    assert_eq!(auto_bin_count(-0.5, small), 96);
+    assert_eq!(auto_bin_count(0.6, small), 216);
+    assert_eq!(auto_bin_count(0.85, small), 384);
+    assert_eq!(auto_bin_count(0.95, small), 384);
+    // The 64 × 64 × 48 grid: 216 bins would pass the cap, 96 fit.
+    let cloud64 = 64 * 64 * 48;
+    assert!(cloud64 * 216 > AUTO_BINS_MAX_CELL_BINS && cloud64 * 96 <= AUTO_BINS_MAX_CELL_BINS);
+    assert_eq!(auto_bin_count(0.85, cloud64), 96);
+    // Between: 384 would not fit, 216 does.
+    let mid = AUTO_BINS_MAX_CELL_BINS / 300;
+    assert_eq!(auto_bin_count(0.85, mid), 216);
+    // A grid too large for any: Max's 96, which the memory check then judges.
+    assert_eq!(auto_bin_count(0.85, usize::MAX / 2), 96);
+    for g in [-0.9, 0.0, 0.3, 0.31, 0.7, 0.71, 0.99] {
+        for cells in [1, small, mid, cloud64, 1 << 30] {
+            let b = auto_bin_count(g, cells);
+            assert!(
+                VALID_BINS.contains(&b) && b >= 96,
+                "g {g}, {cells} cells: {b}"
+            );
+        }
+    }
+}

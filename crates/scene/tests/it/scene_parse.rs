@@ -92,7 +92,7 @@ fn minimal_scene_gets_the_contract_defaults() {
     assert_eq!(s.solve.tolerance, 1e-5);
     assert_eq!(s.solve.max_iterations, 2000);
     assert_eq!(s.solve.photons, 1 << 21);
-    assert_eq!(s.solve.bins, 96);
+    assert_eq!(s.solve.bins, scene::BinCount::Auto);
     assert_eq!(s.render.model, OpticalModel::Scattering);
     assert_eq!(
         s.render.exposure, None,
@@ -196,7 +196,7 @@ height = 192
     assert_eq!(s.medium.channels()[0].emission, CellValues::Uniform(0.25));
     assert_eq!(s.background, 0.1);
     assert_eq!(s.solve.method, SolveMethod::DiscreteOrdinates);
-    assert_eq!(s.solve.bins, 54);
+    assert_eq!(s.solve.bins, scene::BinCount::Fixed(54));
     assert_eq!(s.solve.iteration, solver::Method::Jacobi);
     assert_eq!(s.solve.tolerance, 1e-4);
     assert_eq!(s.solve.max_iterations, 50);
@@ -926,6 +926,41 @@ fn generators_headered_files_lights_and_orthographic_cameras() {
             "{err}"
         );
     }
+}
+
+/// `[solve] bins` is `"auto"` (volrad chooses from the medium) or one of the `6 n²` counts;
+/// any other string or count is refused naming the key and what it expects.
+#[test]
+fn solve_bins_are_auto_or_a_valid_count() {
+    let dir = scratch("bins");
+    write_volume(&dir);
+    let parse = |solve: &str| {
+        let text = scene_text(&[VOLUME, MEDIUM, LIGHT, solve, CAMERA]);
+        Scene::from_toml_str(&text, &dir, &dir.join("scene.toml"))
+    };
+    assert_eq!(
+        parse("[solve]\nbins = \"auto\"\n").unwrap().solve.bins,
+        scene::BinCount::Auto
+    );
+    assert_eq!(
+        parse("[solve]\nbins = 216\n").unwrap().solve.bins,
+        scene::BinCount::Fixed(216)
+    );
+    for bad in ["bins = \"many\"", "bins = 97", "bins = 600"] {
+        let err = parse(&format!("[solve]\n{bad}\n")).unwrap_err().to_string();
+        assert!(
+            err.contains("solve.bins") && err.contains("auto") && err.contains("6n²"),
+            "{bad}: {err}"
+        );
+    }
+    // The count a solve sweeps: the scene's, or the rule's on the medium it is given.
+    let hg = PhaseFunction::HenyeyGreenstein { g: 0.6 };
+    assert_eq!(scene::BinCount::Fixed(54).count(&hg, 1000), 54);
+    assert_eq!(scene::BinCount::Auto.count(&hg, 1000), 216);
+    assert_eq!(
+        scene::BinCount::Auto.count(&PhaseFunction::Isotropic, 1000),
+        96
+    );
 }
 
 #[test]
