@@ -135,7 +135,7 @@ transport_scale = {scale}
         "{nx}×{nx}×{nz} = {} cells, {} method, transport grid {:?} (scale {}): solve {solve_seconds:.1} s, peak {peak:.0} MiB",
         scene.medium.grid().cell_count(),
         a.method,
-        t.coarse().dims,
+        t.transport().dims,
         t.scale(),
     );
     let big = orbit_view(0.0, 1024);

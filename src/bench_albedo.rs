@@ -218,10 +218,10 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
         .with_context(|| format!("σ-scale {sigma_scale}: the scaled medium"))?;
     let light_pass =
         LightPass::compute(&medium, 0, &scene.lights).context("computing the light pass")?;
-    // The operator a solve of this scene iterates: on its transport grid when that is coarser.
-    let scale = crate::engine::budget::transport_scale(scene, &scene.solve);
-    let (medium, light_pass) = if scale > 1 {
-        let transport = medium::coarsening::Coarsening::new(medium.grid(), scale)?;
+    // The operator a solve of this scene iterates: on its transport grid when that is not
+    // the data grid.
+    let transport = crate::engine::budget::transport_grid(scene, &scene.solve)?;
+    let (medium, light_pass) = if !transport.is_data_grid() {
         let coarse = transport.medium(&medium)?;
         let pass = transport.light_pass(&medium, 0, &light_pass, &coarse)?;
         (coarse, pass)

@@ -70,11 +70,14 @@ pub struct OpenVdbInfo {
     pub world_corner: [f64; 3],
 }
 
-/// A transport grid coarser than the data grid (`[solve] transport_scale`).
+/// A transport grid other than the data grid: coarser (`[solve] transport_scale`) or split
+/// (`[solve] transport_refinement`).
 #[derive(Debug, Serialize)]
 pub struct TransportInfo {
     /// Data cells per side of a transport cell.
     pub scale: usize,
+    /// Transport cells per side of a data cell (`transport_refinement`).
+    pub split: usize,
     pub dims: [usize; 3],
     pub cells: usize,
     /// Whether volrad chose the scale (`transport_scale = "auto"`).
@@ -138,17 +141,20 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64) -> String {
     }
 }
 
-/// Why `volrad` chose `bins` for mean cosine `g` on the transport grid of `scale`: the step
+/// Why `volrad` chose `bins` for mean cosine `g` on the scene's transport grid: the step
 /// the forward peak asks for, and when the state cap held it lower, what the wanted step
 /// would cost.
-fn bins_choice(g: f64, bins: usize, scale: usize, scene: &Scene) -> String {
+fn bins_choice(g: f64, bins: usize, scene: &Scene) -> String {
     // No cells: no cap, the step the forward peak alone asks for.
     let wanted = formfactor::ordinates::auto_bin_count(g, 0);
     let why = format!("chosen by volrad for mean cosine {g:.2}");
     if wanted == bins {
         return why;
     }
-    let cells = Coarsening::cell_count_of(scene.medium.grid(), scale);
+    let cells = Coarsening::cell_count_of(
+        scene.medium.grid(),
+        budget::transport_scale(scene, &scene.solve),
+    ) * budget::transport_split(scene, &scene.solve).pow(3);
     let occupancy = budget::Occupancy::of(&scene.medium);
     let costs: Vec<String> = formfactor::ordinates::AUTO_BIN_STEPS
         .into_iter()
@@ -260,13 +266,17 @@ impl SceneInfo {
         let h = m.grid().cell_size;
         let max_cell_optical_depth = hi * h;
         let scale = budget::transport_scale(scene, &scene.solve);
-        let transport = Coarsening::new(m.grid(), scale)
+        let split = budget::transport_split(scene, &scene.solve);
+        // A transport cell's side in data cells.
+        let cell_factor = scale as f64 / split as f64;
+        let transport = budget::transport_grid(scene, &scene.solve)
             .ok()
-            .filter(|k| k.scale() > 1)
+            .filter(|k| !k.is_data_grid())
             .map(|k| TransportInfo {
                 scale,
-                dims: k.coarse().dims,
-                cells: k.coarse().cell_count(),
+                split,
+                dims: k.transport().dims,
+                cells: k.transport().cell_count(),
                 chosen_by_volrad: scene.solve.transport_scale == scene::TransportScale::Auto,
             });
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
@@ -282,12 +292,12 @@ impl SceneInfo {
                 })
                 .fold(0.0f32, f32::max) as f64
                 * h
-                * scale as f64;
+                * cell_factor;
             OrdinatesInfo {
                 bins,
                 bins_chosen_by_volrad: scene.solve.bins == scene::BinCount::Auto,
                 bins_choice: (scene.solve.bins == scene::BinCount::Auto)
-                    .then(|| bins_choice(phase.mean_cosine(), bins, scale, scene)),
+                    .then(|| bins_choice(phase.mean_cosine(), bins, scene)),
                 forward_peak_cone_degrees: cone,
                 cone_chosen_by_volrad: scene.solve.forward_peak_cone.is_none(),
                 forward_peak_fraction: fraction,
@@ -301,7 +311,7 @@ impl SceneInfo {
         .then(|| {
             expected_zonal_error(
                 m.phase().is_isotropic(),
-                max_cell_optical_depth * scale as f64,
+                max_cell_optical_depth * cell_factor,
                 scale,
             )
         });
@@ -425,7 +435,14 @@ impl fmt::Display for SceneInfo {
         }
         writeln!(f, "solve method     {}", self.method)?;
         writeln!(f, "iteration        {}", self.iteration)?;
-        if let Some(t) = &self.transport {
+        if let Some(t) = self.transport.as_ref().filter(|t| t.split > 1) {
+            writeln!(
+                f,
+                "transport grid   {}×{}×{} = {} cells, each data cell split into {}³ \
+                 (transport_refinement)",
+                t.dims[0], t.dims[1], t.dims[2], t.cells, t.split
+            )?;
+        } else if let Some(t) = &self.transport {
             writeln!(
                 f,
                 "transport grid   {}×{}×{} = {} cells of {}³ data cells{} (the first bounce \

@@ -185,14 +185,10 @@ pub fn emitter_pass_plans(scene: &Scene, settings: &SolveSettings) -> Vec<Emitte
     if !settings.method.solves_linear_system() || emitting.is_empty() {
         return Vec::new();
     }
-    let scale = crate::engine::budget::transport_scale(scene, settings);
-    let coarse = (scale > 1)
-        .then(|| {
-            medium::coarsening::Coarsening::new(medium.grid(), scale)
-                .and_then(|k| k.medium(medium))
-                .ok()
-        })
-        .flatten();
+    let coarse = crate::engine::budget::transport_grid(scene, settings)
+        .ok()
+        .filter(|k| !k.is_data_grid())
+        .and_then(|k| k.medium(medium).ok());
     let solved = coarse.as_ref().unwrap_or(medium);
     emitting
         .into_iter()
@@ -646,7 +642,9 @@ pub fn ordinates_options(
     phase: &PhaseFunction,
 ) -> OrdinatesOptions {
     OrdinatesOptions {
-        transport_refinement: settings.transport_refinement,
+        // The scene's refinement splits the transport grid (the unknowns with it), which
+        // [`solve_ordinates`] is given; the sweep's own sub-cells stay at one per cell.
+        transport_refinement: 1,
         forward_truncation_degrees: settings
             .forward_peak_cone
             .unwrap_or_else(|| default_forward_truncation_degrees(bins, phase)),
@@ -1078,7 +1076,7 @@ pub fn export_field(
     Ok(match field {
         ExportField::SigmaT => (medium.sigma_t.clone(), "1/length"),
         ExportField::Source => match &ch.scattered {
-            ScatteredField::Isotropic { source, .. } if solution.transport.scale() == 1 => {
+            ScatteredField::Isotropic { source, .. } if solution.transport.is_data_grid() => {
                 (source.clone(), "radiance/length")
             }
             _ => {
@@ -1111,13 +1109,13 @@ pub fn export_field(
 /// environment's and a ground's uncollided light are counted where cells scatter, and by
 /// discrete ordinates everywhere.)
 ///
-/// A solution on a coarser transport grid gives the lights' unscattered light per data cell
+/// A solution on another transport grid (coarser or split) gives the lights' unscattered light per data cell
 /// and the rest (scattered, and emitted) interpolated trilinearly from the transport cells.
 pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
     let ch = &solution.channels[c];
     let unscattered = ch.light_pass.total_cell_irradiance();
     let transport = &solution.transport;
-    if transport.scale() == 1 {
+    if transport.is_data_grid() {
         return Ok(ch
             .render_cache
             .fluence(|| fluence_on(&solution.medium, c, ch, &unscattered, &solution.bins))?
@@ -1140,7 +1138,7 @@ pub fn fluence(solution: &Solution, c: usize) -> Result<Vec<f64>> {
         .par_iter()
         .enumerate()
         .map(|(i, u)| {
-            u + gather::Trilinear::new(transport.coarse(), grid.cell_center(i))
+            u + gather::Trilinear::new(transport.transport(), grid.cell_center(i))
                 .sample(|o| collided[o])
         })
         .collect())
@@ -1436,18 +1434,16 @@ mod tests {
     }
 
     #[test]
-    fn transport_refinement_of_the_scene_reaches_the_sweep_options() {
+    fn transport_refinement_splits_the_grid_not_the_sweep() {
         let iso = PhaseFunction::Isotropic;
         let bins = DirectionBins::cube(4).unwrap();
         let mut settings = SolveSettings::default_for(&iso);
+        settings.transport_refinement = scene::TransportRefinement::Fixed(3);
+        // The solve is given the split transport grid (tests/it/transport_grid.rs); its sweep
+        // has one sub-cell per cell.
         assert_eq!(
             ordinates_options(&settings, &bins, &iso).transport_refinement,
             1
-        );
-        settings.transport_refinement = 3;
-        assert_eq!(
-            ordinates_options(&settings, &bins, &iso).transport_refinement,
-            3
         );
     }
 

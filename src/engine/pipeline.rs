@@ -6,7 +6,6 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use gather::{Camera, Image, InScattering, RenderOptions};
-use medium::coarsening::Coarsening;
 use medium::light_pass::LightPass;
 use medium::Medium;
 use scene::{CameraSpec, Scene, SceneOrigin, SolveMethod, SolveSettings};
@@ -96,15 +95,13 @@ pub fn solve_scene(
     }
     // Multiple scattering is solved on the transport grid (the data grid itself at scale 1);
     // the light pass stays on the data grid for the render's exact first bounce.
-    let transport = Coarsening::new(
-        medium.grid(),
-        crate::engine::budget::transport_scale(scene, settings),
-    )?;
-    let coarse_medium = if transport.scale() > 1 {
+    let transport = crate::engine::budget::transport_grid(scene, settings)?;
+    let coarse_medium = if !transport.is_data_grid() {
         tracing::info!(
             scale = transport.scale(),
-            dims = ?transport.coarse().dims,
-            "solving multiple scattering on a coarser transport grid"
+            split = transport.split_factor(),
+            dims = ?transport.transport().dims,
+            "solving multiple scattering on a transport grid other than the data's"
         );
         Some(transport.medium(medium)?)
     } else {

@@ -209,7 +209,7 @@ impl<'a> CellLattice<'a> {
     /// Channel `c` of `solution` (the solved one); `ch` is its solution.
     pub fn of(solution: &'a Solution, c: usize, ch: &'a ChannelSolution) -> Result<Self> {
         let medium = &solution.medium;
-        if solution.transport.scale() == 1 {
+        if solution.transport.is_data_grid() {
             if medium.interpolation() == Interpolation::Trilinear {
                 return Ok(Self::of_medium(medium, c));
             }
@@ -223,14 +223,19 @@ impl<'a> CellLattice<'a> {
             .render_cache
             .transport(medium, &solution.transport, c)?
             .scattering;
-        let coarse = *solution.transport.coarse();
+        let coarse = *solution.transport.transport();
+        // A split grid of a `nearest` medium has σs constant in each transport cell, as a
+        // data grid does: its centre values can keep each cell's mean. A coarser grid's
+        // cells hold data cells of differing σs.
+        let keep_cell_means = solution.transport.split_factor() > 1
+            && medium.interpolation() == Interpolation::Nearest;
         let transport = Some(TransportLattice {
             coarse,
             inverse_coarse_size: 1.0 / coarse.cell_size,
             channel: &medium.channels()[c],
             inverse_sigma_s: &scattering.inverse_sigma_s,
             max_sigma_s: scattering.max_sigma_s,
-            keep_cell_means: false,
+            keep_cell_means,
         });
         Ok(CellLattice {
             transport,

@@ -17,7 +17,7 @@ use std::time::Duration;
 use medium::coarsening::Coarsening;
 use scene::{Scene, SolveMethod, SolveSettings};
 
-use super::budget::{transport_scale, Occupancy};
+use super::budget::{transport_scale, transport_split, Occupancy};
 
 /// One term of a prediction.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -156,8 +156,10 @@ pub fn solve_time(
     let channels = medium.channels().len().max(1) as f64;
     let cells = grid.cell_count() as f64;
     let scale = transport_scale(scene, settings);
-    let transport_cells = Coarsening::cell_count_of(grid, scale) as f64;
-    let transport_occupied = occupancy.at(scale) as f64;
+    // A split transport grid has split³ cells per data cell.
+    let parts_per_cell = transport_split(scene, settings).pow(3) as f64;
+    let transport_cells = Coarsening::cell_count_of(grid, scale) as f64 * parts_per_cell;
+    let transport_occupied = occupancy.at(scale) as f64 * parts_per_cell;
     let mut parts = vec![TimePart {
         what: "set-up",
         seconds: BASE_SECONDS,
@@ -174,6 +176,12 @@ pub fn solve_time(
             * channels
             * (DATA_GRID_SECONDS_PER_CELL + lights * LIGHT_PASS_SECONDS_PER_CELL_LIGHT),
     });
+    if parts_per_cell > 1.0 {
+        parts.push(TimePart {
+            what: "the light pass on the split transport grid",
+            seconds: transport_cells * channels * lights * LIGHT_PASS_SECONDS_PER_CELL_LIGHT,
+        });
+    }
     let rays: f64 = super::methods::emitter_pass_plans(scene, settings)
         .iter()
         .filter(|p| p.runs)
@@ -229,7 +237,9 @@ pub fn solve_time(
         SolveMethod::ZonalHierarchical => operator(
             "the hierarchical operator",
             transport_occupied * far_links_per_occupied_cell(transport_occupied)
-                + (transport_occupied - occupancy.hierarchy_shared_rows(scale) as f64).max(0.0)
+                + (transport_occupied
+                    - occupancy.hierarchy_shared_rows(scale) as f64 * parts_per_cell)
+                    .max(0.0)
                     * NEAR_ENTRIES_PER_STORED_ROW,
             HIERARCHICAL_BUILD_SECONDS_PER_LINK,
             HIERARCHICAL_APPLY_SECONDS_PER_LINK,
@@ -241,7 +251,7 @@ pub fn solve_time(
                 what: "the sweeps' set-up and stored field",
                 seconds: channels * cell_bins * ORDINATES_SETUP_SECONDS_PER_CELL_BIN,
             });
-            let product_cells = occupancy.ordinates_product_cells(scale) as f64;
+            let product_cells = occupancy.ordinates_product_cells(scale) as f64 * parts_per_cell;
             let uncached = (cell_bins / ORDINATES_CACHED_CELL_BINS).min(1.0);
             let per_sweep = cell_bins
                 * (ORDINATES_SWEEP_SECONDS_PER_CELL_BIN

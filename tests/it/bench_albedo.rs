@@ -324,7 +324,7 @@ fn the_bench_iterates_the_solves_operator_and_checks_memory_first() {
         &volrad::engine::SolveHooks::default(),
     )
     .unwrap();
-    assert_eq!(solution.transport.coarse().dims, [5, 5, 4]);
+    assert_eq!(solution.transport.transport().dims, [5, 5, 4]);
     let report = solution.channels[0].report.as_ref().unwrap();
     assert_eq!(runs[0].iterations, report.iterations);
 

@@ -60,7 +60,8 @@ use medium::{Environment, Light, Medium};
 use crate::check::Ctx;
 use crate::raw::RawScene;
 pub use crate::settings::{
-    phase_spelling, BinCount, SolveMethod, SolveSettings, TransportScale, UnknownSolveMethod,
+    phase_spelling, BinCount, SolveMethod, SolveSettings, TransportRefinement, TransportScale,
+    UnknownSolveMethod,
 };
 
 /// A validated scene: the medium, its lighting, how to solve it and how to look at it.

@@ -1,10 +1,10 @@
 //! Validation of each section of a scene file into the libraries' settings types; one
 //! function per section, called in file order by [`Ctx::scene`].
 
-use formfactor::ordinates::{forward_truncation_fraction, MAX_TRANSPORT_REFINEMENT, VALID_BINS};
+use formfactor::ordinates::{forward_truncation_fraction, VALID_BINS};
 use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
 use medium::blackbody::RgbTable;
-use medium::coarsening::MAX_TRANSPORT_SCALE;
+use medium::coarsening::{MAX_TRANSPORT_SCALE, MAX_TRANSPORT_SPLIT};
 use medium::generators::Generator;
 use medium::ground::Ground;
 use medium::light_pass::MAX_LIGHTS;
@@ -21,7 +21,7 @@ use solver::ParseMethodError;
 
 use crate::check::{broadcast, join, Channels, Ctx, SceneLight};
 use crate::raw::{RawBackground, RawGround, RawMedium, RawRender, RawScene, RawSolve, RawVolume};
-use crate::settings::{BinCount, TransportScale, UnknownSolveMethod};
+use crate::settings::{BinCount, TransportRefinement, TransportScale, UnknownSolveMethod};
 use crate::{Scene, SceneError, SceneOrigin, SolveMethod, SolveSettings, VolumeSource};
 use glam::DVec3;
 
@@ -831,18 +831,7 @@ impl Ctx<'_> {
                     out.max_iterations = self.integer(m, "solve.max_iterations", 1)? as usize;
                 }
                 if let Some(r) = &s.transport_refinement {
-                    let key = "solve.transport_refinement";
-                    let r = self.integer(r, key, 1)?;
-                    if r > MAX_TRANSPORT_REFINEMENT as i64 {
-                        return Err(self.err(
-                            key,
-                            format!(
-                                "{r}: expected a whole number from 1 to {MAX_TRANSPORT_REFINEMENT} \
-                                 (sub-cells per cell side; the sweep costs r³ times more)"
-                            ),
-                        ));
-                    }
-                    out.transport_refinement = r as usize;
+                    out.transport_refinement = self.transport_refinement(r)?;
                 }
                 if let Some(c) = &s.forward_peak_cone {
                     let key = "solve.forward_peak_cone";
@@ -869,9 +858,45 @@ impl Ctx<'_> {
                 if let Some(v) = &s.transport_scale {
                     out.transport_scale = self.transport_scale(v)?;
                 }
+                if let (
+                    TransportScale::Fixed(scale @ 2..),
+                    TransportRefinement::Fixed(refinement @ 2..),
+                ) = (out.transport_scale, out.transport_refinement)
+                {
+                    return Err(self.err(
+                        "solve.transport_refinement",
+                        format!(
+                            "{refinement} with transport_scale = {scale}: a transport grid is \
+                             either coarser than the data (transport_scale) or finer \
+                             (transport_refinement), not both"
+                        ),
+                    ));
+                }
                 out
             }
         })
+    }
+
+    /// `[solve] transport_refinement`: `"auto"` or a whole number of transport cells per side
+    /// of a data cell.
+    fn transport_refinement(&self, v: &toml::Value) -> Result<TransportRefinement, SceneError> {
+        let key = "solve.transport_refinement";
+        let expected = format!(
+            "expected \"auto\" or a whole number from 1 to {MAX_TRANSPORT_SPLIT} (transport \
+             cells per data cell side; the solve's cells and its cost grow r³ times)"
+        );
+        if let toml::Value::String(text) = v {
+            return if text == "auto" {
+                Ok(TransportRefinement::Auto)
+            } else {
+                Err(self.err(key, format!("\"{text}\": {expected}")))
+            };
+        }
+        let r = self.integer(v, key, 1)?;
+        if r > MAX_TRANSPORT_SPLIT as i64 {
+            return Err(self.err(key, format!("{r}: {expected}")));
+        }
+        Ok(TransportRefinement::Fixed(r as usize))
     }
 
     /// `[solve] bins`: `"auto"` or one of [`VALID_BINS`].

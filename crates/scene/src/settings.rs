@@ -135,11 +135,12 @@ pub struct SolveSettings {
     /// Relative residual `‖g − E − aFg‖ / ‖E‖` at which to stop.
     pub tolerance: f64,
     pub max_iterations: usize,
-    /// Discrete ordinates only: each cell swept as `r × r × r` sub-cells (`r` in
-    /// 1..=[`MAX_TRANSPORT_REFINEMENT`](formfactor::ordinates::MAX_TRANSPORT_REFINEMENT)),
-    /// which shrinks the sweep's numerical diffusion at `r³` times the sweep cost; the
-    /// unknowns stay per cell.
-    pub transport_refinement: usize,
+    /// Zonal and discrete-ordinates methods: the multiple scattering is solved on each data
+    /// cell split into `r × r × r` transport cells (`r` in
+    /// 1..=[`MAX_TRANSPORT_SPLIT`](medium::coarsening::MAX_TRANSPORT_SPLIT)), so a source
+    /// uniform over an optically thick cell does not carry light too deep; the unknowns grow
+    /// `r³` times. Not with a `transport_scale` above 1.
+    pub transport_refinement: TransportRefinement,
     /// Discrete ordinates only: half-angle in degrees of the forward-peak cone truncated
     /// by δ-M ([`OrdinatesOptions::forward_truncation_degrees`](formfactor::ordinates::OrdinatesOptions));
     /// `None`: the default, one bin's cone for Henyey–Greenstein with `g > 0`
@@ -205,6 +206,27 @@ impl std::fmt::Display for BinCount {
     }
 }
 
+/// `[solve] transport_refinement`: how many transport cells per side one data cell is split
+/// into.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TransportRefinement {
+    /// Chosen by the solve from the cells' optical depth, within the size class of transport
+    /// grid that `transport_scale = "auto"` keeps.
+    #[default]
+    Auto,
+    /// `r` per side, 1..=[`MAX_TRANSPORT_SPLIT`](medium::coarsening::MAX_TRANSPORT_SPLIT).
+    Fixed(usize),
+}
+
+impl std::fmt::Display for TransportRefinement {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TransportRefinement::Auto => f.write_str("auto"),
+            TransportRefinement::Fixed(r) => write!(f, "{r}"),
+        }
+    }
+}
+
 /// `[solve] transport_scale`: how many data cells per side one transport cell spans.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum TransportScale {
@@ -255,7 +277,7 @@ impl SolveSettings {
             iteration: method.default_iteration(),
             tolerance: 1e-5,
             max_iterations: 2000,
-            transport_refinement: 1,
+            transport_refinement: TransportRefinement::Auto,
             forward_peak_cone: None,
             photons: montecarlo::two_pass::DEFAULT_PHOTONS,
             transport_scale: TransportScale::Auto,

@@ -437,6 +437,7 @@ impl Solution {
                 cameras: self.cameras.iter().map(Into::into).collect(),
                 bins: self.bins.as_ref().map(Into::into),
                 transport_scale: self.transport.scale() as u64,
+                transport_split: self.transport.split_factor() as u64,
                 channels,
             },
             arrays,
@@ -468,11 +469,21 @@ impl Solution {
             .transpose()
             .map_err(bad)?;
         let cells = grid.cell_count();
-        let transport = usize::try_from(meta.transport_scale)
-            .map_err(|e| e.to_string())
-            .and_then(|s| Coarsening::new(&grid, s).map_err(|e| e.to_string()))
-            .map_err(bad)?;
-        let transport_cells = transport.coarse().cell_count();
+        let transport = match (
+            usize::try_from(meta.transport_scale),
+            usize::try_from(meta.transport_split),
+        ) {
+            (Ok(1), Ok(split)) if split > 1 => {
+                Coarsening::split(&grid, split).map_err(|e| e.to_string())
+            }
+            (Ok(scale), Ok(1)) => Coarsening::new(&grid, scale).map_err(|e| e.to_string()),
+            _ => Err(format!(
+                "transport scale {} and split {}: at most one may be above 1",
+                meta.transport_scale, meta.transport_split
+            )),
+        }
+        .map_err(bad)?;
+        let transport_cells = transport.transport().cell_count();
         let mut take = |name: String, len: usize| -> Result<Vec<f32>, SolutionError> {
             let pos = c
                 .arrays

@@ -66,6 +66,9 @@ pub struct MetaRecord {
     /// Data cells per side of a transport cell: the scattered fields and the emitters'
     /// fluence are stored on the transport grid (1: the data grid).
     pub transport_scale: u64,
+    /// Transport cells per side of a data cell (`transport_refinement`; 1: not split). At
+    /// most one of this and `transport_scale` is above 1.
+    pub transport_split: u64,
     pub channels: Vec<ChannelRecord>,
 }
 

@@ -1,9 +1,9 @@
-//! `[solve] transport_refinement` in a scene file reaches the ordinates operator, and bad
+//! `[solve] transport_refinement` in a scene file splits the transport grid, and bad
 //! values are refused with the key named.
 
 use std::path::Path;
 
-use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use medium::coarsening::Coarsening;
 use scene::Scene;
 
 fn scene_with(solve_extra: &str) -> Result<Scene, String> {
@@ -40,40 +40,50 @@ height = 8
     Scene::from_toml_str(&text, Path::new("."), Path::new("inline.toml")).map_err(|e| e.to_string())
 }
 
+/// `transport_refinement = r` asks for the transport grid that splits each data cell into
+/// r³ cells: its medium has the data's totals on r³ times the cells, and the light traced
+/// on it falls off inside the thick cells of the data grid.
 #[test]
-fn transport_refinement_from_the_scene_builds_a_refined_sweep() {
-    assert_eq!(scene_with("").unwrap().solve.transport_refinement, 1);
+fn transport_refinement_from_the_scene_splits_the_transport_grid() {
+    use scene::TransportRefinement;
+    assert_eq!(
+        scene_with("").unwrap().solve.transport_refinement,
+        TransportRefinement::Auto
+    );
+    assert_eq!(
+        scene_with("transport_refinement = \"auto\"")
+            .unwrap()
+            .solve
+            .transport_refinement,
+        TransportRefinement::Auto
+    );
     let scene = scene_with("transport_refinement = 2").unwrap();
-    assert_eq!(scene.solve.transport_refinement, 2);
-    // (volrad passes it on in `methods::ordinates_options`, tested there.) The operator
-    // built with it sweeps 2³ sub-cells.
-    let options = OrdinatesOptions {
-        transport_refinement: scene.solve.transport_refinement,
-        ..OrdinatesOptions::default()
+    assert_eq!(
+        scene.solve.transport_refinement,
+        TransportRefinement::Fixed(2)
+    );
+    // (volrad builds it in `budget::transport_grid`, tested there and in tests/it.)
+    let split = Coarsening::split(scene.medium.grid(), 2).unwrap();
+    let fine = split.medium(&scene.medium).unwrap();
+    assert_eq!(
+        fine.grid().cell_count(),
+        8 * scene.medium.grid().cell_count()
+    );
+    let extinction = |m: &medium::Medium| {
+        m.channels()[0]
+            .sigma_t
+            .iter()
+            .map(|&s| s as f64)
+            .sum::<f64>()
+            * m.grid().cell_volume()
     };
-    let refined =
-        OrdinatesOperator::new(&scene.medium, 0, DirectionBins::cube(2).unwrap(), options).unwrap();
-    assert_eq!(refined.options().transport_refinement, 2);
-    // ... and it changes the transport (less sideways spreading), not just a label.
-    let plain = OrdinatesOperator::new(
-        &scene.medium,
-        0,
-        DirectionBins::cube(2).unwrap(),
-        OrdinatesOptions::default(),
-    )
-    .unwrap();
-    let len = solver::operator::TransportOperator::len(&plain);
-    let density: Vec<f64> = (0..len)
-        .map(|i| if i % 7 == 0 { 1.0 } else { 0.0 })
-        .collect();
-    let (mut a, mut b) = (vec![0.0; len], vec![0.0; len]);
-    plain.transport(&density, &mut a);
-    refined.transport(&density, &mut b);
-    let diff: f64 = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).sum();
-    let total: f64 = a.iter().map(|x| x.abs()).sum();
+    let (a, b) = (extinction(&scene.medium), extinction(&fine));
+    assert!((a - b).abs() < 1e-9 * a, "{a} vs {b}");
+    // With a coarser transport grid it is refused: one or the other.
+    let err = scene_with("transport_refinement = 2\ntransport_scale = 2").unwrap_err();
     assert!(
-        diff > 1e-3 * total,
-        "refinement changed nothing ({diff} of {total})"
+        err.contains("solve.transport_refinement") && err.contains("not both"),
+        "{err}"
     );
 }
 
