@@ -241,6 +241,25 @@ fn thick_cells_are_split_and_the_dense_cloud_keeps_its_image_mean() {
              mean {whole_mean:+.4}"
         );
     }
+    // `volrad info` says what it chose and why.
+    let file = std::env::temp_dir().join(format!("volrad-dense-{}.toml", std::process::id()));
+    let volume = dir.join("cloud24.f32");
+    std::fs::write(
+        &file,
+        text.replace(
+            "\"cloud24.f32\"",
+            &format!("{:?}", volume.display().to_string()),
+        ),
+    )
+    .unwrap();
+    let o = volrad(&["info", s(&file)]);
+    std::fs::remove_file(&file).ok();
+    let printed = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        printed.contains("48×48×36 = 82944 cells, each data cell split into 2³, chosen by volrad"),
+        "{printed}{}",
+        stderr(&o)
+    );
     // Written and read back with its split grid.
     let path = std::env::temp_dir().join(format!("volrad-split-{}.volrad", std::process::id()));
     split_solution.write(&path).unwrap();
