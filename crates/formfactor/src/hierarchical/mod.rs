@@ -303,11 +303,8 @@ impl HierarchicalOperator {
                             let rad = 3f64.sqrt() * 0.5 * level.span as f64 * h;
                             let rho = 2.0 * rad / d;
                             if rho <= options.max_opening {
-                                let t = (-cluster_depth(grid, level, a, b)).exp();
-                                // The mean of 1/|x − y|² over the clusters' points exceeds 1/d²
-                                // (it is subharmonic): by (v_A + v_B)/d² to second order.
-                                let spread = level.spread[a] + level.spread[b];
-                                let k = g * t / (d * d) * (1.0 + spread / (d * d));
+                                let t = cluster_transmittance(grid, sigma_t, level, a, b);
+                                let k = g * t / (d * d) * pair_mean_factor(level, a, b, d);
                                 let m = k
                                     * (level.alpha_sum[a] * level.beta_max[b])
                                         .max(level.alpha_sum[b] * level.beta_max[a]);
@@ -1032,22 +1029,46 @@ fn box_gap(grid: &Grid, level: &Level, a: usize, b: usize) -> usize {
 /// Optical depth between two clusters of one level along their centroid line, through the
 /// level's mean-σt grid, less each end's self-shielding depth (which the cell factors α, β
 /// hold; see [`crate::zonal::kernel::depth_between_cells`]).
-fn cluster_depth(grid: &Grid, level: &Level, a: usize, b: usize) -> f64 {
+/// The mean transmittance between clusters `a` and `b` of `level` outside their end cells'
+/// self-shielding depth: `e^{−τ}` averaged over four lines parallel to the centroids' line,
+/// shifted across it by `±√2 σ` along two perpendicular axes, with `σ² = (v_A + v_B)/3` the
+/// mean transverse variance of a segment between the clusters' points (`v` the clusters'
+/// per-axis spreads), depths traced through the data grid's σt. One centroid line through
+/// the clusters' mean σt (the code before) both smoothed the medium and took `e^{−τ̄}` for
+/// the mean of `e^{−τ}`, which is larger (`e^{−τ}` is convex): in dense, clumpy media the
+/// links lost light at every order.
+fn cluster_transmittance(grid: &Grid, sigma_t: &[f32], level: &Level, a: usize, b: usize) -> f64 {
     let (a, b) = if a < b { (a, b) } else { (b, a) };
-    let coarse = Grid {
-        dims: level.dims,
-        cell_size: grid.cell_size * level.span as f64,
-    };
     let (ca, cb) = (level.centroid[a], level.centroid[b]);
-    let r = (cb - ca).length();
-    let ray = Ray::new(ca, cb - ca);
-    let tau: f64 = coarse
-        .traverse(&ray, 0.0, r)
-        .map(|s| level.sigma_mean[s.cell] as f64 * s.length())
-        .sum();
+    let axis = cb - ca;
+    let r = axis.length();
+    let dir = axis / r;
+    let u = dir.any_orthonormal_vector();
+    let v = dir.cross(u);
+    let shift = std::f64::consts::SQRT_2 * ((level.spread[a] + level.spread[b]) / 3.0).sqrt();
     let ends = self_shielding_depth(grid.cell_size)
         * (level.sigma_mean[a] as f64 + level.sigma_mean[b] as f64);
-    (tau - ends).max(0.0)
+    let mut sum = 0.0;
+    for offset in [u * shift, -u * shift, v * shift, -v * shift] {
+        let tau = grid.optical_depth(sigma_t, &Ray::new(ca + offset, dir), 0.0, r);
+        sum += (-(tau - ends).max(0.0)).exp();
+    }
+    0.25 * sum
+}
+
+/// The mean of `e^{−σ r}/r²` over the pairs of points of clusters `a` and `b` (centroids `d`
+/// apart) against its value at `d`, to second order in the points' offsets: `1 + (v/2) ∇²`
+/// of the radial kernel, `∇²(e^{−σr}/r²) = (σ² + 2σ/r + 2/r²) e^{−σr}/r²`. The `2/r²` part
+/// (`1/r²` is subharmonic) takes both clusters' spread; the `σ` parts — the attenuation's
+/// convexity as a point moves along the line inside its own cluster — each cluster's spread
+/// `v_c` with its own mean σt. Without them a uniform 24³ block at σt h = 0.5 lost 0.7 % of
+/// each cell's light to its far links.
+fn pair_mean_factor(level: &Level, a: usize, b: usize, d: f64) -> f64 {
+    let end = |c: usize| {
+        let sigma = level.sigma_mean[c] as f64;
+        level.spread[c] * (0.5 * sigma * sigma + sigma / d)
+    };
+    1.0 + (level.spread[a] + level.spread[b]) / (d * d) + end(a) + end(b)
 }
 
 /// Cell → index of its `2^level`-cell block (x-fastest over the blocks).
