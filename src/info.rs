@@ -450,39 +450,26 @@ impl fmt::Display for SceneInfo {
         }
         writeln!(f, "solve method     {}", self.method)?;
         writeln!(f, "iteration        {}", self.iteration)?;
-        if let Some(t) = self.transport.as_ref().filter(|t| t.split > 1) {
-            writeln!(
-                f,
-                "transport grid   {}×{}×{} = {} cells, each data cell split into {}³{} (99 % \
-                 of the cells up to optical depth {:.2})",
-                t.dims[0],
-                t.dims[1],
-                t.dims[2],
-                t.cells,
-                t.split,
-                if t.chosen_by_volrad {
-                    ", chosen by volrad"
-                } else {
-                    ""
-                },
-                t.thick_cell_optical_depth
-            )?;
-        } else if let Some(t) = &self.transport {
-            writeln!(
-                f,
-                "transport grid   {}×{}×{} = {} cells of {}³ data cells{} (the first bounce \
-                 stays at full resolution)",
-                t.dims[0],
-                t.dims[1],
-                t.dims[2],
-                t.cells,
-                t.scale,
-                if t.chosen_by_volrad {
-                    ", chosen by volrad"
-                } else {
-                    ""
-                }
-            )?;
+        if let Some(t) = &self.transport {
+            let [x, y, z] = t.dims;
+            let chosen = if t.chosen_by_volrad {
+                ", chosen by volrad"
+            } else {
+                ""
+            };
+            let what = if t.split > 1 {
+                format!(
+                    ", each data cell split into {}³{chosen} (99 % of the cells up to optical \
+                     depth {:.2})",
+                    t.split, t.thick_cell_optical_depth
+                )
+            } else {
+                format!(
+                    " of {}³ data cells{chosen} (the first bounce stays at full resolution)",
+                    t.scale
+                )
+            };
+            writeln!(f, "transport grid   {x}×{y}×{z} = {} cells{what}", t.cells)?;
         }
         if let Some(o) = &self.ordinates {
             if o.forward_peak_cone_degrees > 0.0 {

@@ -877,65 +877,61 @@ impl Ctx<'_> {
         })
     }
 
+    /// A key that is `"auto"` (`None`) or a whole number `valid` accepts; anything else is
+    /// refused naming `key` and what it `expects`.
+    fn auto_or_count(
+        &self,
+        v: &toml::Value,
+        key: &str,
+        expects: &str,
+        valid: impl Fn(i64) -> bool,
+    ) -> Result<Option<usize>, SceneError> {
+        if let toml::Value::String(text) = v {
+            return if text == "auto" {
+                Ok(None)
+            } else {
+                Err(self.err(key, format!("\"{text}\": expected \"auto\" or {expects}")))
+            };
+        }
+        let n = self.integer(v, key, 1)?;
+        if !valid(n) {
+            return Err(self.err(key, format!("{n}: expected \"auto\" or {expects}")));
+        }
+        Ok(Some(n as usize))
+    }
+
     /// `[solve] transport_refinement`: `"auto"` or a whole number of transport cells per side
     /// of a data cell.
     fn transport_refinement(&self, v: &toml::Value) -> Result<TransportRefinement, SceneError> {
-        let key = "solve.transport_refinement";
-        let expected = format!(
-            "expected \"auto\" or a whole number from 1 to {MAX_TRANSPORT_SPLIT} (transport \
-             cells per data cell side; the solve's cells and its cost grow r³ times)"
+        let expects = format!(
+            "a whole number from 1 to {MAX_TRANSPORT_SPLIT} (transport cells per data cell \
+             side; the solve's cells and its cost grow r³ times)"
         );
-        if let toml::Value::String(text) = v {
-            return if text == "auto" {
-                Ok(TransportRefinement::Auto)
-            } else {
-                Err(self.err(key, format!("\"{text}\": {expected}")))
-            };
-        }
-        let r = self.integer(v, key, 1)?;
-        if r > MAX_TRANSPORT_SPLIT as i64 {
-            return Err(self.err(key, format!("{r}: {expected}")));
-        }
-        Ok(TransportRefinement::Fixed(r as usize))
+        let r = self.auto_or_count(v, "solve.transport_refinement", &expects, |r| {
+            r <= MAX_TRANSPORT_SPLIT as i64
+        })?;
+        Ok(r.map_or(TransportRefinement::Auto, TransportRefinement::Fixed))
     }
 
     /// `[solve] bins`: `"auto"` or one of [`VALID_BINS`].
     fn bins(&self, v: &toml::Value) -> Result<BinCount, SceneError> {
-        let key = "solve.bins";
-        let expected = format!("expected \"auto\" or 6n² for n = 1..=8 ({VALID_BINS:?})");
-        if let toml::Value::String(text) = v {
-            return if text == "auto" {
-                Ok(BinCount::Auto)
-            } else {
-                Err(self.err(key, format!("\"{text}\": {expected}")))
-            };
-        }
-        let bins = self.integer(v, key, 1)?;
-        if !VALID_BINS.contains(&(bins as usize)) {
-            return Err(self.err(key, format!("{bins}: {expected}")));
-        }
-        Ok(BinCount::Fixed(bins as usize))
+        let expects = format!("6n² for n = 1..=8 ({VALID_BINS:?})");
+        let bins = self.auto_or_count(v, "solve.bins", &expects, |b| {
+            VALID_BINS.contains(&(b as usize))
+        })?;
+        Ok(bins.map_or(BinCount::Auto, BinCount::Fixed))
     }
 
     /// `[solve] transport_scale`: `"auto"` or a whole number of data cells per side.
     fn transport_scale(&self, v: &toml::Value) -> Result<TransportScale, SceneError> {
-        let key = "solve.transport_scale";
-        let expected = format!(
-            "expected \"auto\" or a whole number from 1 to {MAX_TRANSPORT_SCALE} (data cells \
-             per side of a transport cell)"
+        let expects = format!(
+            "a whole number from 1 to {MAX_TRANSPORT_SCALE} (data cells per side of a \
+             transport cell)"
         );
-        if let toml::Value::String(text) = v {
-            return if text == "auto" {
-                Ok(TransportScale::Auto)
-            } else {
-                Err(self.err(key, format!("\"{text}\": {expected}")))
-            };
-        }
-        let s = self.integer(v, key, 1)?;
-        if s > MAX_TRANSPORT_SCALE as i64 {
-            return Err(self.err(key, format!("{s}: {expected}")));
-        }
-        Ok(TransportScale::Fixed(s as usize))
+        let s = self.auto_or_count(v, "solve.transport_scale", &expects, |s| {
+            s <= MAX_TRANSPORT_SCALE as i64
+        })?;
+        Ok(s.map_or(TransportScale::Auto, TransportScale::Fixed))
     }
 
     fn render(

@@ -179,24 +179,6 @@ impl BinCount {
     }
 }
 
-impl std::str::FromStr for BinCount {
-    type Err = String;
-
-    /// `auto` or one of [`VALID_BINS`](formfactor::ordinates::VALID_BINS).
-    fn from_str(text: &str) -> Result<Self, String> {
-        let valid = formfactor::ordinates::VALID_BINS;
-        if text == "auto" {
-            return Ok(BinCount::Auto);
-        }
-        match text.parse::<usize>() {
-            Ok(n) if valid.contains(&n) => Ok(BinCount::Fixed(n)),
-            _ => Err(format!(
-                "`{text}`: expected auto or 6n² for n = 1..=8 ({valid:?})"
-            )),
-        }
-    }
-}
-
 impl std::fmt::Display for BinCount {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
