@@ -91,8 +91,8 @@ pub struct ValidateArgs {
     #[arg(long)]
     pub views: Option<usize>,
     /// Validate every scene once per value: KEY=v1,v2,… with KEY albedo, g (Henyey–Greenstein),
-    /// sigma-t-factor (times the scene's sigma_t_scale), bins or forward-peak-cone (the
-    /// [solve] keys); repeatable, the cases are every combination (e.g. --vary
+    /// sigma-t-factor (times the scene's sigma_t_scale), bins, forward-peak-cone or
+    /// transport-refinement (the [solve] keys); repeatable, the cases are every combination (e.g. --vary
     /// albedo=0.5,0.9,0.99,1 --vary g=0,0.6,0.85,0.95).
     #[arg(long = "vary", value_name = "KEY=VALUES")]
     pub vary: Vec<String>,

@@ -21,15 +21,19 @@ pub enum VaryKey {
     Bins,
     /// `[solve] forward_peak_cone` in degrees (discrete ordinates; 0: no truncation).
     ForwardPeakCone,
+    /// `[solve] transport_refinement` (transport cells per data cell side; the methods with
+    /// a transport grid).
+    TransportRefinement,
 }
 
 impl VaryKey {
-    const ALL: [(VaryKey, &'static str); 5] = [
+    const ALL: [(VaryKey, &'static str); 6] = [
         (VaryKey::Albedo, "albedo"),
         (VaryKey::G, "g"),
         (VaryKey::SigmaTFactor, "sigma-t-factor"),
         (VaryKey::Bins, "bins"),
         (VaryKey::ForwardPeakCone, "forward-peak-cone"),
+        (VaryKey::TransportRefinement, "transport-refinement"),
     ];
 
     pub fn name(self) -> &'static str {
@@ -47,6 +51,7 @@ impl VaryKey {
             VaryKey::SigmaTFactor => "s",
             VaryKey::Bins => "b",
             VaryKey::ForwardPeakCone => "cone",
+            VaryKey::TransportRefinement => "r",
         }
     }
 }
@@ -58,19 +63,17 @@ pub struct Variation {
     pub values: Vec<f64>,
 }
 
-/// Parses `KEY=v1,v2,…` (keys: albedo, g, sigma-t-factor, bins, forward-peak-cone). The values'
-/// ranges are the scene checker's: [`scene_cases`] refuses a variant it does not take, naming
-/// the key, before any work.
+/// Parses `KEY=v1,v2,…` (keys: [`VaryKey`]'s names). The values' ranges are the scene
+/// checker's: [`scene_cases`] refuses a variant it does not take, naming the key, before any
+/// work.
 pub fn parse_variation(spec: &str) -> Result<Variation> {
+    let keys = VaryKey::ALL.map(|(_, n)| n).join(", ");
     let Some((key, values)) = spec.split_once('=') else {
-        bail!("--vary {spec}: expected KEY=v1,v2,… (keys: albedo, g, sigma-t-factor, bins, forward-peak-cone)");
+        bail!("--vary {spec}: expected KEY=v1,v2,… (keys: {keys})");
     };
     let key = key.trim();
     let Some(&(key, _)) = VaryKey::ALL.iter().find(|(_, n)| *n == key) else {
-        bail!(
-            "--vary {spec}: unknown key `{key}` (expected albedo, g, sigma-t-factor, bins or \
-             forward-peak-cone)"
-        );
+        bail!("--vary {spec}: unknown key `{key}` (expected one of {keys})");
     };
     let mut parsed = Vec::new();
     for v in values.split(',') {
@@ -191,15 +194,20 @@ fn section<'t>(table: &'t mut toml::Table, name: &str) -> Result<&'t mut toml::T
 }
 
 fn apply(table: &mut toml::Table, key: VaryKey, value: f64) -> Result<()> {
+    // A fractional count stays a float, which the scene checker refuses by name.
+    let count = |value: f64| {
+        if value.fract() == 0.0 {
+            toml::Value::Integer(value as i64)
+        } else {
+            toml::Value::Float(value)
+        }
+    };
     match key {
         VaryKey::Bins => {
-            // A fractional count stays a float, which the scene checker refuses by name.
-            let bins = if value.fract() == 0.0 {
-                toml::Value::Integer(value as i64)
-            } else {
-                toml::Value::Float(value)
-            };
-            section(table, "solve")?.insert("bins".into(), bins);
+            section(table, "solve")?.insert("bins".into(), count(value));
+        }
+        VaryKey::TransportRefinement => {
+            section(table, "solve")?.insert("transport_refinement".into(), count(value));
         }
         VaryKey::ForwardPeakCone => {
             section(table, "solve")?.insert("forward_peak_cone".into(), toml::Value::Float(value));
@@ -325,6 +333,44 @@ mod tests {
                 assert_eq!(case.scene.medium.interpolation(), Interpolation::Nearest);
             }
         }
+    }
+
+    /// `--vary transport-refinement=1,2` writes `[solve] transport_refinement` (whole cells
+    /// and the split grid, compared in one run), and a count the scene does not take is
+    /// refused naming the key before any work.
+    #[test]
+    fn transport_refinement_is_varied_and_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("scene.toml");
+        std::fs::write(
+            &path,
+            "[volume]\ngenerator = { kind = \"cloud\", seed = 5 }\ndims = [6, 6, 4]\n\
+             [medium]\nalbedo = 0.9\n\
+             [[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\nirradiance = 1.0\n\
+             [[camera]]\nname = \"front\"\neye = [3.0, 3.0, -9.0]\ntarget = [3.0, 3.0, 2.0]\n\
+             up = [0.0, 1.0, 0.0]\nfov_y = 40.0\nwidth = 8\nheight = 8\n",
+        )
+        .unwrap();
+        let cases = scene_cases(
+            &path,
+            "s",
+            &[parse_variation("transport-refinement=1,2").unwrap()],
+        )
+        .unwrap();
+        let refinements: Vec<_> = cases
+            .iter()
+            .map(|c| (c.name.as_str(), c.scene.solve.transport_refinement))
+            .collect();
+        assert_eq!(
+            refinements,
+            [
+                ("s_r1", scene::TransportRefinement::Fixed(1)),
+                ("s_r2", scene::TransportRefinement::Fixed(2))
+            ]
+        );
+        let bad = [parse_variation("transport-refinement=9").unwrap()];
+        let err = format!("{:#}", scene_cases(&path, "s", &bad).err().unwrap());
+        assert!(err.contains("solve.transport_refinement"), "{err}");
     }
 
     #[test]
