@@ -3,7 +3,6 @@
 use std::fmt;
 
 use crate::engine::{budget, methods, timing};
-use medium::coarsening::Coarsening;
 use scene::Scene;
 use scene::{SceneOrigin, SolveMethod};
 use serde::Serialize;
@@ -78,9 +77,9 @@ pub struct TransportInfo {
     pub scale: usize,
     /// Transport cells per side of a data cell (`transport_refinement`).
     pub split: usize,
-    /// The data cells' optical depth that sets the split: the 99th percentile over
+    /// On a split grid, the data cells' optical depth that set it: the 99th percentile over
     /// non-empty cells ([`budget::thick_cell_optical_depth`]).
-    pub thick_cell_optical_depth: f64,
+    pub thick_cell_optical_depth: Option<f64>,
     pub dims: [usize; 3],
     pub cells: usize,
     /// Whether volrad chose the scale or the split (`"auto"`).
@@ -92,10 +91,9 @@ pub struct TransportInfo {
 #[derive(Debug, Serialize)]
 pub struct OrdinatesInfo {
     pub bins: usize,
-    /// Whether volrad chose the bins (`bins = "auto"`, the default): by the phase function's
-    /// mean cosine, within the state it allows itself on this transport grid.
-    pub bins_chosen_by_volrad: bool,
-    /// Why volrad chose these bins (`None`: the scene set them).
+    /// Why volrad chose these bins (`bins = "auto"`, the default: by the phase function's
+    /// mean cosine, within the state it allows itself on this transport grid); `None`: the
+    /// scene set them.
     pub bins_choice: Option<String>,
     /// Half-angle of the δ-M forward-peak cone, degrees (0: none).
     pub forward_peak_cone_degrees: f64,
@@ -153,18 +151,14 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64) -> String {
 /// Why `volrad` chose `bins` for mean cosine `g` on the scene's transport grid: the step
 /// the forward peak asks for, and when the state cap held it lower, what the wanted step
 /// would cost.
-fn bins_choice(g: f64, bins: usize, scene: &Scene) -> String {
+fn bins_choice(g: f64, bins: usize, scene: &Scene, occupancy: &budget::Occupancy) -> String {
     // No cells: no cap, the step the forward peak alone asks for.
     let wanted = formfactor::ordinates::auto_bin_count(g, 0);
     let why = format!("chosen by volrad for mean cosine {g:.2}");
     if wanted == bins {
         return why;
     }
-    let cells = Coarsening::cell_count_of(
-        scene.medium.grid(),
-        budget::transport_scale(scene, &scene.solve),
-    ) * budget::transport_split(scene, &scene.solve).pow(3);
-    let occupancy = budget::Occupancy::of(&scene.medium);
+    let cells = budget::transport_cell_count(scene, &scene.solve);
     let costs: Vec<String> = formfactor::ordinates::AUTO_BIN_STEPS
         .into_iter()
         .filter(|&b| b > bins && b <= wanted)
@@ -173,7 +167,7 @@ fn bins_choice(g: f64, bins: usize, scene: &Scene) -> String {
                 bins: scene::BinCount::Fixed(b),
                 ..scene.solve.clone()
             };
-            let peak = budget::solve_peak(scene, &settings, &occupancy).total();
+            let peak = budget::solve_peak(scene, &settings, occupancy).total();
             format!(
                 "[solve] bins = {b} needs about {}",
                 budget::human_bytes(peak)
@@ -299,7 +293,7 @@ impl SceneInfo {
                 } else {
                     scene.solve.transport_scale == scene::TransportScale::Auto
                 },
-                thick_cell_optical_depth: budget::thick_cell_optical_depth(m),
+                thick_cell_optical_depth: (split > 1).then(|| budget::thick_cell_optical_depth(m)),
             });
         let ordinates = (scene.solve.method == SolveMethod::DiscreteOrdinates).then(|| {
             let phase = m.phase();
@@ -317,9 +311,8 @@ impl SceneInfo {
                 * cell_factor;
             OrdinatesInfo {
                 bins,
-                bins_chosen_by_volrad: scene.solve.bins == scene::BinCount::Auto,
                 bins_choice: (scene.solve.bins == scene::BinCount::Auto)
-                    .then(|| bins_choice(phase.mean_cosine(), bins, scene)),
+                    .then(|| bins_choice(phase.mean_cosine(), bins, scene, &occupancy)),
                 forward_peak_cone_degrees: cone,
                 cone_chosen_by_volrad: scene.solve.forward_peak_cone.is_none(),
                 forward_peak_fraction: fraction,
@@ -465,11 +458,11 @@ impl fmt::Display for SceneInfo {
             } else {
                 ""
             };
-            let what = if t.split > 1 {
+            let what = if let Some(tau) = t.thick_cell_optical_depth {
                 format!(
                     ", each data cell split into {}³{chosen} (99 % of the cells up to optical \
-                     depth {:.2})",
-                    t.split, t.thick_cell_optical_depth
+                     depth {tau:.2})",
+                    t.split
                 )
             } else {
                 format!(

@@ -137,7 +137,7 @@ impl Sizes {
         let parts = (split * split * split) as u64;
         Sizes {
             cells: medium.grid().cell_count() as u64,
-            transport_cells: Coarsening::cell_count_of(medium.grid(), scale) as u64 * parts,
+            transport_cells: transport_cell_count(scene, settings) as u64,
             transport_occupied: occupancy.at(scale) as u64 * parts,
             transport_shared_rows: if settings.method == SolveMethod::ZonalHierarchical {
                 occupancy.hierarchy_shared_rows(scale) as u64 * parts
@@ -279,8 +279,8 @@ pub fn transport_scale(scene: &Scene, settings: &SolveSettings) -> usize {
 
 /// Transport cells of optical depth above this are split by `transport_refinement =
 /// "auto"`: a source uniform over a thicker cell carries light too deep (the cloud24 orbit at
-/// σt × 4, cells up to 4: 6.1 % per view, +5.1 % in the image mean; split in 2³: 3.2 %, +2.1 %;
-/// at σt × 1, cells up to 1: 1.7 %).
+/// σt × 4, cells up to 4, discrete ordinates: 6.1 % per view, +5.1 % in the image mean; split
+/// in 2³: 2.9 %, +2.7 %; at σt × 1, cells up to 1: 1.7 %).
 pub const AUTO_SPLIT_CELL_OPTICAL_DEPTH: f64 = 1.0;
 
 /// The optical depth `σt h` of the thick cells of `medium`: the 99th percentile over its
@@ -318,6 +318,11 @@ pub fn transport_split(scene: &Scene, settings: &SolveSettings) -> usize {
                 return 1;
             }
             let cells = scene.medium.grid().cell_count();
+            // Only a grid that a split keeps within the size class needs the percentile
+            // (this runs for every estimate; a large grid's answer is 1 without it).
+            if cells.saturating_mul(8) > AUTO_TRANSPORT_CELLS {
+                return 1;
+            }
             let tau = thick_cell_optical_depth(&scene.medium);
             let wanted = (tau / AUTO_SPLIT_CELL_OPTICAL_DEPTH).ceil().max(1.0) as usize;
             (1..=wanted.min(MAX_TRANSPORT_SPLIT))
@@ -333,15 +338,12 @@ pub fn transport_split(scene: &Scene, settings: &SolveSettings) -> usize {
 /// data grid itself. A scale above 1 together with a split is refused.
 pub fn transport_grid(scene: &Scene, settings: &SolveSettings) -> Result<Coarsening> {
     let grid = scene.medium.grid();
+    if let Some(conflict) = settings.transport_conflict() {
+        // A command-line override can meet a scene's fixed refinement.
+        bail!("solve.transport_refinement: {conflict}");
+    }
     let split = transport_split(scene, settings);
     if split > 1 {
-        if let TransportScale::Fixed(scale @ 2..) = settings.transport_scale {
-            bail!(
-                "solve.transport_refinement: {split} with transport_scale = {scale}: a \
-                 transport grid is either coarser than the data (transport_scale) or finer \
-                 (transport_refinement), not both"
-            );
-        }
         return Ok(Coarsening::split(grid, split)?);
     }
     Ok(Coarsening::new(grid, transport_scale(scene, settings))?)
@@ -351,10 +353,16 @@ pub fn transport_grid(scene: &Scene, settings: &SolveSettings) -> Result<Coarsen
 /// scene's, or for `auto` what [`formfactor::ordinates::auto_bin_count`] chooses for its
 /// phase function on the transport grid.
 pub fn direction_bins(scene: &Scene, settings: &SolveSettings) -> usize {
-    let split = transport_split(scene, settings);
-    let cells = Coarsening::cell_count_of(scene.medium.grid(), transport_scale(scene, settings))
-        * split.pow(3);
-    settings.bins.count(&scene.medium.phase(), cells)
+    settings
+        .bins
+        .count(&scene.medium.phase(), transport_cell_count(scene, settings))
+}
+
+/// The transport grid's cell count ([`transport_grid`]'s), without building it.
+pub fn transport_cell_count(scene: &Scene, settings: &SolveSettings) -> usize {
+    let grid = scene.medium.grid();
+    Coarsening::cell_count_of(grid, transport_scale(scene, settings))
+        * transport_split(scene, settings).pow(3)
 }
 
 /// The predicted peak resident memory of solving `scene` with `settings`; `occupancy` is

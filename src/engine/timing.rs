@@ -14,7 +14,6 @@
 use std::fmt;
 use std::time::Duration;
 
-use medium::coarsening::Coarsening;
 use scene::{Scene, SolveMethod, SolveSettings};
 
 use super::budget::{transport_scale, transport_split, Occupancy};
@@ -158,7 +157,7 @@ pub fn solve_time(
     let scale = transport_scale(scene, settings);
     // A split transport grid has split³ cells per data cell.
     let parts_per_cell = transport_split(scene, settings).pow(3) as f64;
-    let transport_cells = Coarsening::cell_count_of(grid, scale) as f64 * parts_per_cell;
+    let transport_cells = super::budget::transport_cell_count(scene, settings) as f64;
     let transport_occupied = occupancy.at(scale) as f64 * parts_per_cell;
     let mut parts = vec![TimePart {
         what: "set-up",

@@ -858,19 +858,8 @@ impl Ctx<'_> {
                 if let Some(v) = &s.transport_scale {
                     out.transport_scale = self.transport_scale(v)?;
                 }
-                if let (
-                    TransportScale::Fixed(scale @ 2..),
-                    TransportRefinement::Fixed(refinement @ 2..),
-                ) = (out.transport_scale, out.transport_refinement)
-                {
-                    return Err(self.err(
-                        "solve.transport_refinement",
-                        format!(
-                            "{refinement} with transport_scale = {scale}: a transport grid is \
-                             either coarser than the data (transport_scale) or finer \
-                             (transport_refinement), not both"
-                        ),
-                    ));
+                if let Some(conflict) = out.transport_conflict() {
+                    return Err(self.err("solve.transport_refinement", conflict));
                 }
                 out
             }

@@ -249,6 +249,21 @@ impl std::fmt::Display for TransportScale {
 }
 
 impl SolveSettings {
+    /// Why these settings ask for a transport grid both coarser and finer than the data
+    /// (a fixed `transport_scale` and a fixed `transport_refinement` above 1), if they do.
+    pub fn transport_conflict(&self) -> Option<String> {
+        match (self.transport_scale, self.transport_refinement) {
+            (TransportScale::Fixed(scale @ 2..), TransportRefinement::Fixed(refinement @ 2..)) => {
+                Some(format!(
+                    "{refinement} with transport_scale = {scale}: a transport grid is either \
+                     coarser than the data (transport_scale) or finer (transport_refinement), \
+                     not both"
+                ))
+            }
+            _ => None,
+        }
+    }
+
     /// `[solve]` absent: the method for `phase`, its default iteration, tolerance 1e-5, 2000
     /// iterations, bins chosen from the medium, no refinement, the two-pass method's default photon count.
     pub fn default_for(phase: &PhaseFunction) -> SolveSettings {

@@ -1026,11 +1026,9 @@ fn box_gap(grid: &Grid, level: &Level, a: usize, b: usize) -> usize {
     gap
 }
 
-/// Optical depth between two clusters of one level along their centroid line, through the
-/// level's mean-σt grid, less each end's self-shielding depth (which the cell factors α, β
-/// hold; see [`crate::zonal::kernel::depth_between_cells`]).
 /// The mean transmittance between clusters `a` and `b` of `level` outside their end cells'
-/// self-shielding depth: `e^{−τ}` averaged over four lines parallel to the centroids' line,
+/// self-shielding depth (which the cell factors α, β hold; see
+/// [`crate::zonal::kernel::depth_between_cells`]): `e^{−τ}` averaged over four lines parallel to the centroids' line,
 /// shifted across it by `±√2 σ` along two perpendicular axes, with `σ² = (v_A + v_B)/3` the
 /// mean transverse variance of a segment between the clusters' points (`v` the clusters'
 /// per-axis spreads), depths traced through the data grid's σt. One centroid line through
