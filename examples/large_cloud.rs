@@ -9,10 +9,10 @@
 //!
 //! ```text
 //! cargo run --release --example large_cloud -- [--dims N] [--method M] [--transport-scale S]
-//!     [--views V] [--width W] [--spp S] [--no-reference]
+//!     [--bins B] [--views V] [--width W] [--spp S] [--no-reference]
 //! ```
-//! Defaults: `--dims 192` (192 × 192 × 144), discrete ordinates, 8 views of 96 × 72 pixels,
-//! 256 paths per pixel.
+//! Defaults: `--dims 192` (192 × 192 × 144), discrete ordinates with the bins volrad chooses,
+//! 8 views of 96 × 72 pixels, 256 paths per pixel.
 
 use std::path::Path;
 use std::time::Instant;
@@ -29,6 +29,7 @@ struct Args {
     dims: usize,
     method: String,
     transport_scale: String,
+    bins: String,
     views: usize,
     width: u32,
     spp: u32,
@@ -40,6 +41,7 @@ fn args() -> Result<Args> {
         dims: 192,
         method: "discrete-ordinates".into(),
         transport_scale: "\"auto\"".into(),
+        bins: "\"auto\"".into(),
         views: 8,
         width: 96,
         spp: 256,
@@ -52,6 +54,7 @@ fn args() -> Result<Args> {
             "--dims" => a.dims = value()?.parse()?,
             "--method" => a.method = value()?,
             "--transport-scale" => a.transport_scale = value()?,
+            "--bins" => a.bins = value()?,
             "--views" => a.views = value()?.parse()?,
             "--width" => a.width = value()?.parse()?,
             "--spp" => a.spp = value()?.parse()?,
@@ -120,10 +123,12 @@ irradiance = 1.0
 [solve]
 method = "{method}"
 transport_scale = {scale}
+bins = {bins}
 "#,
         h = 64.0 / nx as f64,
         method = a.method,
         scale = a.transport_scale,
+        bins = a.bins,
     );
     let scene = Scene::from_toml_str(&text, Path::new("."), Path::new("large_cloud.toml"))?;
     let start = Instant::now();
@@ -131,8 +136,12 @@ transport_scale = {scale}
     let solve_seconds = start.elapsed().as_secs_f64();
     let peak = peak_mib();
     let t = solution.transport;
+    let bins = solution
+        .bins
+        .as_ref()
+        .map_or_else(|| "no".into(), |b| b.directions.len().to_string());
     println!(
-        "{nx}×{nx}×{nz} = {} cells, {} method, transport grid {:?} (scale {}): solve {solve_seconds:.1} s, peak {peak:.0} MiB",
+        "{nx}×{nx}×{nz} = {} cells, {} method, transport grid {:?} (scale {}), {bins} bins: solve {solve_seconds:.1} s, peak {peak:.0} MiB",
         scene.medium.grid().cell_count(),
         a.method,
         t.transport().dims,

@@ -50,9 +50,10 @@ impl MemoryEstimate {
 /// The process itself: code, thread stacks, allocator arenas, the runtime (measured: a solve
 /// of a tiny scene peaks at 22–25 MiB).
 const PROCESS_BYTES: u64 = 22 << 20;
-/// Per cell and channel, every method: the light pass's fields and σt copy, the solution's
-/// copy of the medium and its first-bounce data (measured with method `none`).
-const LIGHT_PASS_BYTES_PER_CELL: u64 = 80;
+/// Per cell and channel, every method: the light pass's fields and σt copy and the
+/// solution's first-bounce data (measured with method `none`: 58–64 bytes beside the medium
+/// on the 192 × 192 × 144 and 384 × 384 × 288 clouds, the solution file streamed from them).
+const LIGHT_PASS_BYTES_PER_CELL: u64 = 60;
 /// Per data cell and channel, what a solve on a coarser transport grid keeps of the light
 /// pass and the solution while the transport grid is solved (measured: 24–35 bytes beside the
 /// medium's 8 on 192 × 192 × 144 and 384 × 384 × 288 clouds); the light pass's working
@@ -77,11 +78,19 @@ const HIERARCHICAL_FIXED_BYTES: u64 = 40 << 20;
 /// still holds part of the last one's pages (measured: 5–30 % of the operator per channel,
 /// varying from run to run).
 const HIERARCHICAL_FURTHER_CHANNEL_FRACTION: f64 = 0.1;
-/// Discrete ordinates: per cell and bin — the solution and right-hand side, the sweep's
-/// densities and per-piece outputs, the stored field; the iteration's vectors come on top
-/// (Gauss–Seidel's are the sweep's two bin-major copies).
-const ORDINATES_BYTES_PER_CELL_BIN: u64 = 70;
-/// Discrete ordinates: per cell, the sweep's coefficient tables.
+/// Discrete ordinates: per cell and bin, the system's source and the iterate (f64); the
+/// iteration's vectors come on top (Gauss–Seidel's one), and a sky's uncollided light. The
+/// sweeps hold one group of bins at a time (per cell, below), and the solved field is let go
+/// as its f32 copy is made.
+const ORDINATES_BYTES_PER_CELL_BIN: u64 = 16;
+/// Discrete ordinates: per cell and bin, the uncollided light of a sky (kept through the
+/// solve, added to the solution after).
+const ORDINATES_SKY_BYTES_PER_CELL_BIN: u64 = 8;
+/// Discrete ordinates: what each further channel keeps, per cell and bin (its solved field
+/// and the higher orders toward each bin, f32; the solution file is streamed from them).
+const ORDINATES_STORED_BYTES_PER_CELL_BIN: u64 = 8;
+/// Discrete ordinates: per cell, the sweep's coefficient tables and one group's densities
+/// and per-piece outputs.
 const ORDINATES_BYTES_PER_CELL: u64 = 200;
 /// Two-pass: per cell and direction bin, and per non-empty cell and bin. Four f64 tallies,
 /// their sum and the f32 source are allocated dense (44 bytes per cell and bin), but zeroed
@@ -89,9 +98,9 @@ const ORDINATES_BYTES_PER_CELL: u64 = 200;
 /// the non-empty and the whole grid (fitted: 28 + 11 bytes).
 const TWO_PASS_BYTES_PER_CELL_BIN: u64 = 28;
 const TWO_PASS_BYTES_PER_OCCUPIED_CELL_BIN: u64 = 11;
-/// Two-pass and discrete ordinates: what each further channel keeps, per cell and bin (its
-/// solved field and the solution file's copies of it).
-const STORED_BYTES_PER_CELL_BIN: u64 = 18;
+/// Two-pass: what each further channel keeps, per cell and bin (its tallied field and the
+/// record's copy the solution file is written from).
+const TWO_PASS_STORED_BYTES_PER_CELL_BIN: u64 = 18;
 
 /// Vectors of the system's length an iteration keeps beside the solution and right-hand side.
 /// GMRES's basis grows by one vector per iteration up to its restart length: its figure is
@@ -102,13 +111,13 @@ const GROUND_VECTORS: u64 = 4;
 fn work_vectors(iteration: &solver::Method, max_iterations: usize) -> u64 {
     use solver::Method as M;
     match iteration {
-        M::Jacobi => 1,
-        M::GaussSeidel | M::Sor { .. } => 0,
+        // Jacobi's next iterate; the sweeps' iterate before the sweep, then the residual.
+        M::Jacobi | M::GaussSeidel | M::Sor { .. } => 1,
         M::Gmres { restart } => (*restart).min(max_iterations) as u64 + 2,
         M::BiCgStab => 6,
         M::ConjugateGradient => 3,
         M::CoarseCg | M::TwoLevelCg { .. } | M::DsaCg => 5,
-        M::CoarseCorrected { .. } => 2,
+        M::CoarseCorrected { .. } => 1,
     }
 }
 
@@ -474,14 +483,16 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                     unknowns
                         .saturating_mul(ORDINATES_BYTES_PER_CELL_BIN)
                         .saturating_add(s.transport_cells.saturating_mul(ORDINATES_BYTES_PER_CELL)),
-                    unknowns.saturating_mul(STORED_BYTES_PER_CELL_BIN),
+                    unknowns.saturating_mul(ORDINATES_STORED_BYTES_PER_CELL_BIN),
                 ),
             });
-            let vectors = match settings.iteration {
-                // The sweep's bin-major copies of the solution and the source.
-                solver::Method::GaussSeidel | solver::Method::Sor { .. } => 2,
-                ref other => work_vectors(other, settings.max_iterations),
-            };
+            if scene.environment.as_ref().is_some_and(|e| !e.is_dark()) {
+                parts.push(MemoryPart {
+                    what: "the sky's uncollided light (cells × direction bins)",
+                    bytes: unknowns.saturating_mul(ORDINATES_SKY_BYTES_PER_CELL_BIN),
+                });
+            }
+            let vectors = work_vectors(&settings.iteration, settings.max_iterations);
             if vectors > 0 {
                 parts.push(MemoryPart {
                     what: "the iteration's vectors (cells × direction bins each)",
@@ -502,7 +513,7 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                         .saturating_add(
                             occupied.saturating_mul(TWO_PASS_BYTES_PER_OCCUPIED_CELL_BIN),
                         ),
-                    tallies.saturating_mul(STORED_BYTES_PER_CELL_BIN),
+                    tallies.saturating_mul(TWO_PASS_STORED_BYTES_PER_CELL_BIN),
                 ),
             });
         }

@@ -720,6 +720,9 @@ pub fn solve_ordinates(
     let mut gathered: Option<Vec<f64>> = None;
     let (radiance, report, ground_radiance) = match ground {
         None => {
+            // Only a ground's rounds read the external density again: each cells × bins
+            // vector let go is a solve's peak lowered by a quarter.
+            drop(external);
             // The environment's uncollided radiance ψ on the bins, in the sweep's own
             // discretisation (so a non-absorbing medium holds L everywhere: the white
             // furnace). Its scattering K ψ joins the source, and ψ what the render's final
@@ -739,6 +742,7 @@ pub fn solve_ordinates(
                 None => None,
             };
             let (mut radiance, report) = run_solver(&op, &source, None, settings, hooks)?;
+            drop(source);
             // The bins hold everything but the lights' unscattered beams.
             if let Some(psi) = &uncollided {
                 for (r, p) in radiance.iter_mut().zip(psi) {
@@ -822,10 +826,15 @@ pub fn solve_ordinates(
         // The emission's own first scattering, which the bins no longer hold.
         op.add_collision_density(pass.fluence(), pass.current(), &mut higher)?;
     }
+    // Stored as f32, each f64 let go as soon as its copy is made.
+    let stored: Vec<f32> = radiance.iter().map(|&v| v as f32).collect();
+    drop(radiance);
+    let higher_order: Vec<f32> = higher.iter().map(|&v| v.max(0.0) as f32).collect();
+    drop(higher);
     Ok((
         ScatteredField::Binned {
-            radiance: radiance.iter().map(|&v| v as f32).collect(),
-            higher_order: higher.iter().map(|&v| v.max(0.0) as f32).collect(),
+            radiance: stored,
+            higher_order,
         },
         Some(report),
         ground_radiance,

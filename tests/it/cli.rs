@@ -654,8 +654,9 @@ bins = 384
     assert!(info.status.success(), "{}", stderr(&info));
     let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
     let peak = info["peak_memory_bytes"].as_u64().unwrap();
-    // 82,944 cells × 384 bins of f64 state: gigabytes, not the megabytes of the medium.
-    assert!(peak > 1 << 30, "{info}");
+    // 82,944 cells × 384 bins of f64 state: hundreds of megabytes (past the limit below),
+    // against the medium's one.
+    assert!(peak > 512 << 20, "{info}");
 
     let out = dir.path().join("big.volrad");
     let started = std::time::Instant::now();

@@ -179,7 +179,7 @@ fn generate(case: &Case) -> Vec<u8> {
     solution.to_bytes()
 }
 
-fn decode(bytes: &[u8], what: &str) -> Container<MetaRecord> {
+fn decode(bytes: &[u8], what: &str) -> Container<'static, MetaRecord> {
     Container::<MetaRecord>::from_bytes(bytes, Path::new(what)).unwrap_or_else(|e| {
         panic!(
             "{e}\nThe golden file no longer decodes: the layout changed. If that is intended, \
@@ -272,7 +272,7 @@ fn golden_files_match_what_this_volrad_writes() {
              intended, bump FORMAT_VERSION and rewrite with VOLRAD_BLESS=1",
             case.file
         );
-        let names = |c: &Container<MetaRecord>| {
+        let names = |c: &Container<'static, MetaRecord>| {
             c.arrays
                 .iter()
                 .map(|(n, v)| (n.clone(), v.len()))
@@ -293,7 +293,7 @@ fn golden_files_match_what_this_volrad_writes() {
                     .try_for_each(|((n, x), (_, y))| {
                         match x
                             .iter()
-                            .zip(y)
+                            .zip(y.iter())
                             .position(|(a, b)| !close(*a as f64, *b as f64, tolerance))
                         {
                             Some(i) => Err(format!("{n}[{i}]: {} here, {} golden", x[i], y[i])),

@@ -10,7 +10,7 @@ use crate::methods::krylov::Preconditioner;
 use crate::operator::TransportOperator;
 use crate::options::{Method, Smoother, SolveOptions, MAX_GMRES_RESTART, MAX_TWO_LEVEL_SMOOTHING};
 use crate::report::{SolveReport, StopReason};
-use crate::vecops::{residual_into, Reducer};
+use crate::vecops::{residual_in_place, Reducer};
 
 /// Iterations without a 0.1 % improvement of the best residual before a solve is declared
 /// stagnated. Long enough that Jacobi at spectral radius 0.99999 still counts as progressing.
@@ -247,18 +247,18 @@ impl Ctx<'_> {
         self.applications += 1;
     }
 
-    /// `r = E − (g − K g)` with `kg` as scratch; returns the relative residual.
-    pub fn residual(&mut self, g: &[f64], kg: &mut [f64], r: &mut [f64]) -> f64 {
-        self.apply(g, kg);
-        residual_into(&mut self.red, r, self.source, g, kg).sqrt() / self.scale
+    /// Writes `r = E − (g − K g)` into `r` (which first holds `K g`: one vector, not two,
+    /// for a system as large as the discrete ordinates' cells × bins); returns the relative
+    /// residual.
+    pub fn residual(&mut self, g: &[f64], r: &mut [f64]) -> f64 {
+        self.apply(g, r);
+        residual_in_place(&mut self.red, r, self.source, g).sqrt() / self.scale
     }
 
     /// Relative residual of `g`, allocating its own scratch (used once, at the end).
     pub fn true_residual(&mut self, g: &[f64]) -> f64 {
-        let n = g.len();
-        let mut kg = vec![0.0; n];
-        let mut r = vec![0.0; n];
-        self.residual(g, &mut kg, &mut r)
+        let mut r = vec![0.0; g.len()];
+        self.residual(g, &mut r)
     }
 }
 

@@ -96,20 +96,19 @@ where
         });
 }
 
-/// The residual `r = E − (g − K g)` given `kg = K g`, and its squared norm.
-pub(crate) fn residual_into(
+/// The residual `r = E − (g − K g)` written over `kg = K g`, and its squared norm.
+pub(crate) fn residual_in_place(
     red: &mut Reducer,
-    r: &mut [f64],
+    kg: &mut [f64],
     source: &[f64],
     g: &[f64],
-    kg: &[f64],
 ) -> f64 {
-    red.update(r, |off, chunk| {
+    red.update(kg, |off, chunk| {
         let mut s = 0.0;
-        for (i, ri) in chunk.iter_mut().enumerate() {
+        for (i, v) in chunk.iter_mut().enumerate() {
             let k = off + i;
-            *ri = source[k] - g[k] + kg[k];
-            s += *ri * *ri;
+            *v += source[k] - g[k];
+            s += *v * *v;
         }
         s
     })

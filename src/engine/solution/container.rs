@@ -18,8 +18,12 @@
 //! Reading checks the magic, refuses newer versions by number, checks the length against the
 //! file and the checksum against the payload before decoding anything. Writing goes to a
 //! temporary file in the same directory, is synced, then renamed over the final name, so a
-//! crash never leaves a half-written file under that name.
+//! crash never leaves a half-written file under that name. A file is written from borrowed
+//! arrays and streamed, so writing a solution holds no second copy of its fields (the
+//! largest thing a solve keeps).
 
+use std::borrow::Cow;
+use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -96,19 +100,20 @@ pub enum ContainerError {
     },
 }
 
-/// Metadata plus named f32 arrays, as read from or written to disk.
+/// Metadata plus named f32 arrays, as read from disk (owned) or to be written (borrowed
+/// where the caller keeps them).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Container<M> {
+pub struct Container<'a, M> {
     pub meta: M,
-    pub arrays: Vec<(String, Vec<f32>)>,
+    pub arrays: Vec<(String, Cow<'a, [f32]>)>,
 }
 
-impl<M> Container<M> {
+impl<M> Container<'_, M> {
     pub fn array(&self, name: &str) -> Option<&[f32]> {
         self.arrays
             .iter()
             .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
+            .map(|(_, v)| v.as_ref())
     }
 }
 
@@ -116,9 +121,16 @@ fn align_up(x: usize) -> usize {
     x.div_ceil(ALIGN) * ALIGN
 }
 
-impl<M: Serialize + DeserializeOwned> Container<M> {
-    /// Encodes the whole file into memory.
-    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+/// Where everything goes: the encoded metadata, the array table and the file's length.
+struct Layout {
+    envelope: Vec<u8>,
+    entries: Vec<ArrayEntry>,
+    end: usize,
+}
+
+impl<M: Serialize> Container<'_, M> {
+    /// The metadata's encoding and every array's offset.
+    fn layout(&self) -> Result<Layout, String> {
         let config = bincode::config::standard();
         // The table's offsets depend on the metadata length, which depends on the table's
         // encoding: iterate to a fixed point (two passes suffice in practice).
@@ -165,6 +177,20 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
             .map_or(FIXED_HEADER + 8 + envelope_bytes.len(), |e| {
                 e.offset as usize + e.len as usize * 4
             });
+        Ok(Layout {
+            envelope: envelope_bytes,
+            entries,
+            end,
+        })
+    }
+
+    /// Encodes the whole file into memory.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+        let Layout {
+            envelope: envelope_bytes,
+            entries,
+            end,
+        } = self.layout()?;
         let mut out = vec![0u8; end];
         out[..8].copy_from_slice(MAGIC);
         out[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
@@ -175,7 +201,7 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
             let start = e.offset as usize;
             for (chunk, v) in out[start..start + data.len() * 4]
                 .chunks_exact_mut(4)
-                .zip(data)
+                .zip(data.iter())
             {
                 chunk.copy_from_slice(&v.to_le_bytes());
             }
@@ -185,6 +211,84 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
         Ok(out)
     }
 
+    /// Streams the file [`to_bytes`](Self::to_bytes) encodes into `file` (at its start), a
+    /// block at a time: the checksum is summed on the way and written last.
+    fn stream(&self, layout: &Layout, file: std::fs::File) -> std::io::Result<()> {
+        struct Payload<W> {
+            out: W,
+            crc: crc32fast::Hasher,
+            at: usize,
+        }
+        impl<W: Write> Payload<W> {
+            fn put(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+                self.crc.update(bytes);
+                self.at += bytes.len();
+                self.out.write_all(bytes)
+            }
+            fn pad_to(&mut self, offset: usize) -> std::io::Result<()> {
+                const ZEROS: [u8; ALIGN] = [0; ALIGN];
+                while self.at < offset {
+                    let n = (offset - self.at).min(ALIGN);
+                    self.put(&ZEROS[..n])?;
+                }
+                Ok(())
+            }
+        }
+        let mut header = [0u8; FIXED_HEADER];
+        header[..8].copy_from_slice(MAGIC);
+        header[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+        header[12..20].copy_from_slice(&((layout.end - FIXED_HEADER) as u64).to_le_bytes());
+        let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+        out.write_all(&header)?;
+        let mut payload = Payload {
+            out,
+            crc: crc32fast::Hasher::new(),
+            at: FIXED_HEADER,
+        };
+        payload.put(&(layout.envelope.len() as u64).to_le_bytes())?;
+        payload.put(&layout.envelope)?;
+        let mut block = Vec::with_capacity(STREAM_BLOCK * 4);
+        for (e, (_, data)) in layout.entries.iter().zip(&self.arrays) {
+            payload.pad_to(e.offset as usize)?;
+            for values in data.chunks(STREAM_BLOCK) {
+                block.clear();
+                block.extend(values.iter().flat_map(|v| v.to_le_bytes()));
+                payload.put(&block)?;
+            }
+        }
+        debug_assert_eq!(payload.at, layout.end);
+        let Payload { out, crc, .. } = payload;
+        let mut file = out.into_inner().map_err(|e| e.into_error())?;
+        file.seek(SeekFrom::Start(20))?;
+        file.write_all(&crc.finalize().to_le_bytes())
+    }
+
+    /// Writes atomically: temp file beside the target, fsync, rename.
+    pub fn write(&self, path: &Path) -> Result<(), ContainerError> {
+        let io = |error| ContainerError::Io {
+            path: path.to_path_buf(),
+            error,
+        };
+        let layout = self.layout().map_err(|message| ContainerError::Malformed {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        medium::atomic_file::write_with(
+            path,
+            |tmp| {
+                std::fs::File::create(tmp)
+                    .and_then(|f| self.stream(&layout, f))
+                    .map_err(io)
+            },
+            io,
+        )
+    }
+}
+
+/// Values per block of a streamed array (256 KiB).
+const STREAM_BLOCK: usize = 1 << 16;
+
+impl<M: DeserializeOwned> Container<'static, M> {
     /// Decodes a file image, checking everything before trusting anything.
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ContainerError> {
         let path_buf = || path.to_path_buf();
@@ -260,11 +364,11 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
                 .and_then(|n| n.checked_add(start))
                 .filter(|&end| end <= bytes.len())
                 .ok_or_else(|| malformed(format!("array `{}` lies outside the file", e.name)))?;
-            let data = bytes[start..end]
+            let data: Vec<f32> = bytes[start..end]
                 .chunks_exact(4)
                 .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
                 .collect();
-            arrays.push((e.name, data));
+            arrays.push((e.name, Cow::Owned(data)));
         }
         Ok(Container {
             meta: envelope.meta,
@@ -280,20 +384,6 @@ impl<M: Serialize + DeserializeOwned> Container<M> {
         })?;
         Self::from_bytes(&bytes, path)
     }
-
-    /// Writes atomically: temp file beside the target, fsync, rename.
-    pub fn write(&self, path: &Path) -> Result<(), ContainerError> {
-        let bytes = self
-            .to_bytes()
-            .map_err(|message| ContainerError::Malformed {
-                path: path.to_path_buf(),
-                message,
-            })?;
-        medium::atomic_file::write_bytes(path, &bytes).map_err(|error| ContainerError::Io {
-            path: path.to_path_buf(),
-            error,
-        })
-    }
 }
 
 #[cfg(test)]
@@ -306,7 +396,7 @@ mod tests {
         dims: [usize; 3],
     }
 
-    fn sample() -> Container<Meta> {
+    fn sample() -> Container<'static, Meta> {
         Container {
             meta: Meta {
                 name: "cloud".into(),
@@ -314,10 +404,30 @@ mod tests {
             },
             arrays: vec![
                 ("a".into(), (0..24).map(|i| i as f32 * 0.5).collect()),
-                ("b".into(), vec![]),
-                ("c".into(), vec![f32::MAX, -0.0, 1e-30]),
+                ("b".into(), Cow::Owned(vec![])),
+                ("c".into(), Cow::Owned(vec![f32::MAX, -0.0, 1e-30])),
             ],
         }
+    }
+
+    /// The streamed file is the encoded one, byte for byte (header, padding, checksum).
+    #[test]
+    fn a_written_file_is_its_encoding() {
+        let dir = std::env::temp_dir().join(format!("container-write-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s.volrad");
+        let mut c = sample();
+        // Longer than a streamed block, so the file is written in several.
+        let long: Vec<f32> = (0..STREAM_BLOCK + 17).map(|i| i as f32).collect();
+        c.arrays.insert(1, ("long".into(), Cow::Borrowed(&long)));
+        c.write(&path).unwrap();
+        let written = std::fs::read(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(written, c.to_bytes().unwrap());
+        assert_eq!(
+            Container::<Meta>::from_bytes(&written, Path::new("x")).unwrap(),
+            c
+        );
     }
 
     #[test]

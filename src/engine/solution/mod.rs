@@ -8,6 +8,7 @@
 pub mod container;
 pub mod records;
 
+use std::borrow::Cow;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -314,22 +315,23 @@ pub enum SolutionError {
     Inconsistent { path: String, message: String },
 }
 
-fn uniform_or_array(
-    values: &CellValues,
+fn uniform_or_array<'a>(
+    values: &'a CellValues,
     name: String,
-    arrays: &mut Vec<(String, Vec<f32>)>,
+    arrays: &mut Vec<(String, Cow<'a, [f32]>)>,
 ) -> Option<f32> {
     match values {
         CellValues::Uniform(v) => Some(*v),
         CellValues::PerCell(v) => {
-            arrays.push((name, v.clone()));
+            arrays.push((name, Cow::Borrowed(v)));
             None
         }
     }
 }
 
 impl Solution {
-    fn to_container(&self) -> Container<MetaRecord> {
+    /// The file's contents, the arrays borrowed from the solution.
+    fn to_container(&self) -> Container<'_, MetaRecord> {
         let mut arrays = Vec::new();
         let mut channels = Vec::new();
         for (c, (ch, sol)) in self
@@ -339,17 +341,17 @@ impl Solution {
             .zip(&self.channels)
             .enumerate()
         {
-            arrays.push((format!("sigma_t/{c}"), ch.sigma_t.clone()));
+            arrays.push((format!("sigma_t/{c}"), Cow::Borrowed(&ch.sigma_t[..])));
             let albedo = uniform_or_array(&ch.albedo, format!("albedo/{c}"), &mut arrays);
             let emission = uniform_or_array(&ch.emission, format!("emission/{c}"), &mut arrays);
             for (l, f) in sol.light_pass.fields.iter().enumerate() {
                 arrays.push((
                     format!("light/{c}/{l}/cell_irradiance"),
-                    f.cell_irradiance.clone(),
+                    Cow::Borrowed(&f.cell_irradiance[..]),
                 ));
                 arrays.push((
                     format!("light/{c}/{l}/corner_optical_depth"),
-                    f.corner_optical_depth.clone(),
+                    Cow::Borrowed(&f.corner_optical_depth[..]),
                 ));
             }
             let mut two_pass = None;
@@ -360,11 +362,11 @@ impl Solution {
                     // The fields go with the arrays: metadata stays kilobytes.
                     arrays.push((
                         format!("two_pass/{c}/voxel_source"),
-                        std::mem::take(&mut record.voxel_source),
+                        Cow::Owned(std::mem::take(&mut record.voxel_source)),
                     ));
                     arrays.push((
                         format!("two_pass/{c}/cell_share"),
-                        std::mem::take(&mut record.cell_share),
+                        Cow::Owned(std::mem::take(&mut record.cell_share)),
                     ));
                     two_pass = Some(record);
                     FieldKind::TwoPass
@@ -373,21 +375,27 @@ impl Solution {
                     source,
                     higher_order,
                 } => {
-                    arrays.push((format!("source/{c}"), source.clone()));
-                    arrays.push((format!("higher_order/{c}"), higher_order.clone()));
+                    arrays.push((format!("source/{c}"), Cow::Borrowed(&source[..])));
+                    arrays.push((
+                        format!("higher_order/{c}"),
+                        Cow::Borrowed(&higher_order[..]),
+                    ));
                     FieldKind::Isotropic
                 }
                 ScatteredField::Binned {
                     radiance,
                     higher_order,
                 } => {
-                    arrays.push((format!("radiance/{c}"), radiance.clone()));
-                    arrays.push((format!("higher_order/{c}"), higher_order.clone()));
+                    arrays.push((format!("radiance/{c}"), Cow::Borrowed(&radiance[..])));
+                    arrays.push((
+                        format!("higher_order/{c}"),
+                        Cow::Borrowed(&higher_order[..]),
+                    ));
                     FieldKind::Binned
                 }
             };
             if let Some(f) = &sol.emitted_fluence {
-                arrays.push((format!("emitted_fluence/{c}"), f.clone()));
+                arrays.push((format!("emitted_fluence/{c}"), Cow::Borrowed(&f[..])));
             }
             channels.push(ChannelRecord {
                 albedo,
@@ -405,18 +413,18 @@ impl Solution {
             });
         }
         if let Some(d) = self.medium.data() {
-            arrays.push(("data".into(), d.to_vec()));
+            arrays.push(("data".into(), Cow::Borrowed(d)));
         }
         if let Some(map) = self
             .environment
             .as_ref()
             .and_then(records::environment_map_array)
         {
-            arrays.push(("environment/map".into(), map));
+            arrays.push(("environment/map".into(), Cow::Owned(map)));
         }
         if let Some(g) = &self.ground {
             for (c, values) in g.radiance().iter().enumerate() {
-                arrays.push((format!("ground/{c}"), values.clone()));
+                arrays.push((format!("ground/{c}"), Cow::Borrowed(&values[..])));
             }
         }
         Container {
@@ -445,7 +453,7 @@ impl Solution {
     }
 
     fn from_container(
-        mut c: Container<MetaRecord>,
+        mut c: Container<'static, MetaRecord>,
         path: &Path,
     ) -> Result<Solution, SolutionError> {
         let bad = |message: String| SolutionError::Inconsistent {
@@ -490,7 +498,7 @@ impl Solution {
                 .iter()
                 .position(|(n, _)| *n == name)
                 .ok_or_else(|| bad(format!("array `{name}` is missing")))?;
-            let v = std::mem::take(&mut c.arrays[pos].1);
+            let v = std::mem::take(&mut c.arrays[pos].1).into_owned();
             if v.len() != len {
                 return Err(bad(format!(
                     "array `{name}` has {} values, expected {len}",

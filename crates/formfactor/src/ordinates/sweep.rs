@@ -767,17 +767,17 @@ struct LayerBuffers {
     inz: Vec<f64>,
 }
 
+/// What one group of bins needs at a time: every sweep (Gauss–Seidel's, an application of
+/// `K`, a transport) runs group by group ([`OrdinatesOperator::groups`]), so these hold
+/// one group's bins and pieces, not all of them (at 216 bins, 8 of the 216 columns).
 struct Scratch {
-    /// Bin-major densities `S[l·N + c]` (radiance per length): each sweep reads one bin's
-    /// densities contiguously.
+    /// Bin-major densities of the group's bins, `S[(l − l0)·stride + c]` (radiance per
+    /// length): each sweep reads one bin's densities contiguously.
     density: Vec<f64>,
-    /// Piece-major cell-average radiances, `pieces × cells`.
+    /// Piece-major cell-average radiances of the group's pieces, `pieces × stride`.
     piece_out: Vec<f64>,
+    /// One per piece of the largest group.
     layers: Vec<LayerBuffers>,
-    /// Bin-major copies of the iterate and the source for Gauss–Seidel sweeps (allocated
-    /// on the first sweep).
-    g_bins: Vec<f64>,
-    source_bins: Vec<f64>,
 }
 
 /// A piece's per-cell transport coefficients in the sweep's units, with the piece's axes in
@@ -1014,6 +1014,10 @@ pub struct OrdinatesOperator {
     pieces: Vec<Piece>,
     /// Indices of each bin's pieces.
     bin_pieces: Vec<Vec<usize>>,
+    /// The bins swept together (`gauss_seidel_group` in index order), and each group's
+    /// pieces (consecutive: pieces come in bin order).
+    groups: Vec<std::ops::Range<usize>>,
+    group_pieces: Vec<std::ops::Range<usize>>,
     options: OrdinatesOptions,
     scratch: Mutex<Scratch>,
 }
@@ -1096,12 +1100,34 @@ impl OrdinatesOperator {
         for (p, piece) in pieces.iter().enumerate() {
             bin_pieces[piece.bin].push(p);
         }
+        let group = options.gauss_seidel_group.max(1);
+        let groups: Vec<std::ops::Range<usize>> = (0..m)
+            .step_by(group)
+            .map(|start| start..(start + group).min(m))
+            .collect();
+        // Pieces are made bin by bin, so a group's are consecutive.
+        let group_pieces: Vec<std::ops::Range<usize>> = groups
+            .iter()
+            .map(|bins| {
+                let first = bin_pieces[bins.start].first().copied();
+                let last = bin_pieces[bins.end - 1].last().copied();
+                match (first, last) {
+                    (Some(p0), Some(p1)) => p0..p1 + 1,
+                    _ => 0..0,
+                }
+            })
+            .collect();
+        debug_assert!(group_pieces
+            .iter()
+            .zip(&groups)
+            .all(|(ps, bins)| ps.clone().all(|p| bins.contains(&pieces[p].bin))));
+        let most_pieces = group_pieces.iter().map(|p| p.len()).max().unwrap_or(0);
         let layer = grid.dims[0] * grid.dims[1] * r * r;
         let stride = padded_stride(n);
         let scratch = Scratch {
-            density: vec![0.0; stride * m],
-            piece_out: vec![0.0; stride * pieces.len()],
-            layers: (0..pieces.len())
+            density: vec![0.0; stride * group.min(m)],
+            piece_out: vec![0.0; stride * most_pieces],
+            layers: (0..most_pieces)
                 .map(|_| LayerBuffers {
                     out: vec![0.0; layer],
                     out_y: vec![0.0; layer],
@@ -1109,8 +1135,6 @@ impl OrdinatesOperator {
                     inz: vec![0.0; layer],
                 })
                 .collect(),
-            g_bins: Vec::new(),
-            source_bins: Vec::new(),
         };
         let (piece_class, representatives) = piece_classes(&pieces, options.face_coupling);
         tracing::debug!(
@@ -1160,6 +1184,8 @@ impl OrdinatesOperator {
             scatter,
             pieces,
             bin_pieces,
+            groups,
+            group_pieces,
             piece_class,
             terms,
             cell_level,
@@ -1252,12 +1278,12 @@ impl OrdinatesOperator {
         }
     }
 
-    /// Bytes of the operator's own buffers (f64 scratch: density, sweep output and layer
-    /// buffers; the per-cell coefficients), excluding the solver's vectors.
+    /// Bytes of the operator's own buffers (f64 scratch of one group of bins: density,
+    /// sweep output and layer buffers; the per-cell coefficients), excluding the solver's
+    /// vectors.
     pub fn scratch_bytes(&self) -> usize {
         let s = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-        // The Gauss–Seidel copies of g and the source count whether allocated yet or not.
-        (s.density.len() + s.piece_out.len() + 2 * self.bins.len() * self.stride) * 8
+        (s.density.len() + s.piece_out.len()) * 8
             + s.layers
                 .iter()
                 .map(|l| (l.out.len() + l.out_y.len() + l.out_x.len() + l.inz.len()) * 8)
@@ -1274,34 +1300,39 @@ impl OrdinatesOperator {
             x.len() == self.len() && density.len() == self.len(),
             "scatter_density: vectors must have cells × bins entries"
         );
-        self.scatter_into(&self.scatter, x, density, Layout::CellMajor, 0, m);
+        self.scatter_into(&self.scatter, x, density, Layout::CellMajor, 0..m);
     }
 
-    /// Scattering densities of bins `l0..l1` in `layout`, by blocks of cells: one GEMM
+    /// Scattering densities of `bins` in `layout`, by blocks of cells: one GEMM
     /// `X_block (cells × M) · Wᵀ (M × bins)` per block, then the rows scaled by σs. Blocks
     /// without scattering cells are written as zeros without the product. `weights`
     /// (`W[l·M + j]`, M × M row-major) is the solve's `P_lj Ω_j` (`self.scatter`) or the final
-    /// gather's weights ([`gather_density`](Self::gather_density)).
+    /// gather's weights ([`gather_density`](Self::gather_density)). Cell-major `dst` holds
+    /// every bin; bin-major `dst` holds `bins` alone, from its first column.
     fn scatter_into(
         &self,
         weights: &[f64],
         x: &[f64],
         dst: &mut [f64],
         layout: Layout,
-        l0: usize,
-        l1: usize,
+        bins: std::ops::Range<usize>,
     ) {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        debug_assert!(x.len() == n * m && l0 < l1 && l1 <= m && weights.len() == m * m);
         debug_assert!(
+            x.len() == n * m && bins.start < bins.end && bins.end <= m && weights.len() == m * m
+        );
+        assert!(
             dst.len()
-                >= m * if layout == Layout::BinMajor {
-                    self.stride
-                } else {
-                    n
+                >= match layout {
+                    Layout::BinMajor => bins.len() * self.stride,
+                    Layout::CellMajor => n * m,
                 }
         );
+        let first_column = match layout {
+            Layout::BinMajor => bins.start,
+            Layout::CellMajor => 0,
+        };
         let base = SharedMut(dst.as_mut_ptr());
         let blocks = n.div_ceil(SCATTER_BLOCK);
         (0..blocks).into_par_iter().for_each(|b| {
@@ -1314,9 +1345,8 @@ impl OrdinatesOperator {
                     weights,
                     x.as_ptr(),
                     Layout::CellMajor,
-                    base,
-                    layout,
-                    l0..l1,
+                    (base, layout, first_column),
+                    bins.clone(),
                     c0..c1,
                 )
             };
@@ -1332,27 +1362,27 @@ impl OrdinatesOperator {
     }
 
     /// [`scatter_into`](Self::scatter_into) for the cells `cells` of `x` (laid out as
-    /// `x_layout`), written into `dst` (laid out as `layout`).
+    /// `x_layout`), written into `dst`: `(pointer, layout, the bin of its first column)`.
     ///
     /// # Safety
-    /// `weights` must hold M × M values, `x` and `dst` must point to whole cell × bin arrays
-    /// in their layouts, and no one else may write `x` for these cells, or access the elements
+    /// `weights` must hold M × M values, `x` must point to a whole cell × bin array in its
+    /// layout, `dst` to one whose columns (bin-major) start at its first column's bin and
+    /// reach past `bins`, and no one else may write `x` for these cells, or access the elements
     /// (c, l) of `dst` with `c` in `cells` and `l` in `bins`, while this runs.
-    #[allow(clippy::too_many_arguments)] // two strided arrays, each with its layout
     unsafe fn scatter_block(
         &self,
         weights: &[f64],
         x: *const f64,
         x_layout: Layout,
-        dst: SharedMut,
-        layout: Layout,
+        (dst, layout, first_column): (SharedMut, Layout, usize),
         bins: std::ops::Range<usize>,
         cells: std::ops::Range<usize>,
     ) {
         let m = self.bins.len();
         let (rsa, csa) = self.strides(x_layout);
         let (rsc, csc) = self.strides(layout);
-        let at = |c: usize, l: usize| dst.ptr().add(c * rsc + l * csc);
+        debug_assert!(bins.start >= first_column);
+        let at = |c: usize, l: usize| dst.ptr().add(c * rsc + (l - first_column) * csc);
         let ss = &self.sigma_s[cells.clone()];
         if ss.iter().any(|&v| v != 0.0) {
             matrixmultiply::dgemm(
@@ -1385,40 +1415,23 @@ impl OrdinatesOperator {
         }
     }
 
-    /// Copies cell-major `src` (`N·M`) into bin-major `dst` (columns `stride` apart), by
-    /// blocks of cells so that both sides stream.
-    fn cells_to_bins(&self, src: &[f64], dst: &mut [f64]) {
+    /// Copies the columns `bins` of cell-major `src` (`N·M`) into bin-major `dst` (columns
+    /// `stride` apart, the first `bins.start`'s), by blocks of cells so that both sides
+    /// stream.
+    fn cells_to_bins(&self, src: &[f64], bins: std::ops::Range<usize>, dst: &mut [f64]) {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        assert!(src.len() == n * m && dst.len() >= m * self.stride);
+        assert!(src.len() == n * m && bins.end <= m && dst.len() >= bins.len() * self.stride);
         let base = SharedMut(dst.as_mut_ptr());
         src.par_chunks(m * TRANSPOSE_BLOCK)
             .enumerate()
             .for_each(|(b, rows)| {
                 let c0 = b * TRANSPOSE_BLOCK;
-                for l in 0..m {
+                for l in bins.clone() {
+                    let column = (l - bins.start) * self.stride;
                     for (i, row) in rows.chunks(m).enumerate() {
                         // SAFETY: inside `dst` (asserted); block b's cells are this task's.
-                        unsafe { *base.ptr().add(l * self.stride + c0 + i) = row[l] };
-                    }
-                }
-            });
-    }
-
-    /// The inverse of [`cells_to_bins`](Self::cells_to_bins).
-    fn bins_to_cells(&self, src: &[f64], dst: &mut [f64]) {
-        let n = self.grid.cell_count();
-        let m = self.bins.len();
-        assert!(dst.len() == n * m && src.len() >= m * self.stride);
-        dst.par_chunks_mut(m * TRANSPOSE_BLOCK)
-            .enumerate()
-            .for_each(|(b, rows)| {
-                let c0 = b * TRANSPOSE_BLOCK;
-                let cells = rows.len() / m;
-                for l in 0..m {
-                    let column = &src[l * self.stride + c0..l * self.stride + c0 + cells];
-                    for (row, &v) in rows.chunks_mut(m).zip(column) {
-                        row[l] = v;
+                        unsafe { *base.ptr().add(column + c0 + i) = row[l] };
                     }
                 }
             });
@@ -1616,60 +1629,71 @@ impl OrdinatesOperator {
         );
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;
-        // Bin-major copy for the sweeps.
-        self.cells_to_bins(density, &mut s.density);
-        self.transport_all(out, s, true)
+        // Each group's bin-major copy for the sweeps.
+        self.transport_all(out, s, true, |bins, dst| {
+            self.cells_to_bins(density, bins, dst)
+        })
     }
 
-    /// Sweeps every piece through the bin-major densities in `s.density`, gathers the
-    /// pieces into cell-major `out`; tallies power when `tally`.
-    fn transport_all(&self, out: &mut [f64], s: &mut Scratch, tally: bool) -> SweepEnergy {
+    /// Group by group ([`groups`](Self::groups)): `fill(bins, density)` writes the group's
+    /// bin-major densities, every piece of the group is swept through them, and the pieces
+    /// are gathered into cell-major `out`; tallies power when `tally`.
+    fn transport_all(
+        &self,
+        out: &mut [f64],
+        s: &mut Scratch,
+        tally: bool,
+        fill: impl Fn(std::ops::Range<usize>, &mut [f64]),
+    ) -> SweepEnergy {
         let m = self.bins.len();
-        let density = &s.density;
-        let energies: Vec<SweepEnergy> = s
-            .piece_out
-            .par_chunks_mut(self.stride)
-            .zip(s.layers.par_iter_mut())
-            .enumerate()
-            .map(|(p, (po, buf))| self.sweep_piece(p, density, po, buf, tally))
-            .collect();
-        let piece_out = &s.piece_out;
         let stride = self.stride;
-        // Sum of each bin's pieces, by blocks of cells so that both sides stream.
-        out.par_chunks_mut(m * TRANSPOSE_BLOCK)
-            .enumerate()
-            .for_each(|(b, rows)| {
-                let c0 = b * TRANSPOSE_BLOCK;
-                let cells = rows.len() / m;
-                for l in 0..m {
-                    for (i, row) in rows.chunks_mut(m).enumerate() {
-                        row[l] = 0.0;
-                        for &p in &self.bin_pieces[l] {
-                            row[l] += piece_out[p * stride + c0 + i];
+        let mut total = SweepEnergy::default();
+        for (bins, pieces) in self.groups.iter().zip(&self.group_pieces) {
+            fill(bins.clone(), &mut s.density);
+            let density = &s.density;
+            let energies: Vec<SweepEnergy> = s.piece_out[..pieces.len() * stride]
+                .par_chunks_mut(stride)
+                .zip(s.layers[..pieces.len()].par_iter_mut())
+                .enumerate()
+                .map(|(i, (po, buf))| {
+                    self.sweep_piece(pieces.start + i, density, bins.start, po, buf, tally)
+                })
+                .collect();
+            for e in &energies {
+                total.add(e);
+            }
+            let piece_out = &s.piece_out;
+            // Sum of each bin's pieces, by blocks of cells so that both sides stream.
+            out.par_chunks_mut(m * TRANSPOSE_BLOCK)
+                .enumerate()
+                .for_each(|(b, rows)| {
+                    let c0 = b * TRANSPOSE_BLOCK;
+                    for l in bins.clone() {
+                        for (i, row) in rows.chunks_mut(m).enumerate() {
+                            row[l] = 0.0;
+                            for &p in &self.bin_pieces[l] {
+                                row[l] += piece_out[(p - pieces.start) * stride + c0 + i];
+                            }
                         }
                     }
-                }
-                debug_assert!(cells <= TRANSPOSE_BLOCK);
-            });
-        let mut total = SweepEnergy::default();
-        for e in &energies {
-            total.add(e);
+                });
         }
         total
     }
 
-    /// Piece `p`, its bin's column of the bin-major `density` and its class's coefficients
-    /// per level: what either sweep reads.
+    /// Piece `p`, its bin's column of the bin-major group `density` (whose first column is
+    /// bin `first_bin`) and its class's coefficients per level: what either sweep reads.
     #[inline]
     fn piece_inputs<'a>(
         &'a self,
         p: usize,
         density: &'a [f64],
+        first_bin: usize,
     ) -> (&'a Piece, &'a [f64], &'a [CellTerms]) {
         let piece = &self.pieces[p];
         let n = self.grid.cell_count();
         let levels = self.level_tau.len();
-        let (column, class) = (piece.bin * self.stride, self.piece_class[p]);
+        let (column, class) = ((piece.bin - first_bin) * self.stride, self.piece_class[p]);
         (
             piece,
             &density[column..column + n],
@@ -1677,18 +1701,20 @@ impl OrdinatesOperator {
         )
     }
 
-    /// One piece's sweep through its bin's densities (bin-major `density`): writes
-    /// `weight · I_avg` per cell into `out` (length N). Tallies power only when `tally`.
+    /// One piece's sweep through its bin's densities (the bin-major group `density` from bin
+    /// `first_bin`): writes `weight · I_avg` per cell into `out` (length N). Tallies power
+    /// only when `tally`.
     fn sweep_piece(
         &self,
         p: usize,
         density: &[f64],
+        first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
         tally: bool,
     ) -> SweepEnergy {
         if self.options.transport_refinement > 1 {
-            return self.sweep_piece_refined(p, density, out, buf, tally);
+            return self.sweep_piece_refined(p, density, first_bin, out, buf, tally);
         }
         // One compiled sweep per order of the piece's axes, so that the cell step's
         // permutations are constants.
@@ -1696,12 +1722,12 @@ impl OrdinatesOperator {
             .iter()
             .position(|&o| o == self.pieces[p].canonical_axes)
         {
-            Some(0) => self.sweep_piece_ordered::<0>(p, density, out, buf, tally),
-            Some(1) => self.sweep_piece_ordered::<1>(p, density, out, buf, tally),
-            Some(2) => self.sweep_piece_ordered::<2>(p, density, out, buf, tally),
-            Some(3) => self.sweep_piece_ordered::<3>(p, density, out, buf, tally),
-            Some(4) => self.sweep_piece_ordered::<4>(p, density, out, buf, tally),
-            _ => self.sweep_piece_ordered::<5>(p, density, out, buf, tally),
+            Some(0) => self.sweep_piece_ordered::<0>(p, density, first_bin, out, buf, tally),
+            Some(1) => self.sweep_piece_ordered::<1>(p, density, first_bin, out, buf, tally),
+            Some(2) => self.sweep_piece_ordered::<2>(p, density, first_bin, out, buf, tally),
+            Some(3) => self.sweep_piece_ordered::<3>(p, density, first_bin, out, buf, tally),
+            Some(4) => self.sweep_piece_ordered::<4>(p, density, first_bin, out, buf, tally),
+            _ => self.sweep_piece_ordered::<5>(p, density, first_bin, out, buf, tally),
         }
     }
 
@@ -1711,11 +1737,12 @@ impl OrdinatesOperator {
         &self,
         p: usize,
         density: &[f64],
+        first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
         tally: bool,
     ) -> SweepEnergy {
-        let (piece, density, terms) = self.piece_inputs(p, density);
+        let (piece, density, terms) = self.piece_inputs(p, density, first_bin);
         let [nx, ny, nz] = self.grid.dims;
         let h = self.grid.cell_size;
         let weight = piece.weight;
@@ -1841,11 +1868,12 @@ impl OrdinatesOperator {
         &self,
         p: usize,
         density: &[f64],
+        first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
         tally: bool,
     ) -> SweepEnergy {
-        let (piece, density, terms) = self.piece_inputs(p, density);
+        let (piece, density, terms) = self.piece_inputs(p, density, first_bin);
         let r = self.options.transport_refinement;
         let [nx, ny, nz] = self.grid.dims;
         let [fnx, fny, fnz] = [nx * r, ny * r, nz * r];
@@ -1963,7 +1991,7 @@ impl OrdinatesOperator {
             })
             .collect();
         // The same block product as the solve's scattering, with these weights.
-        self.scatter_into(&weights, x, out, Layout::CellMajor, 0, m);
+        self.scatter_into(&weights, x, out, Layout::CellMajor, 0..m);
     }
 
     /// The uncollided radiance, cell- and bin-averaged (`ψ[c·M + l]`), of light entering the
@@ -2045,99 +2073,87 @@ impl TransportOperator for OrdinatesOperator {
 
     /// `y = K x`: scatter `x` once with the phase matrix, transport the result.
     fn apply(&self, x: &[f64], y: &mut [f64]) {
-        let m = self.bins.len();
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;
-        self.scatter_into(&self.scatter, x, &mut s.density, Layout::BinMajor, 0, m);
-        self.transport_all(y, s, false);
+        self.transport_all(y, s, false, |bins, dst| {
+            self.scatter_into(&self.scatter, x, dst, Layout::BinMajor, bins)
+        });
     }
 
     /// Block Gauss–Seidel over bins: groups of `gauss_seidel_group` bins in index order; each
     /// group's scattering source uses the bins already updated in this sweep.
     ///
-    /// Works on bin-major copies of `g` and `source` (copied in and out once per sweep), so
-    /// that each group's update streams through memory; the update of one group and the
+    /// Works on `g` and `source` where they are (cell-major: a group's bins of a cell are one
+    /// or two cache lines), with no copies of either: the update of one group and the
     /// scattering density of the next are one pass over the cells (the density of a cell
     /// needs only that cell's radiances).
     fn sweep_in_place(&self, g: &mut [f64], source: &[f64], omega: f64) -> bool {
         let n = self.grid.cell_count();
         let m = self.bins.len();
+        assert!(
+            g.len() == n * m && source.len() == n * m,
+            "sweep_in_place: vectors must have cells × bins entries"
+        );
         let stride = self.stride;
-        let group = self.options.gauss_seidel_group.max(1);
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;
-        if s.g_bins.len() != m * stride {
-            s.g_bins = vec![0.0; m * stride];
-            s.source_bins = vec![0.0; m * stride];
-        }
-        self.cells_to_bins(g, &mut s.g_bins);
-        self.cells_to_bins(source, &mut s.source_bins);
-        let groups: Vec<std::ops::Range<usize>> = (0..m)
-            .step_by(group)
-            .map(|start| start..(start + group).min(m))
-            .collect();
-        // Scattering density for the first group's bins from the current g.
-        let g_bins = SharedMut(s.g_bins.as_mut_ptr());
+        let g_cells = SharedMut(g.as_mut_ptr());
         let density = SharedMut(s.density.as_mut_ptr());
         let blocks = n.div_ceil(SCATTER_BLOCK);
         let block_cells = |b: usize| b * SCATTER_BLOCK..((b + 1) * SCATTER_BLOCK).min(n);
         let scatter_block = |bins: std::ops::Range<usize>, cells: std::ops::Range<usize>| {
-            // SAFETY: both arrays have m columns of `stride` (≥ n) elements; each block's
-            // cells belong to one task.
+            // SAFETY: `g` has n·m cell-major elements (asserted), the density buffer a
+            // group's columns of `stride` (≥ n) elements; each block's cells belong to one
+            // task.
             unsafe {
                 self.scatter_block(
                     &self.scatter,
-                    g_bins.ptr(),
-                    Layout::BinMajor,
-                    density,
-                    Layout::BinMajor,
+                    g_cells.ptr(),
+                    Layout::CellMajor,
+                    (density, Layout::BinMajor, bins.start),
                     bins,
                     cells,
                 )
             }
         };
+        // Scattering density for the first group's bins from the current g.
         (0..blocks)
             .into_par_iter()
-            .for_each(|b| scatter_block(groups[0].clone(), block_cells(b)));
-        for (k, bins) in groups.iter().enumerate() {
-            let p0 = self.bin_pieces[bins.start][0];
-            let p1 = *self.bin_pieces[bins.end - 1]
-                .last()
-                .expect("every bin has a piece")
-                + 1;
+            .for_each(|b| scatter_block(self.groups[0].clone(), block_cells(b)));
+        for (k, (bins, pieces)) in self.groups.iter().zip(&self.group_pieces).enumerate() {
             let density_ref = &s.density;
-            s.piece_out[p0 * stride..p1 * stride]
+            s.piece_out[..pieces.len() * stride]
                 .par_chunks_mut(stride)
-                .zip(s.layers[p0..p1].par_iter_mut())
+                .zip(s.layers[..pieces.len()].par_iter_mut())
                 .enumerate()
                 .for_each(|(i, (po, buf))| {
-                    self.sweep_piece(p0 + i, density_ref, po, buf, false);
+                    self.sweep_piece(pieces.start + i, density_ref, bins.start, po, buf, false);
                 });
             let piece_out = &s.piece_out;
-            let source_bins = &s.source_bins;
-            let next = groups.get(k + 1).cloned();
+            let next = self.groups.get(k + 1).cloned();
             (0..blocks).into_par_iter().for_each(|b| {
                 let cells = block_cells(b);
-                for l in bins.clone() {
-                    let column = l * stride;
-                    let pieces = &self.bin_pieces[l];
-                    for c in cells.clone() {
-                        let kg: f64 = pieces.iter().map(|&p| piece_out[p * stride + c]).sum();
-                        // SAFETY: inside g_bins (m·stride); these cells are this task's.
+                for c in cells.clone() {
+                    for l in bins.clone() {
+                        let kg: f64 = self.bin_pieces[l]
+                            .iter()
+                            .map(|&p| piece_out[(p - pieces.start) * stride + c])
+                            .sum();
+                        let i = c * m + l;
+                        // SAFETY: inside g (n·m, asserted); these cells are this task's.
                         unsafe {
-                            let gl = g_bins.ptr().add(column + c);
-                            *gl = (1.0 - omega) * *gl + omega * (source_bins[column + c] + kg);
+                            let gl = g_cells.ptr().add(i);
+                            *gl = (1.0 - omega) * *gl + omega * (source[i] + kg);
                         }
                     }
                 }
                 if let Some(next) = next.clone() {
                     // The next group's densities of these cells: this task's alone, and
-                    // nobody reads them now.
+                    // nobody reads them now (this group's sweeps are done).
                     scatter_block(next, cells);
                 }
             });
         }
-        self.bins_to_cells(&s.g_bins, g);
         true
     }
 }

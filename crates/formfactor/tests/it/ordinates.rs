@@ -830,17 +830,21 @@ fn auto_bins_follow_the_forward_peak_within_the_state_cap() {
     assert_eq!(auto_bin_count(0.6, small), 216);
     assert_eq!(auto_bin_count(0.85, small), 384);
     assert_eq!(auto_bin_count(0.95, small), 384);
-    // The 64 × 64 × 48 grid: 216 bins would pass the cap, 96 fit.
+    // The 64 × 64 × 48 grid (the large samples' transport grid) takes all 384.
     let cloud64 = 64 * 64 * 48;
-    assert!(cloud64 * 216 > AUTO_BINS_MAX_CELL_BINS && cloud64 * 96 <= AUTO_BINS_MAX_CELL_BINS);
-    assert_eq!(auto_bin_count(0.85, cloud64), 96);
+    assert!(cloud64 * 384 <= AUTO_BINS_MAX_CELL_BINS);
+    assert_eq!(auto_bin_count(0.85, cloud64), 384);
+    // At 96 × 96 × 72, 216 bins would pass the cap, 96 fit.
+    let cloud96 = 96 * 96 * 72;
+    assert!(cloud96 * 216 > AUTO_BINS_MAX_CELL_BINS && cloud96 * 96 <= AUTO_BINS_MAX_CELL_BINS);
+    assert_eq!(auto_bin_count(0.85, cloud96), 96);
     // Between: 384 would not fit, 216 does.
     let mid = AUTO_BINS_MAX_CELL_BINS / 300;
     assert_eq!(auto_bin_count(0.85, mid), 216);
     // A grid too large for any: Max's 96, which the memory check then judges.
     assert_eq!(auto_bin_count(0.85, usize::MAX / 2), 96);
     for g in [-0.9, 0.0, 0.3, 0.31, 0.7, 0.71, 0.99] {
-        for cells in [1, small, mid, cloud64, 1 << 30] {
+        for cells in [1, small, mid, cloud64, cloud96, 1 << 30] {
             let b = auto_bin_count(g, cells);
             assert!(
                 VALID_BINS.contains(&b) && b >= 96,

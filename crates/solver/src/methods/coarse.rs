@@ -252,23 +252,23 @@ pub(crate) fn two_level(
         Smoother::GaussSeidel => Some(1.0),
         Smoother::Sor { omega } => Some(omega),
     };
-    let mut kg = vec![0.0; n];
-    let mut r = vec![0.0; n];
+    // The residual, then (for a Jacobi step) K g.
+    let mut work = vec![0.0; n];
     let mut k = 0;
     loop {
-        let rel = ctx.residual(g, &mut kg, &mut r);
+        let rel = ctx.residual(g, &mut work);
         if let Some(reason) = ctx.mon.observe(k, rel) {
             return Ok(Stop {
                 reason,
                 true_residual: Some(rel),
             });
         }
-        coarse.correct(&r, None, g);
+        coarse.correct(&work, None, g);
         match omega {
             None => {
-                ctx.apply(g, &mut kg);
+                ctx.apply(g, &mut work);
                 let source = ctx.source;
-                let kg: &[f64] = &kg;
+                let kg: &[f64] = &work;
                 for_each_mut(g, |i, _| source[i] + kg[i]);
             }
             Some(omega) => {

@@ -48,10 +48,10 @@ pub(crate) fn jacobi(ctx: &mut Ctx<'_>, g: &mut Vec<f64>) -> Stop {
 /// is only declared on the true residual.
 pub(crate) fn sweeps(ctx: &mut Ctx<'_>, g: &mut [f64], omega: f64) -> Result<Stop, SolveError> {
     let n = g.len();
-    let mut prev = vec![0.0; n];
-    let mut kg = vec![0.0; n];
-    let mut r = vec![0.0; n];
-    let rel0 = ctx.residual(g, &mut kg, &mut r);
+    // One vector beside g: the iterate before the sweep, then (when it is measured) the
+    // residual. The discrete ordinates' cells × bins make each such vector large.
+    let mut work = vec![0.0; n];
+    let rel0 = ctx.residual(g, &mut work);
     if let Some(reason) = ctx.mon.observe(0, rel0) {
         return Ok(Stop {
             reason,
@@ -62,7 +62,7 @@ pub(crate) fn sweeps(ctx: &mut Ctx<'_>, g: &mut [f64], omega: f64) -> Result<Sto
     let mut calibration: f64 = 1.0;
     let mut k = 0;
     loop {
-        prev.copy_from_slice(g);
+        work.copy_from_slice(g);
         if !ctx.op.sweep_in_place(g, ctx.source, omega) {
             let method = if omega == 1.0 {
                 Method::GaussSeidel
@@ -80,7 +80,7 @@ pub(crate) fn sweeps(ctx: &mut Ctx<'_>, g: &mut [f64], omega: f64) -> Result<Sto
         let d2 = ctx.red.sum(n, |rg| {
             gv[rg.clone()]
                 .iter()
-                .zip(&prev[rg])
+                .zip(&work[rg])
                 .map(|(a, b)| (a - b) * (a - b))
                 .sum()
         });
@@ -88,7 +88,7 @@ pub(crate) fn sweeps(ctx: &mut Ctx<'_>, g: &mut [f64], omega: f64) -> Result<Sto
         let mut observed = estimate;
         let mut true_rel = None;
         if estimate <= ctx.mon.tolerance && estimate.is_finite() {
-            let rel = ctx.residual(g, &mut kg, &mut r);
+            let rel = ctx.residual(g, &mut work);
             if estimate > 0.0 {
                 calibration = calibration.max(calibration * rel / estimate * 1.5);
             }
@@ -96,9 +96,8 @@ pub(crate) fn sweeps(ctx: &mut Ctx<'_>, g: &mut [f64], omega: f64) -> Result<Sto
             true_rel = Some(rel);
         }
         if let Some(reason) = ctx.mon.observe(k, observed) {
-            let true_residual = true_rel.or_else(|| {
-                (reason != StopReason::Converged).then(|| ctx.residual(g, &mut kg, &mut r))
-            });
+            let true_residual = true_rel
+                .or_else(|| (reason != StopReason::Converged).then(|| ctx.residual(g, &mut work)));
             return Ok(Stop {
                 reason,
                 true_residual,
