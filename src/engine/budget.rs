@@ -78,17 +78,19 @@ const HIERARCHICAL_FIXED_BYTES: u64 = 40 << 20;
 /// still holds part of the last one's pages (measured: 5–30 % of the operator per channel,
 /// varying from run to run).
 const HIERARCHICAL_FURTHER_CHANNEL_FRACTION: f64 = 0.1;
-/// Discrete ordinates: per cell and bin, the system's source and the iterate (f64); the
-/// iteration's vectors come on top (Gauss–Seidel's one), and a sky's uncollided light. The
-/// sweeps hold one group of bins at a time (per cell, below), and the solved field is let go
-/// as its f32 copy is made.
-const ORDINATES_BYTES_PER_CELL_BIN: u64 = 16;
+/// Discrete ordinates: per cell and bin, the system's source and the iterate (f64, 16 bytes;
+/// fitted 18 on the generated clouds of `benches/memory.py`, whose peaks vary by 10 % from
+/// run to run); the iteration's vectors come on top (Gauss–Seidel's one), and a sky's
+/// uncollided light. The sweeps hold one group of bins at a time (per cell, below), and the
+/// solved field is let go as its f32 copy is made.
+const ORDINATES_BYTES_PER_CELL_BIN: u64 = 18;
 /// Discrete ordinates: per cell and bin, the uncollided light of a sky (kept through the
 /// solve, added to the solution after).
 const ORDINATES_SKY_BYTES_PER_CELL_BIN: u64 = 8;
 /// Discrete ordinates: what each further channel keeps, per cell and bin (its solved field
-/// and the higher orders toward each bin, f32; the solution file is streamed from them).
-const ORDINATES_STORED_BYTES_PER_CELL_BIN: u64 = 8;
+/// and the higher orders toward each bin, f32, 8 bytes; fitted 10 on the three-channel cloud;
+/// the solution file is streamed from them).
+const ORDINATES_STORED_BYTES_PER_CELL_BIN: u64 = 10;
 /// Discrete ordinates: per cell, the sweep's coefficient tables and one group's densities
 /// and per-piece outputs.
 const ORDINATES_BYTES_PER_CELL: u64 = 200;
