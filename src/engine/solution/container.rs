@@ -16,7 +16,9 @@
 //! ```
 //!
 //! Reading checks the magic, refuses newer versions by number, checks the length against the
-//! file and the checksum against the payload before decoding anything. Writing goes to a
+//! file, and sums the checksum over the payload as it streams in, comparing it before anything
+//! decoded is returned or any decoding error is reported; each array is read straight into
+//! its own vector, so a file is held in memory once. Writing goes to a
 //! temporary file in the same directory, is synced, then renamed over the final name, so a
 //! crash never leaves a half-written file under that name. A file is written from borrowed
 //! arrays and streamed, so writing a solution holds no second copy of its fields (the
@@ -291,18 +293,57 @@ const STREAM_BLOCK: usize = 1 << 16;
 impl<M: DeserializeOwned> Container<'static, M> {
     /// Decodes a file image, checking everything before trusting anything.
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ContainerError> {
+        Self::decode(bytes, bytes.len() as u64, path)
+    }
+
+    /// Reads and decodes the file at `path` as it streams in: each array goes straight into
+    /// its own vector, so reading holds the file once, not twice.
+    pub fn read(path: &Path) -> Result<Self, ContainerError> {
+        let io = |error| ContainerError::Io {
+            path: path.to_path_buf(),
+            error,
+        };
+        // A FIFO, device or directory is refused, naming it, before anything is read.
+        let file = medium::regular_file::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        Self::decode(
+            std::io::BufReader::with_capacity(STREAM_BLOCK * 4, file),
+            len,
+            path,
+        )
+    }
+
+    /// Decodes `len` bytes from `source`, in one pass: the header is checked first (magic,
+    /// version, length), the checksum is summed over the whole payload as it is read, and
+    /// it is compared before anything decoded is returned or any decoding error reported —
+    /// so a damaged file is reported as damaged, not as whatever its damage looks like.
+    /// Sizes come from the file's own length: a hostile table cannot make it allocate more.
+    fn decode(source: impl std::io::Read, len: u64, path: &Path) -> Result<Self, ContainerError> {
         let path_buf = || path.to_path_buf();
-        if bytes.len() < 8 || &bytes[..8] != MAGIC {
+        let io = |error| ContainerError::Io {
+            path: path_buf(),
+            error,
+        };
+        let mut payload = Incoming {
+            source,
+            crc: crc32fast::Hasher::new(),
+            at: 0,
+        };
+        let mut header = [0u8; FIXED_HEADER];
+        let head = (len.min(FIXED_HEADER as u64)) as usize;
+        payload.source.read_exact(&mut header[..head]).map_err(io)?;
+        payload.at = head as u64;
+        if head < 8 || &header[..8] != MAGIC {
             return Err(ContainerError::BadMagic { path: path_buf() });
         }
-        if bytes.len() < FIXED_HEADER {
+        if head < FIXED_HEADER {
             return Err(ContainerError::Truncated {
                 path: path_buf(),
                 expected: FIXED_HEADER as u64,
-                actual: bytes.len() as u64,
+                actual: len,
             });
         }
-        let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+        let version = u32::from_le_bytes(header[8..12].try_into().unwrap());
         if version > FORMAT_VERSION {
             return Err(ContainerError::NewerVersion {
                 path: path_buf(),
@@ -317,8 +358,8 @@ impl<M: DeserializeOwned> Container<'static, M> {
                 supported: FORMAT_VERSION,
             });
         }
-        let payload_len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
-        let actual = (bytes.len() - FIXED_HEADER) as u64;
+        let payload_len = u64::from_le_bytes(header[12..20].try_into().unwrap());
+        let actual = len - FIXED_HEADER as u64;
         if payload_len != actual {
             return Err(ContainerError::Truncated {
                 path: path_buf(),
@@ -326,8 +367,15 @@ impl<M: DeserializeOwned> Container<'static, M> {
                 actual,
             });
         }
-        let stored = u32::from_le_bytes(bytes[20..24].try_into().unwrap());
-        let computed = crc32fast::hash(&bytes[FIXED_HEADER..]);
+        let stored = u32::from_le_bytes(header[20..24].try_into().unwrap());
+        let decoded = match Self::decode_payload(&mut payload, len) {
+            Err(Unread::Io(error)) => return Err(io(error)),
+            Ok(container) => Ok(container),
+            Err(Unread::Malformed(message)) => Err(message),
+        };
+        // The rest of the payload is summed whatever the decoding found.
+        payload.skip_to(len).map_err(io)?;
+        let computed = payload.crc.finalize();
         if stored != computed {
             return Err(ContainerError::Checksum {
                 path: path_buf(),
@@ -335,39 +383,72 @@ impl<M: DeserializeOwned> Container<'static, M> {
                 computed,
             });
         }
-        let malformed = |message: String| ContainerError::Malformed {
+        decoded.map_err(|message| ContainerError::Malformed {
             path: path_buf(),
             message,
-        };
-        if bytes.len() < FIXED_HEADER + 8 {
+        })
+    }
+
+    /// The metadata and the arrays, read from the payload's start (`payload.at` is the fixed
+    /// header's end).
+    fn decode_payload<R: std::io::Read>(
+        payload: &mut Incoming<R>,
+        len: u64,
+    ) -> Result<Self, Unread> {
+        let malformed = |m: String| Unread::Malformed(m);
+        if len < (FIXED_HEADER + 8) as u64 {
             return Err(malformed("no metadata".into()));
         }
-        let meta_len = u64::from_le_bytes(bytes[24..32].try_into().unwrap()) as usize;
-        if meta_len > MAX_METADATA_BYTES {
+        let mut meta_len = [0u8; 8];
+        payload.read(&mut meta_len)?;
+        let meta_len = u64::from_le_bytes(meta_len);
+        if meta_len > MAX_METADATA_BYTES as u64 {
             return Err(malformed(format!(
                 "metadata length {meta_len} exceeds the {MAX_METADATA_BYTES}-byte limit"
             )));
         }
-        let meta_bytes = bytes
-            .get(32..32usize.saturating_add(meta_len))
-            .ok_or_else(|| malformed(format!("metadata length {meta_len} exceeds the file")))?;
+        if payload.at + meta_len > len {
+            return Err(malformed(format!(
+                "metadata length {meta_len} exceeds the file"
+            )));
+        }
+        let mut meta_bytes = vec![0u8; meta_len as usize];
+        payload.read(&mut meta_bytes)?;
         let (envelope, _): (Envelope<M>, usize) = bincode::serde::decode_from_slice(
-            meta_bytes,
+            &meta_bytes,
             bincode::config::standard().with_limit::<MAX_METADATA_BYTES>(),
         )
         .map_err(|e| malformed(e.to_string()))?;
+        drop(meta_bytes);
         let mut arrays = Vec::with_capacity(envelope.arrays.len());
+        let mut block = vec![0u8; STREAM_BLOCK * 4];
         for e in envelope.arrays {
-            let start = e.offset as usize;
-            let end = (e.len as usize)
+            let end = e
+                .len
                 .checked_mul(4)
-                .and_then(|n| n.checked_add(start))
-                .filter(|&end| end <= bytes.len())
+                .and_then(|n| n.checked_add(e.offset))
+                .filter(|&end| end <= len)
                 .ok_or_else(|| malformed(format!("array `{}` lies outside the file", e.name)))?;
-            let data: Vec<f32> = bytes[start..end]
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
-                .collect();
+            // The writer lays the arrays out in the table's order after the metadata.
+            if e.offset < payload.at {
+                return Err(malformed(format!(
+                    "array `{}` overlaps what comes before it",
+                    e.name
+                )));
+            }
+            payload.skip_to(e.offset)?;
+            let mut data: Vec<f32> = Vec::with_capacity(e.len as usize);
+            let mut left = end - e.offset;
+            while left > 0 {
+                let n = left.min(block.len() as u64) as usize;
+                payload.read(&mut block[..n])?;
+                data.extend(
+                    block[..n]
+                        .chunks_exact(4)
+                        .map(|c| f32::from_le_bytes(c.try_into().unwrap())),
+                );
+                left -= n as u64;
+            }
             arrays.push((e.name, Cow::Owned(data)));
         }
         Ok(Container {
@@ -375,14 +456,45 @@ impl<M: DeserializeOwned> Container<'static, M> {
             arrays,
         })
     }
+}
 
-    pub fn read(path: &Path) -> Result<Self, ContainerError> {
-        // A FIFO, device or directory is refused, naming it, before anything is read.
-        let bytes = medium::regular_file::read(path).map_err(|error| ContainerError::Io {
-            path: path.to_path_buf(),
-            error,
-        })?;
-        Self::from_bytes(&bytes, path)
+/// Why a payload could not be decoded: the source failed, or what it holds is not a
+/// solution file (reported only once the checksum has been found right).
+enum Unread {
+    Io(std::io::Error),
+    Malformed(String),
+}
+
+impl From<std::io::Error> for Unread {
+    fn from(e: std::io::Error) -> Self {
+        Unread::Io(e)
+    }
+}
+
+/// A payload being read: the bytes so far summed into the checksum.
+struct Incoming<R> {
+    source: R,
+    crc: crc32fast::Hasher,
+    /// Bytes read from the file's start.
+    at: u64,
+}
+
+impl<R: std::io::Read> Incoming<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<()> {
+        self.source.read_exact(buf)?;
+        self.crc.update(buf);
+        self.at += buf.len() as u64;
+        Ok(())
+    }
+
+    /// Reads (and sums) up to `offset`.
+    fn skip_to(&mut self, offset: u64) -> std::io::Result<()> {
+        let mut block = [0u8; 4096];
+        while self.at < offset {
+            let n = (offset - self.at).min(block.len() as u64) as usize;
+            self.read(&mut block[..n])?;
+        }
+        Ok(())
     }
 }
 
@@ -422,12 +534,21 @@ mod tests {
         c.arrays.insert(1, ("long".into(), Cow::Borrowed(&long)));
         c.write(&path).unwrap();
         let written = std::fs::read(&path).unwrap();
-        std::fs::remove_dir_all(&dir).unwrap();
         assert_eq!(written, c.to_bytes().unwrap());
         assert_eq!(
             Container::<Meta>::from_bytes(&written, Path::new("x")).unwrap(),
             c
         );
+        // Read back as it streams in, the same; one flipped value in the long array (read
+        // in several blocks) is found by the checksum, not passed on.
+        assert_eq!(Container::<Meta>::read(&path).unwrap(), c);
+        let mut bad = written.clone();
+        let at = bad.len() - 4 * (STREAM_BLOCK / 2);
+        bad[at] ^= 0x01;
+        std::fs::write(&path, &bad).unwrap();
+        let err = Container::<Meta>::read(&path).unwrap_err();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(matches!(err, ContainerError::Checksum { .. }), "{err}");
     }
 
     #[test]
