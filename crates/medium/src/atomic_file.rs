@@ -8,6 +8,10 @@
 //! and then renamed over the target; on any failure the temporary file is removed and the
 //! target is left as it was.
 //!
+//! A target that is a device or a pipe (`-o /dev/null`, `/dev/stdout`, a FIFO) is written
+//! into directly: a rename over it would put a regular file in its place (as root, over
+//! `/dev/null` itself).
+//!
 //! Temporary names are `.{file}.tmp-{pid}-{n}`, with `n` from a process-wide counter, so
 //! concurrent writers (threads or processes) never share one; being hidden and not ending in
 //! the target's extension, they are not mistaken for finished files.
@@ -38,6 +42,9 @@ pub fn write_with<E>(
     write: impl FnOnce(&Path) -> Result<(), E>,
     io_error: impl Fn(io::Error) -> E,
 ) -> Result<(), E> {
+    if is_device_or_pipe(path) {
+        return write(path);
+    }
     let tmp = temp_path(path).map_err(&io_error)?;
     let result = write(&tmp).and_then(|()| sync_and_rename(&tmp, path).map_err(&io_error));
     if result.is_err() {
@@ -53,6 +60,12 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
         |tmp| fs::File::create(tmp).and_then(|mut f| f.write_all(bytes)),
         |e| e,
     )
+}
+
+/// Whether `path` (followed through symbolic links) exists and is neither a regular file nor
+/// a folder: a device, a FIFO or a socket, which is written into rather than replaced.
+fn is_device_or_pipe(path: &Path) -> bool {
+    fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir())
 }
 
 /// `.{file}.tmp-{pid}-{n}` in `path`'s directory; refuses a path without a file name.
@@ -140,6 +153,28 @@ mod tests {
         assert_eq!(err.kind(), io::ErrorKind::NotFound);
         assert_eq!(fs::read(&path).unwrap(), b"old");
         assert_eq!(names(&dir), ["keep.txt"]);
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A FIFO given as the target receives the bytes and stays a FIFO (a rename over it
+    /// would have left a regular file: what `-o /dev/null` did to `/dev/null` as root).
+    #[cfg(unix)]
+    #[test]
+    fn a_pipe_is_written_into_not_replaced() {
+        use std::os::unix::fs::FileTypeExt;
+        let dir = scratch("fifo");
+        let path = dir.join("pipe");
+        let c_path = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: a valid NUL-terminated path; mkfifo only creates a file system node.
+        assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0);
+        let reader = {
+            let path = path.clone();
+            std::thread::spawn(move || fs::read(path).unwrap())
+        };
+        write_bytes(&path, b"through the pipe").unwrap();
+        assert_eq!(reader.join().unwrap(), b"through the pipe");
+        assert!(fs::metadata(&path).unwrap().file_type().is_fifo());
+        assert_eq!(names(&dir), ["pipe"]);
         fs::remove_dir_all(&dir).unwrap();
     }
 
