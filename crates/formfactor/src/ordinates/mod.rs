@@ -17,7 +17,8 @@ pub mod sweep;
 
 pub use assembled::AssembledOrdinates;
 pub use bins::{
-    auto_bin_count, DirectionBins, AUTO_BINS_MAX_CELL_BINS, AUTO_BIN_STEPS, VALID_BINS,
+    auto_bin_count, DirectionBins, AUTO_BINS_MAX_CELL_BINS, AUTO_BINS_MODERATE_UP_TO,
+    AUTO_BIN_STEPS, VALID_BINS,
 };
 pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
