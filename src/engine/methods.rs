@@ -826,11 +826,10 @@ pub fn solve_ordinates(
         // The emission's own first scattering, which the bins no longer hold.
         op.add_collision_density(pass.fluence(), pass.current(), &mut higher)?;
     }
-    // Stored as f32, each f64 let go as soon as its copy is made.
+    // Stored as f32: the f64 radiance let go before the higher orders' copy is made.
     let stored: Vec<f32> = radiance.iter().map(|&v| v as f32).collect();
     drop(radiance);
     let higher_order: Vec<f32> = higher.iter().map(|&v| v.max(0.0) as f32).collect();
-    drop(higher);
     Ok((
         ScatteredField::Binned {
             radiance: stored,

@@ -812,7 +812,7 @@ fn run_method(
         images,
         solve_seconds: Some(solve_seconds),
         peak_rss_bytes,
-        solution_file_bytes: Some(solution.to_bytes().len() as u64),
+        solution_file_bytes: Some(solution.file_size()),
         iterations: report.map(|r| r.iterations),
         converged: report.map(|r| r.converged),
     })

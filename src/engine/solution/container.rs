@@ -186,36 +186,23 @@ impl<M: Serialize> Container<'_, M> {
         })
     }
 
-    /// Encodes the whole file into memory.
-    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
-        let Layout {
-            envelope: envelope_bytes,
-            entries,
-            end,
-        } = self.layout()?;
-        let mut out = vec![0u8; end];
-        out[..8].copy_from_slice(MAGIC);
-        out[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
-        out[12..20].copy_from_slice(&((end - FIXED_HEADER) as u64).to_le_bytes());
-        out[24..32].copy_from_slice(&(envelope_bytes.len() as u64).to_le_bytes());
-        out[32..32 + envelope_bytes.len()].copy_from_slice(&envelope_bytes);
-        for (e, (_, data)) in entries.iter().zip(&self.arrays) {
-            let start = e.offset as usize;
-            for (chunk, v) in out[start..start + data.len() * 4]
-                .chunks_exact_mut(4)
-                .zip(data.iter())
-            {
-                chunk.copy_from_slice(&v.to_le_bytes());
-            }
-        }
-        let crc = crc32fast::hash(&out[FIXED_HEADER..]);
-        out[20..24].copy_from_slice(&crc.to_le_bytes());
-        Ok(out)
+    /// The length in bytes of the file [`write`](Self::write) would write, without encoding
+    /// the arrays.
+    pub fn encoded_len(&self) -> Result<usize, String> {
+        Ok(self.layout()?.end)
     }
 
-    /// Streams the file [`to_bytes`](Self::to_bytes) encodes into `file` (at its start), a
-    /// block at a time: the checksum is summed on the way and written last.
-    fn stream(&self, layout: &Layout, file: std::fs::File) -> std::io::Result<()> {
+    /// Encodes the whole file into memory (the same encoder as [`write`](Self::write)).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+        let layout = self.layout()?;
+        let mut out = std::io::Cursor::new(Vec::with_capacity(layout.end));
+        self.stream(&layout, &mut out).map_err(|e| e.to_string())?;
+        Ok(out.into_inner())
+    }
+
+    /// Streams the file into `file` (at its start), a block at a time: the checksum is summed
+    /// on the way and written last, by seeking back to the header.
+    fn stream<F: Write + Seek>(&self, layout: &Layout, file: F) -> std::io::Result<()> {
         struct Payload<W> {
             out: W,
             crc: crc32fast::Hasher,
@@ -535,6 +522,7 @@ mod tests {
         c.write(&path).unwrap();
         let written = std::fs::read(&path).unwrap();
         assert_eq!(written, c.to_bytes().unwrap());
+        assert_eq!(c.encoded_len().unwrap(), written.len());
         assert_eq!(
             Container::<Meta>::from_bytes(&written, Path::new("x")).unwrap(),
             c

@@ -655,6 +655,13 @@ impl Solution {
         Self::from_container(Container::read(path)?, path)
     }
 
+    /// The size of the file [`write`](Self::write) writes, without encoding it.
+    pub fn file_size(&self) -> u64 {
+        self.to_container()
+            .encoded_len()
+            .expect("solution metadata always encodes") as u64
+    }
+
     pub fn to_bytes(&self) -> Vec<u8> {
         self.to_container()
             .to_bytes()
