@@ -526,8 +526,13 @@ impl fmt::Display for SceneInfo {
         if let (Some(n), Some(rho)) = (self.time.iterations(), self.time.spectral_radius()) {
             write!(
                 f,
-                "; {n} iteration{} per channel expected (spectral radius ≈ {rho:.3})",
-                if n == 1 { "" } else { "s" }
+                "; {n} iteration{} per channel expected (spectral radius ≈ {rho:.3}, {})",
+                if n == 1 { "" } else { "s" },
+                if self.time.probed() {
+                    "measured on a coarse copy of the medium"
+                } else {
+                    "estimated by diffusion theory"
+                }
             )?;
         }
         writeln!(f)

@@ -1,6 +1,7 @@
 //! The predicted solve time (`engine::timing`): its iteration counts against the iterations
 //! solves take, on media the model was not fitted to — thin and thick, grey and white,
-//! isotropic and forward-scattering, a cloud and a wide slab.
+//! isotropic and forward-scattering, a cloud (larger than the probe's coarse copy) and a
+//! wide slab, stationary and Krylov iterations.
 
 use std::path::Path;
 
@@ -23,8 +24,10 @@ fn scene(slab: bool, sigma_t: f64, albedo: f64, g: f64, method: &str, extra: &st
         std::fs::write(dir.path().join("slab.f32"), bytes).unwrap();
         "file = \"slab.f32\"\ndims = [40, 40, 4]".to_string()
     } else {
+        // Larger than the probe's copy (`engine::timing::probe`), so it is measured on a
+        // coarser one.
         format!(
-            "generator = {{ kind = \"cloud\", seed = 3 }}\ndims = [24, 24, 18]\nsigma_t_scale = {sigma_t}"
+            "generator = {{ kind = \"cloud\", seed = 3 }}\ndims = [48, 48, 36]\nsigma_t_scale = {sigma_t}"
         )
     };
     let text = format!(
@@ -64,13 +67,22 @@ fn iterations(scene: &Scene) -> (usize, usize) {
 fn predicted_iterations_follow_the_solves() {
     // (slab, σt scale, albedo, g, method, [solve] lines)
     let cases = [
-        (false, 0.6, 0.99, 0.0, "discrete-ordinates", "bins = 24"),
-        (false, 1.5, 0.9, 0.6, "discrete-ordinates", "bins = 24"),
-        (false, 0.3, 0.5, 0.0, "discrete-ordinates", "bins = 24"),
+        (false, 0.3, 0.99, 0.0, "discrete-ordinates", "bins = 24"),
+        (false, 0.75, 0.9, 0.6, "discrete-ordinates", "bins = 24"),
+        (false, 0.15, 0.5, 0.0, "discrete-ordinates", "bins = 24"),
         (true, 1.0, 0.99, 0.0, "discrete-ordinates", "bins = 24"),
+        (false, 0.3, 0.99, 0.85, "discrete-ordinates", "bins = 96"),
         (
             false,
-            1.0,
+            0.5,
+            0.9,
+            0.6,
+            "discrete-ordinates",
+            "bins = 24\niteration = \"gmres:8\"\ntolerance = 1e-9",
+        ),
+        (
+            false,
+            0.5,
             0.95,
             0.0,
             "zonal-hierarchical",
@@ -78,7 +90,7 @@ fn predicted_iterations_follow_the_solves() {
         ),
         (
             false,
-            1.0,
+            0.5,
             0.95,
             0.0,
             "zonal-hierarchical",
@@ -105,10 +117,10 @@ fn predicted_iterations_follow_the_solves() {
         ratios.push(ratio);
     }
     eprintln!("{}", report.join("\n"));
-    // Within a factor 1.6 either way: the time predicted follows the iterations (a
-    // Gauss–Seidel counted as Jacobi, or a medium's thickness misread, is a factor 2 or more).
+    // Within 20 % either way, #19's figure for the time: the iterations are what the time
+    // follows (the diffusion estimate before the probe was 0.71–1.53 × on these).
     assert!(
-        ratios.iter().all(|r| (1.0 / 1.6..=1.6).contains(r)),
+        ratios.iter().all(|r| (1.0 / 1.2..=1.2).contains(r)),
         "{}",
         report.join("\n")
     );
