@@ -123,13 +123,13 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64, split: usize) ->
             )
         }
     } else if bins >= 384 && split > 1 {
-        "about 3 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, cells split \
-         in 2³, 8 views)"
+        "about 3 % per view, image mean within 1.5 % (cloud24, g = 0.85, 384 bins, cells split \
+         in 2³, 8 views: 2.9 %, −0.3 … +1.5 %)"
             .to_string()
     } else if bins >= 384 {
         "about 4.5 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, 8 views \
-         against 16384-path references; the 192-class cloud: 3.8 %, −1.3 %): most of it is \
-         spatial, [solve] transport_refinement = 2 gives 3.1 % (about 8× the solve and its \
+         against 16384-path references; the 192-class cloud: 3.5 %, −1.7 %): most of it is \
+         spatial, [solve] transport_refinement = 2 gives 2.9 % (about 8× the solve and its \
          state)"
             .to_string()
     } else {

@@ -117,6 +117,69 @@ impl PhaseMatrix {
         }
     }
 
+    /// Raises every column's discrete mean cosine to `g` by moving scattering from the bins
+    /// nearest the forward direction into the bin itself (no change of bin): a uniform
+    /// fraction `t ≤ 1` of each bin in the smallest forward neighbourhood
+    /// `{l : ω_l·ω_j ≥ μ_k}` that can make up the deficit. Side and back scattering stay
+    /// as the quadrature gave them, where a tilt `e^{β ω_l·ω_j}` thins the back to make up a
+    /// forward deficit. Columns whose mean cosine is at or above `g` already, or whose
+    /// forward neighbours cannot make it up, are tilted by [`match_asymmetry`](Self::match_asymmetry)'s rule.
+    pub fn match_asymmetry_forward(&mut self, bins: &DirectionBins, g: f64) {
+        let m = self.m;
+        let omega = bins.solid_angles();
+        let c = bins.centres();
+        let mut untouched = Vec::new();
+        for j in 0..m {
+            // w_l: the share of column j scattered into bin l (Σ w = 1).
+            let w: Vec<f64> = (0..m).map(|l| self.values[l * m + j] * omega[l]).collect();
+            let mu: Vec<f64> = (0..m).map(|l| c[l].dot(c[j])).collect();
+            let mean: f64 = w.iter().zip(&mu).map(|(a, b)| a * b).sum();
+            let deficit = g - mean;
+            if deficit <= 0.0 {
+                untouched.push(j);
+                continue;
+            }
+            let mut order: Vec<usize> = (0..m).filter(|&l| l != j).collect();
+            order.sort_by(|&a, &b| mu[b].total_cmp(&mu[a]));
+            // Grow the neighbourhood a ring of equal cosines at a time.
+            let mut gain = 0.0;
+            let mut end = 0;
+            let mut found = None;
+            while end < order.len() {
+                let ring = mu[order[end]];
+                while end < order.len() && mu[order[end]] >= ring - 1e-12 {
+                    let l = order[end];
+                    gain += w[l] * (1.0 - mu[l]);
+                    end += 1;
+                }
+                if gain >= deficit {
+                    found = Some((end, deficit / gain));
+                    break;
+                }
+            }
+            let Some((end, t)) = found else {
+                untouched.push(j);
+                continue;
+            };
+            let mut moved = 0.0;
+            for &l in &order[..end] {
+                let share = t * w[l];
+                moved += share;
+                self.values[l * m + j] -= share / omega[l];
+            }
+            self.values[j * m + j] += moved / omega[j];
+        }
+        if !untouched.is_empty() {
+            let mut tilted = self.clone();
+            tilted.match_asymmetry(bins, g);
+            for j in untouched {
+                for l in 0..m {
+                    self.values[l * m + j] = tilted.values[l * m + j];
+                }
+            }
+        }
+    }
+
     /// With [`default_quadrature`].
     pub fn with_default_quadrature(bins: &DirectionBins, phase: &PhaseFunction) -> Self {
         Self::new(bins, phase, default_quadrature(bins))

@@ -618,6 +618,56 @@ fn asymmetry_tilt_keeps_energy_and_matches_g() {
     }
 }
 
+/// Making up the quadrature's lost mean cosine by scattering less into the neighbouring bins
+/// keeps energy, reaches g, and leaves side and back scattering as the quadrature gave them,
+/// where the tilt thins back scattering (by about 9 % at 384 bins, HG(0.85): the light the
+/// sun-side views of a cloud see, which came out about 2 % dark).
+#[test]
+fn forward_asymmetry_match_keeps_back_scattering() {
+    let bins = DirectionBins::cube(8).unwrap();
+    let g = 0.85;
+    let phase = PhaseFunction::HenyeyGreenstein { g };
+    let raw = PhaseMatrix::new(&bins, &phase, 3);
+    let mut forward = raw.clone();
+    forward.match_asymmetry_forward(&bins, g);
+    let mut tilted = raw.clone();
+    tilted.match_asymmetry(&bins, g);
+    let m = bins.len();
+    let c = bins.centres();
+    let omega = bins.solid_angles();
+    // Back scattering (more than 120° from the incoming bin), summed over all columns.
+    let back = |pm: &PhaseMatrix| -> f64 {
+        let mut sum = 0.0;
+        for j in 0..m {
+            for l in 0..m {
+                if c[l].dot(c[j]) < -0.5 {
+                    sum += pm.get(l, j) * omega[l] * omega[j];
+                }
+            }
+        }
+        sum
+    };
+    for j in 0..m {
+        assert!((forward.column_energy(&bins, j) - 1.0).abs() < 1e-12);
+        assert!(
+            (forward.mean_cosine(&bins, j) - g).abs() < 1e-9,
+            "column {j}"
+        );
+        for l in 0..m {
+            if c[l].dot(c[j]) < 0.9 {
+                assert_eq!(forward.get(l, j), raw.get(l, j), "{l} ← {j}");
+            }
+        }
+    }
+    assert!(
+        raw.mean_cosine(&bins, 0) < g - 1e-3,
+        "the quadrature loses asymmetry"
+    );
+    assert!(forward.values().iter().all(|&v| v >= 0.0));
+    assert_eq!(back(&forward), back(&raw));
+    assert!(back(&tilted) < 0.95 * back(&raw));
+}
+
 /// The renderer's interpolation between bin centres: weights sum to 1, a bin's centre (its
 /// square's midpoint) gets that bin alone, and a function linear in face coordinates is
 /// reproduced exactly everywhere on the face — also between the outer centres and the face
