@@ -116,8 +116,14 @@ const LIGHT_PASS_SECONDS_PER_CELL_LIGHT: f64 = 5.0e-8;
 const ENVIRONMENT_LIGHTS: f64 = 2.0;
 /// The emitter pass, per ray (measured on Kobayashi's benchmark: 39 M rays in 7.7 s).
 const EMITTER_SECONDS_PER_RAY: f64 = 2.0e-7;
-/// Exact zonal: building the form factors, and one application, per pair of non-empty cells.
-const ZONAL_BUILD_SECONDS_PER_PAIR: f64 = 2.1e-7;
+/// Exact zonal: building the form factors, and one application, per pair of non-empty cells;
+/// and the near field's ray stencil per non-empty cell whose near row is not shared
+/// ([`Occupancy::hierarchy_shared_rows`]: a uniform block shares nearly all). Fitted on the
+/// `form factors built` seconds of `RUST_LOG=info volrad solve`: uniform 16³ and 20³ blocks
+/// (1.6 and 1.8 × 10⁻⁷ s per pair, rows shared) and Max's cloud generator at 32 × 32 × 24 and
+/// 40 × 40 × 30 (2.6 and 2.4 × 10⁻⁷ per pair with 3,041 and 5,970 rows of their own).
+const ZONAL_BUILD_SECONDS_PER_PAIR: f64 = 1.7e-7;
+const ZONAL_NEAR_SECONDS_PER_STORED_ROW: f64 = 3.0e-4;
 const ZONAL_APPLY_SECONDS_PER_PAIR: f64 = 8.0e-10;
 /// Hierarchical zonal: building, and one application, per link.
 const HIERARCHICAL_BUILD_SECONDS_PER_LINK: f64 = 1.3e-7;
@@ -280,12 +286,22 @@ pub fn solve_time(
     };
     match settings.method {
         SolveMethod::None | SolveMethod::SingleScatter => {}
-        SolveMethod::Zonal => operator(
-            "the form factors",
-            transport_occupied * transport_occupied,
-            ZONAL_BUILD_SECONDS_PER_PAIR,
-            ZONAL_APPLY_SECONDS_PER_PAIR,
-        ),
+        SolveMethod::Zonal => {
+            let stored_rows = (transport_occupied
+                - occupancy.hierarchy_shared_rows(scale) as f64 * parts_per_cell)
+                .max(0.0);
+            let near = channels * stored_rows * ZONAL_NEAR_SECONDS_PER_STORED_ROW;
+            operator(
+                "the form factors",
+                transport_occupied * transport_occupied,
+                ZONAL_BUILD_SECONDS_PER_PAIR,
+                ZONAL_APPLY_SECONDS_PER_PAIR,
+            );
+            // Part of building the form factors: reported with them.
+            if let Some(build) = parts.iter_mut().find(|p| p.what == "the form factors") {
+                build.seconds += near;
+            }
+        }
         SolveMethod::ZonalHierarchical => operator(
             "the hierarchical operator",
             transport_occupied * far_links_per_occupied_cell(transport_occupied)
