@@ -1,6 +1,7 @@
 //! The commands behind the command line: each validates its inputs, does the work through
 //! [`crate::engine::pipeline`], and reports what it wrote.
 
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -397,13 +398,44 @@ pub fn solve(args: &SolveArgs, quiet: bool, max_memory: Option<u64>) -> Result<(
         .with_context(|| format!("writing {}", args.output.display()))?;
     let summary =
         crate::engine::methods::SolveSummary::of(&solution, started.elapsed().as_secs_f64());
-    if args.json {
-        println!("{}", serde_json::to_string(&summary)?);
+    // `-o /dev/stdout | …` carries the solution itself: the summary goes beside it, to
+    // standard error, not into it.
+    let mut report: Box<dyn std::io::Write> = if is_standard_output(&args.output) {
+        Box::new(std::io::stderr())
     } else {
-        print!("{summary}");
-        println!("wrote {}", args.output.display());
+        Box::new(std::io::stdout())
+    };
+    if args.json {
+        writeln!(report, "{}", serde_json::to_string(&summary)?)?;
+    } else {
+        write!(report, "{summary}")?;
+        writeln!(report, "wrote {}", args.output.display())?;
     }
     Ok(())
+}
+
+/// Whether `path` names this process's standard output (`/dev/stdout`, `/proc/self/fd/1`, or
+/// the FIFO or file standard output was redirected to): the same file, by device and inode.
+fn is_standard_output(path: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsFd;
+        use std::os::unix::fs::MetadataExt;
+        let Ok(target) = std::fs::metadata(path) else {
+            return false;
+        };
+        let Ok(stdout) = std::io::stdout().as_fd().try_clone_to_owned() else {
+            return false;
+        };
+        std::fs::File::from(stdout)
+            .metadata()
+            .is_ok_and(|out| out.dev() == target.dev() && out.ino() == target.ino())
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = path;
+        false
+    }
 }
 
 pub fn export(args: &ExportArgs) -> Result<()> {

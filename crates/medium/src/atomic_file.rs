@@ -10,7 +10,8 @@
 //!
 //! A target that is a device or a pipe (`-o /dev/null`, `/dev/stdout`, a FIFO) is written
 //! into directly: a rename over it would put a regular file in its place (as root, over
-//! `/dev/null` itself).
+//! `/dev/null` itself). A symbolic link is written through: the file it names is replaced, and
+//! the link stays.
 //!
 //! Temporary names are `.{file}.tmp-{pid}-{n}`, with `n` from a process-wide counter, so
 //! concurrent writers (threads or processes) never share one; being hidden and not ending in
@@ -45,6 +46,10 @@ pub fn write_with<E>(
     if is_device_or_pipe(path) {
         return write(path);
     }
+    // A symbolic link is written through, not replaced: the rename goes over the file it
+    // names (`-o /dev/stdout > file`, or a link the user keeps to the latest result).
+    let resolved = resolve_link(path);
+    let path = resolved.as_deref().unwrap_or(path);
     let tmp = temp_path(path).map_err(&io_error)?;
     let result = write(&tmp).and_then(|()| sync_and_rename(&tmp, path).map_err(&io_error));
     if result.is_err() {
@@ -66,6 +71,15 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
 /// a folder: a device, a FIFO or a socket, which is written into rather than replaced.
 fn is_device_or_pipe(path: &Path) -> bool {
     fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir())
+}
+
+/// The file a symbolic link at `path` names, when it is one and its target can be resolved (a
+/// dangling link is replaced as a file would be).
+fn resolve_link(path: &Path) -> Option<PathBuf> {
+    fs::symlink_metadata(path)
+        .ok()
+        .filter(|m| m.file_type().is_symlink())
+        .and_then(|_| fs::canonicalize(path).ok())
 }
 
 /// `.{file}.tmp-{pid}-{n}` in `path`'s directory; refuses a path without a file name.
@@ -175,6 +189,27 @@ mod tests {
         assert_eq!(reader.join().unwrap(), b"through the pipe");
         assert!(fs::metadata(&path).unwrap().file_type().is_fifo());
         assert_eq!(names(&dir), ["pipe"]);
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A symbolic link stays a link: the file it names gets the new content (the rename
+    /// replaced the link itself with a regular file before, leaving its target stale; for
+    /// `-o /dev/stdout > file`, as root, that was `/dev/stdout`).
+    #[cfg(unix)]
+    #[test]
+    fn a_symbolic_link_is_written_through() {
+        let dir = scratch("link");
+        let target = dir.join("latest-7.bin");
+        let link = dir.join("latest.bin");
+        write_bytes(&target, b"old").unwrap();
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        write_bytes(&link, b"new").unwrap();
+        assert!(fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        assert_eq!(fs::read(&target).unwrap(), b"new");
+        assert_eq!(names(&dir), ["latest-7.bin", "latest.bin"]);
         fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -25,7 +25,7 @@
 //! largest thing a solve keeps).
 
 use std::borrow::Cow;
-use std::io::{Seek, SeekFrom, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -200,56 +200,55 @@ impl<M: Serialize> Container<'_, M> {
         Ok(out.into_inner())
     }
 
-    /// Streams the file into `file` (at its start), a block at a time: the checksum is summed
-    /// on the way and written last, by seeking back to the header.
-    fn stream<F: Write + Seek>(&self, layout: &Layout, file: F) -> std::io::Result<()> {
-        struct Payload<W> {
-            out: W,
-            crc: crc32fast::Hasher,
-            at: usize,
-        }
-        impl<W: Write> Payload<W> {
-            fn put(&mut self, bytes: &[u8]) -> std::io::Result<()> {
-                self.crc.update(bytes);
-                self.at += bytes.len();
-                self.out.write_all(bytes)
-            }
-            fn pad_to(&mut self, offset: usize) -> std::io::Result<()> {
-                const ZEROS: [u8; ALIGN] = [0; ALIGN];
-                while self.at < offset {
-                    let n = (offset - self.at).min(ALIGN);
-                    self.put(&ZEROS[..n])?;
-                }
-                Ok(())
-            }
-        }
+    /// Streams the file into `file`, a block at a time. The header holds the payload's
+    /// checksum, so the payload is first summed (a pass over memory) and then written: the
+    /// file is written front to back, never sought back into, so the target may be a pipe.
+    fn stream<F: Write>(&self, layout: &Layout, file: F) -> std::io::Result<()> {
+        let mut crc = crc32fast::Hasher::new();
+        self.payload(layout, |bytes| {
+            crc.update(bytes);
+            Ok(())
+        })?;
         let mut header = [0u8; FIXED_HEADER];
         header[..8].copy_from_slice(MAGIC);
         header[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
         header[12..20].copy_from_slice(&((layout.end - FIXED_HEADER) as u64).to_le_bytes());
+        header[20..24].copy_from_slice(&crc.finalize().to_le_bytes());
         let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
         out.write_all(&header)?;
-        let mut payload = Payload {
-            out,
-            crc: crc32fast::Hasher::new(),
-            at: FIXED_HEADER,
-        };
-        payload.put(&(layout.envelope.len() as u64).to_le_bytes())?;
-        payload.put(&layout.envelope)?;
+        self.payload(layout, |bytes| out.write_all(bytes))?;
+        out.into_inner().map_err(|e| e.into_error())?.flush()
+    }
+
+    /// Hands the payload (everything after the fixed header: the metadata, the padding and
+    /// the arrays as little-endian bytes) to `put`, block by block.
+    fn payload(
+        &self,
+        layout: &Layout,
+        mut put: impl FnMut(&[u8]) -> std::io::Result<()>,
+    ) -> std::io::Result<()> {
+        const ZEROS: [u8; ALIGN] = [0; ALIGN];
+        put(&(layout.envelope.len() as u64).to_le_bytes())?;
+        put(&layout.envelope)?;
+        // The file offset reached so far.
+        let mut at = FIXED_HEADER + 8 + layout.envelope.len();
         let mut block = Vec::with_capacity(STREAM_BLOCK * 4);
         for (e, (_, data)) in layout.entries.iter().zip(&self.arrays) {
-            payload.pad_to(e.offset as usize)?;
+            let offset = e.offset as usize;
+            while at < offset {
+                let n = (offset - at).min(ALIGN);
+                put(&ZEROS[..n])?;
+                at += n;
+            }
             for values in data.chunks(STREAM_BLOCK) {
                 block.clear();
                 block.extend(values.iter().flat_map(|v| v.to_le_bytes()));
-                payload.put(&block)?;
+                put(&block)?;
+                at += block.len();
             }
         }
-        debug_assert_eq!(payload.at, layout.end);
-        let Payload { out, crc, .. } = payload;
-        let mut file = out.into_inner().map_err(|e| e.into_error())?;
-        file.seek(SeekFrom::Start(20))?;
-        file.write_all(&crc.finalize().to_le_bytes())
+        debug_assert_eq!(at, layout.end);
+        Ok(())
     }
 
     /// Writes atomically: temp file beside the target, fsync, rename.
@@ -537,6 +536,38 @@ mod tests {
         let err = Container::<Meta>::read(&path).unwrap_err();
         std::fs::remove_dir_all(&dir).unwrap();
         assert!(matches!(err, ContainerError::Checksum { .. }), "{err}");
+    }
+
+    /// A pipe cannot be sought back into: the file is written front to back, so `volrad solve
+    /// -o /dev/stdout | …` and a FIFO get the whole file (before, the checksum was written
+    /// last by seeking back to the header, which failed on a pipe after all the work).
+    #[cfg(unix)]
+    #[test]
+    fn a_pipe_gets_the_whole_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("s.volrad");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let mut c = sample();
+        let long: Vec<f32> = (0..STREAM_BLOCK + 17).map(|i| i as f32 * 0.25).collect();
+        c.arrays.push(("long".into(), Cow::Owned(long)));
+        let reader = {
+            let fifo = fifo.clone();
+            std::thread::spawn(move || std::fs::read(fifo).unwrap())
+        };
+        c.write(&fifo).unwrap();
+        let piped = reader.join().unwrap();
+        assert_eq!(piped, c.to_bytes().unwrap());
+        assert_eq!(
+            Container::<Meta>::from_bytes(&piped, Path::new("pipe")).unwrap(),
+            c
+        );
+        // Still a FIFO, not replaced by a regular file.
+        use std::os::unix::fs::FileTypeExt;
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
     }
 
     #[test]
