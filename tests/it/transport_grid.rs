@@ -193,8 +193,10 @@ fn the_transport_grid_goes_through_the_solution_file_and_info() {
 /// default volrad splits each cell into 2³ transport cells (`transport_refinement = "auto"`),
 /// which the data grid's size allows here; against the path tracer (its noise taken out) the
 /// image mean moves toward it on both sides (96 × 72 views, 256 paths per pixel; measured:
-/// the lit side 2.1 % RMS, −1.1 % mean split against 5.1 %, −2.6 % whole; against the light
-/// 2.3 %, +2.8 % against 5.4 %, +5.3 %), and the solution file keeps the split grid.
+/// the lit side 2.2 % RMS, −1.4 % mean split against 5.7 %, −4.0 % whole; against the light
+/// 2.0 %, +2.6 % against 4.9 %, +3.7 %), and the solution file keeps the split grid. (Before
+/// the edge cells kept their means when drawn, whole cells were −2.6 % and +5.3 %, split
+/// −1.1 % and +2.8 %.)
 #[test]
 fn thick_cells_are_split_and_the_dense_cloud_keeps_its_image_mean() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic");
@@ -236,7 +238,7 @@ fn thick_cells_are_split_and_the_dense_cloud_keeps_its_image_mean() {
         );
         assert!(count > 500, "{count} pixels");
         assert!(
-            mean.abs() < 0.6 * whole_mean.abs() && rms < whole_rms,
+            mean.abs() < 0.75 * whole_mean.abs() && mean.abs() < 0.03 && rms < 0.6 * whole_rms,
             "view {turn}: split RMS {rms:.4}, mean {mean:+.4}; whole cells RMS {whole_rms:.4}, \
              mean {whole_mean:+.4}"
         );
