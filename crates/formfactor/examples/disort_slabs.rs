@@ -5,7 +5,8 @@
 //! diffuse transmittance T; then the worst per (τ, g) as a Markdown table.
 //!
 //! Settings from the environment (comma lists):
-//! - `DISORT_BINS` (default 96): direction bins, `6 n²` (96, 216, 384, 600);
+//! - `DISORT_BINS` (default 96): direction bins, `6 n²` (96, 216, 384), or `auto`: the bins
+//!   volrad chooses for each case's g (`auto_bin_count`);
 //! - `DISORT_LAYERS` (default 64): layers of the slab (one periodic column of unit cubes);
 //! - `DISORT_TAU`, `DISORT_G`, `DISORT_ALBEDO`, `DISORT_MU0`: only these cases;
 //! - `DISORT_NOMATCH=1`: the phase matrix without [`match_asymmetry`]; `DISORT_PQ=k`: its
@@ -34,7 +35,7 @@ mod slab;
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use formfactor::ordinates::OrdinatesOptions;
+use formfactor::ordinates::{auto_bin_count, OrdinatesOptions};
 use slab::{
     case_parameters, case_radiances, disort_slab_cases, reflected_radiance, slab_extinction,
     solve_slab_with, solve_zonal_slab, transmitted_radiance, zonal_fluxes, zonal_radiance,
@@ -94,7 +95,12 @@ impl Errors {
 }
 
 fn main() {
-    let bins: Vec<usize> = list("DISORT_BINS").unwrap_or(vec![96]);
+    // `auto`: the bins volrad chooses for each case's g (`auto_bin_count`).
+    let bins: Vec<Option<usize>> = list::<String>("DISORT_BINS").map_or(vec![Some(96)], |l| {
+        l.iter()
+            .map(|b| (b != "auto").then(|| b.parse().expect("DISORT_BINS: 6 n² or auto")))
+            .collect()
+    });
     let layers: Vec<usize> = list("DISORT_LAYERS").unwrap_or(vec![64]);
     let keep = |key: &str, value: f64| list::<f64>(key).is_none_or(|l| l.contains(&value));
     let detail = std::env::var("DISORT_DETAIL").is_ok();
@@ -112,9 +118,13 @@ fn main() {
     let pq: Option<usize> = std::env::var("DISORT_PQ").ok().map(|v| v.parse().unwrap());
     let cone = std::env::var("DISORT_CONE").ok();
 
-    for &nb in &bins {
+    let faces = |nb: usize| {
         let n = ((nb / 6) as f64).sqrt().round() as usize;
         assert_eq!(6 * n * n, nb, "bins must be 6 n²");
+        n
+    };
+    for &bins_spec in &bins {
+        let label = bins_spec.map_or("auto".to_string(), |nb| nb.to_string());
         for &nz in &layers {
             let base = OrdinatesOptions {
                 phase_quadrature: pq,
@@ -123,7 +133,7 @@ fn main() {
                 ..Default::default()
             };
             println!(
-                "\n## discrete ordinates, {nb} bins, {nz} layers{}{}{}{}",
+                "\n## discrete ordinates, {label} bins, {nz} layers{}{}{}{}",
                 if base.face_coupling {
                     ""
                 } else {
@@ -142,6 +152,7 @@ fn main() {
             let mut summary: BTreeMap<(u64, u64), Errors> = BTreeMap::new();
             for case in &cases {
                 let (tau, a, g, mu0) = case_parameters(case);
+                let n = faces(bins_spec.unwrap_or_else(|| auto_bin_count(g, nz)));
                 let t0 = Instant::now();
                 let degrees = match cone.as_deref() {
                     _ if g <= 0.0 => 0.0,
