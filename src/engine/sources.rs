@@ -746,6 +746,18 @@ pub fn channel_scattering<'a>(
 mod tests {
     use super::*;
 
+    /// The light `source` draws in cell `cell` of a row along x, averaged over the cell.
+    fn drawn_mean(source: &CellSource, cell: usize) -> f64 {
+        let n = 1000;
+        (0..n)
+            .map(|k| {
+                let x = DVec3::new(cell as f64 + (k as f64 + 0.5) / n as f64, 0.5, 0.5);
+                source.at(x, cell, DVec3::X)
+            })
+            .sum::<f64>()
+            / n as f64
+    }
+
     /// A row of 7 scattering cells (σs = 1) whose solved values are the cell means of
     /// `(x − ½)²`, `i² + 1/12`: drawn smoothly, each cell keeps its mean exactly (a quadratic
     /// is what the correction is exact for); interpolating the means as centre values would
@@ -762,14 +774,7 @@ mod tests {
         // Cells 2–4: their neighbours' centre values are corrected on both sides (an edge
         // cell's on one: `a_rows_end_cells_keep_their_means`), and none is negative.
         for (cell, &mean) in means.iter().enumerate().take(5).skip(2) {
-            let n = 1000;
-            let average = (0..n)
-                .map(|k| {
-                    let x = DVec3::new(cell as f64 + (k as f64 + 0.5) / n as f64, 0.5, 0.5);
-                    source.at(x, cell, DVec3::X)
-                })
-                .sum::<f64>()
-                / n as f64;
+            let average = drawn_mean(&source, cell);
             let mean = mean as f64;
             assert!(
                 (average - mean).abs() < 1e-4 * mean.max(1.0),
@@ -799,14 +804,7 @@ mod tests {
         let means = [1.0f32, 2.0, 3.0, 4.0];
         let source = CellSource::new(&means, CellLattice::of_own_grid(&medium, 0, &scattering));
         for cell in [0, 3] {
-            let n = 1000;
-            let average = (0..n)
-                .map(|k| {
-                    let x = DVec3::new(cell as f64 + (k as f64 + 0.5) / n as f64, 0.5, 0.5);
-                    source.at(x, cell, DVec3::X)
-                })
-                .sum::<f64>()
-                / n as f64;
+            let average = drawn_mean(&source, cell);
             let mean = means[cell] as f64;
             assert!(
                 (average - mean).abs() < 0.02,
