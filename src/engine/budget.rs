@@ -290,8 +290,8 @@ pub fn transport_scale(scene: &Scene, settings: &SolveSettings) -> usize {
 
 /// Transport cells of optical depth above this are split by `transport_refinement =
 /// "auto"`: a source uniform over a thicker cell carries light too deep (the cloud24 orbit at
-/// σt × 4, cells up to 4, discrete ordinates: 6.1 % per view, +5.1 % in the image mean; split
-/// in 2³: 2.9 %, +2.7 %; at σt × 1, cells up to 1: 1.7 %).
+/// σt × 4, cells up to 4, discrete ordinates: 6.0 % per view, −4.0 … +3.5 % in the image
+/// mean; split in 2³: 2.9 %, −1.4 … +2.4 %; at σt × 1, cells up to 1: 1.8 %).
 pub const AUTO_SPLIT_CELL_OPTICAL_DEPTH: f64 = 1.0;
 
 /// The same for discrete ordinates with a forward peak past
