@@ -14,6 +14,7 @@ use std::fmt;
 
 use anyhow::{bail, Result};
 use medium::coarsening::{Coarsening, MAX_TRANSPORT_SCALE, MAX_TRANSPORT_SPLIT};
+use medium::Grid;
 use scene::{BinCount, Scene, SolveMethod, SolveSettings, TransportRefinement, TransportScale};
 
 /// One term of a prediction.
@@ -279,13 +280,16 @@ pub fn transport_scale(scene: &Scene, settings: &SolveSettings) -> usize {
     }
     match settings.transport_scale {
         TransportScale::Fixed(s) => s,
-        TransportScale::Auto => {
-            let grid = scene.medium.grid();
-            (1..=MAX_TRANSPORT_SCALE)
-                .find(|&s| Coarsening::cell_count_of(grid, s) <= AUTO_TRANSPORT_CELLS)
-                .unwrap_or(MAX_TRANSPORT_SCALE)
-        }
+        TransportScale::Auto => smallest_scale_within(scene.medium.grid(), AUTO_TRANSPORT_CELLS),
     }
+}
+
+/// The smallest coarsening scale that keeps `grid` within `cells` cells
+/// ([`MAX_TRANSPORT_SCALE`] if none does).
+pub fn smallest_scale_within(grid: &Grid, cells: usize) -> usize {
+    (1..=MAX_TRANSPORT_SCALE)
+        .find(|&s| Coarsening::cell_count_of(grid, s) <= cells)
+        .unwrap_or(MAX_TRANSPORT_SCALE)
 }
 
 /// Transport cells of optical depth above this are split by `transport_refinement =

@@ -224,17 +224,15 @@ pub fn solve_time(
         });
     }
 
-    let probed = settings
-        .method
-        .solves_linear_system()
-        .then(|| probe(scene, settings))
-        .flatten();
-    if settings.method.solves_linear_system() {
+    let probed = if settings.method.solves_linear_system() {
         parts.push(TimePart {
             what: "the probe of a coarse copy",
             seconds: PROBE_SECONDS + cells * PROBE_SECONDS_PER_DATA_CELL,
         });
-    }
+        probe(scene, settings)
+    } else {
+        None
+    };
     let rho = probed.map_or_else(
         || spectral_radius_estimate(scene, settings),
         |p| p.spectral_radius,
@@ -274,42 +272,39 @@ pub fn solve_time(
     let iterations_label = "the iterations";
     // An operator built once per channel from `units` (pairs, links), then applied in
     // every iteration.
-    let mut operator = |what: &'static str, units: f64, build: f64, apply: f64| {
-        parts.push(TimePart {
-            what,
-            seconds: channels * units * build,
-        });
-        parts.push(TimePart {
-            what: iterations_label,
-            seconds: channels * applications * units * apply,
-        });
+    // The zonal methods' near-field rows not shared by a uniform block (each its own
+    // stencil); a scan of the medium, so only for them.
+    let stored_rows = || {
+        (transport_occupied - occupancy.hierarchy_shared_rows(scale) as f64 * parts_per_cell)
+            .max(0.0)
     };
+    // `extra_build`: seconds of the build not proportional to `units`, per channel.
+    let mut operator =
+        |what: &'static str, units: f64, build: f64, extra_build: f64, apply: f64| {
+            parts.push(TimePart {
+                what,
+                seconds: channels * (units * build + extra_build),
+            });
+            parts.push(TimePart {
+                what: iterations_label,
+                seconds: channels * applications * units * apply,
+            });
+        };
     match settings.method {
         SolveMethod::None | SolveMethod::SingleScatter => {}
-        SolveMethod::Zonal => {
-            let stored_rows = (transport_occupied
-                - occupancy.hierarchy_shared_rows(scale) as f64 * parts_per_cell)
-                .max(0.0);
-            let near = channels * stored_rows * ZONAL_NEAR_SECONDS_PER_STORED_ROW;
-            operator(
-                "the form factors",
-                transport_occupied * transport_occupied,
-                ZONAL_BUILD_SECONDS_PER_PAIR,
-                ZONAL_APPLY_SECONDS_PER_PAIR,
-            );
-            // Part of building the form factors: reported with them.
-            if let Some(build) = parts.iter_mut().find(|p| p.what == "the form factors") {
-                build.seconds += near;
-            }
-        }
+        SolveMethod::Zonal => operator(
+            "the form factors",
+            transport_occupied * transport_occupied,
+            ZONAL_BUILD_SECONDS_PER_PAIR,
+            stored_rows() * ZONAL_NEAR_SECONDS_PER_STORED_ROW,
+            ZONAL_APPLY_SECONDS_PER_PAIR,
+        ),
         SolveMethod::ZonalHierarchical => operator(
             "the hierarchical operator",
             transport_occupied * far_links_per_occupied_cell(transport_occupied)
-                + (transport_occupied
-                    - occupancy.hierarchy_shared_rows(scale) as f64 * parts_per_cell)
-                    .max(0.0)
-                    * NEAR_ENTRIES_PER_STORED_ROW,
+                + stored_rows() * NEAR_ENTRIES_PER_STORED_ROW,
             HIERARCHICAL_BUILD_SECONDS_PER_LINK,
+            0.0,
             HIERARCHICAL_APPLY_SECONDS_PER_LINK,
         ),
         SolveMethod::DiscreteOrdinates => {
@@ -474,13 +469,11 @@ pub struct Probe {
 /// and forward-scattering media. `None` if the copy cannot be built.
 pub fn probe(scene: &Scene, settings: &SolveSettings) -> Option<Probe> {
     use formfactor::ordinates::{DirectionBins, OrdinatesOperator};
-    use medium::coarsening::{Coarsening, MAX_TRANSPORT_SCALE};
+    use medium::coarsening::Coarsening;
 
     let medium = &scene.medium;
     let grid = medium.grid();
-    let scale = (1..=MAX_TRANSPORT_SCALE)
-        .find(|&s| Coarsening::cell_count_of(grid, s) <= PROBE_CELLS)
-        .unwrap_or(MAX_TRANSPORT_SCALE);
+    let scale = super::budget::smallest_scale_within(grid, PROBE_CELLS);
     let coarse = Coarsening::new(grid, scale).ok()?.medium(medium).ok()?;
     let ordinates = settings.method == SolveMethod::DiscreteOrdinates;
     let coarse = if ordinates {
@@ -513,8 +506,7 @@ pub fn probe(scene: &Scene, settings: &SolveSettings) -> Option<Probe> {
         }
         let bins = DirectionBins::with_count(PROBE_BINS).ok()?;
         let op = OrdinatesOperator::new(&coarse, c, bins, options).ok()?;
-        let mut mode = vec![1.0; solver::TransportOperator::len(&op)];
-        let rho = solver::power_iteration(&op, &mut mode, PROBE_POWER_STEPS, PROBE_TOLERANCE).rho;
+        let rho = solver::spectral_radius(&op, PROBE_POWER_STEPS, PROBE_TOLERANCE).rho;
         if !rho.is_finite() {
             return None;
         }

@@ -34,43 +34,18 @@ pub fn spectral_radius(
             converged: true,
         };
     }
+    let mut red = Reducer::new(n);
     // 1 plus a small deterministic perturbation (golden-ratio sequence) to break symmetry.
     let mut x: Vec<f64> = (0..n)
         .map(|i| 1.0 + 0.25 * ((i as f64 * 0.618_033_988_749_895).fract() - 0.5))
         .collect();
-    power_iteration(op, &mut x, max_iterations, tolerance)
-}
-
-/// Power iteration on `K` from `x` (of length `op.len()`, not all zero), as
-/// [`spectral_radius`] runs it; `x` ends as the last iterate, normalised — the estimate of
-/// the dominant eigenvector, a good start for a related operator's iteration.
-pub fn power_iteration(
-    op: &dyn TransportOperator,
-    x: &mut [f64],
-    max_iterations: usize,
-    tolerance: f64,
-) -> SpectralEstimate {
-    let n = op.len();
-    assert_eq!(
-        x.len(),
-        n,
-        "power_iteration: the start vector must have op.len() entries"
-    );
-    let mut red = Reducer::new(n);
-    let norm = red.norm(x);
-    if !(norm > 0.0 && norm.is_finite()) {
-        return SpectralEstimate {
-            rho: 0.0,
-            iterations: 0,
-            converged: norm == 0.0,
-        };
-    }
+    let norm = red.norm(&x);
     x.iter_mut().for_each(|v| *v /= norm);
     let mut y = vec![0.0; n];
     let mut previous = f64::NAN;
     let mut rho = 0.0;
     for k in 1..=max_iterations {
-        op.apply(x, &mut y);
+        op.apply(&x, &mut y);
         rho = red.norm(&y);
         if !rho.is_finite() {
             return SpectralEstimate {
