@@ -252,7 +252,7 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
             let mut first_bounce = vec![0.0; op.len()];
             op.transport(&scattered, &mut first_bounce);
             let mut emission_part = vec![0.0; op.len()];
-            op.transport(&emitted, &mut emission_part);
+            op.transport_emission(&emitted, &mut emission_part);
             Ok(Family {
                 op: Box::new(op),
                 emission_part,

@@ -703,17 +703,19 @@ pub fn solve_ordinates(
     ));
     let op = OrdinatesOperator::new(medium, c, bins, options)?;
     // I = T(S1 + e) + K I: the once-transported external density is the system's source
-    // (with an emitter pass, the emission's first collision S_e in place of e).
-    let external = match emitters {
-        Some(pass) => {
-            let mut density = op.first_bounce_density_from_pass(light_pass)?;
-            op.add_collision_density(pass.fluence(), pass.current(), &mut density)?;
-            density
-        }
-        None => op.external_density_from_pass(light_pass)?,
-    };
+    // (with an emitter pass, the emission's first collision S_e in place of e, and the
+    // channel's emission is left out of the transport).
+    let mut external = op.first_bounce_density_from_pass(light_pass)?;
     let mut source = vec![0.0; op.len()];
-    op.transport(&external, &mut source);
+    match emitters {
+        Some(pass) => {
+            op.add_collision_density(pass.fluence(), pass.current(), &mut external)?;
+            op.transport(&external, &mut source);
+        }
+        None => {
+            op.transport_external(&external, &mut source);
+        }
+    }
     let environment = environment.filter(|e| !e.is_dark());
     // A ground's last round gathers the final bounce toward every bin already (what the
     // ground sees): the render's higher orders are that, not a second gather.
@@ -795,16 +797,12 @@ pub fn solve_ordinates(
                     // external density, and the higher orders) and the emission.
                     let mut toward = vec![0.0; op.len()];
                     op.gather_density(&total, &mut toward);
-                    let emission = emitters.is_some();
                     let bins = op.bins();
+                    // `external` holds no emission (it is transported apart, or replaced by
+                    // the emitters' first collision).
                     let e_scat = gr.scattered_irradiance(medium, c, &|cell, travel| {
                         let i = cell * m + bins.bin_of(travel);
-                        let e = if emission {
-                            channel.emission.get(cell) as f64
-                        } else {
-                            0.0
-                        };
-                        (toward[i] + external[i]).max(0.0) + e
+                        (toward[i] + external[i]).max(0.0) + channel.emission.get(cell) as f64
                     })?;
                     let next = gr.radiance(Some(&e_scat));
                     gathered = Some(toward);

@@ -139,11 +139,14 @@ const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
 /// `benches/ordinates_sweep.py`, which prints the model against the measured sweeps
 /// (docs/performance.md, "Time"), and all three again (least squares in relative error, on
 /// the same cases: −13 … +5 %) when the sweep stopped copying the iterate and the source
-/// into bin-major order.
+/// into bin-major order. The source linear in each cell (its slopes from 6 neighbours per
+/// cell and piece) added 13–32 % per sweep on those cases (3.4–7.7 ns per cell and bin,
+/// measured against the flat source on a machine 16 % slower than the fit's): 3.0e-9 s per
+/// cell and bin on the sweep term, 2.5e-9 on the uncached one.
 const ORDINATES_SETUP_SECONDS_PER_CELL_BIN: f64 = 7.0e-8;
-const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 5.6e-9;
+const ORDINATES_SWEEP_SECONDS_PER_CELL_BIN: f64 = 8.6e-9;
 const ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN: f64 = 1.0e-9;
-const ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN: f64 = 9.6e-9;
+const ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN: f64 = 12.1e-9;
 const ORDINATES_CACHED_CELL_BINS: f64 = 2.0e7;
 /// Two-pass: per cell and tally bin (the tallies and their sum), and per photon and cell
 /// along the grid's longest side (a photon's path crosses cells in proportion to it).
@@ -561,8 +564,8 @@ fn probe_iterations(
         op.apply(&vec![1.0; n], &mut external);
     } else {
         let pass = medium::light_pass::LightPass::compute(coarse, c, &scene.lights).ok()?;
-        let density = op.external_density_from_pass(&pass).ok()?;
-        op.transport(&density, &mut external);
+        let density = op.first_bounce_density_from_pass(&pass).ok()?;
+        op.transport_external(&density, &mut external);
     }
     let options = solver::SolveOptions {
         method,

@@ -191,12 +191,13 @@ fn the_transport_grid_goes_through_the_solution_file_and_info() {
 /// 3.3): a source uniform over such cells carries the light too deep — the views from the lit
 /// side too dark, those against the light too bright (docs/validation.md, "Dense media"). By
 /// default volrad splits each cell into 2³ transport cells (`transport_refinement = "auto"`),
-/// which the data grid's size allows here; against the path tracer (its noise taken out) the
-/// image mean moves toward it on both sides (96 × 72 views, 256 paths per pixel; measured:
-/// the lit side 2.2 % RMS, −1.4 % mean split against 5.7 %, −4.0 % whole; against the light
-/// 2.0 %, +2.6 % against 4.9 %, +3.7 %), and the solution file keeps the split grid. (Before
-/// the edge cells kept their means when drawn, whole cells were −2.6 % and +5.3 %, split
-/// −1.1 % and +2.8 %.)
+/// which the data grid's size allows here; against the path tracer (its noise taken out, 96 ×
+/// 72 views, 256 paths per pixel) both sides keep their image mean, and on the lit side the
+/// split is closer than whole cells; the solution file keeps the split grid. Measured
+/// (2026-12-05, the scattered source linear in each cell): the lit side 0.95 % RMS, −0.6 %
+/// mean split against 2.8 %, −1.8 % whole; against the light 0.8 %, +1.6 % against 0.8 %,
+/// +1.3 % (with a flat source: lit 2.2 %, −1.4 % split against 5.7 %, −4.0 % whole; against
+/// the light 2.0 %, +2.6 % against 4.9 %, +3.7 %).
 #[test]
 fn thick_cells_are_split_and_the_dense_cloud_keeps_its_image_mean() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cloud24-isotropic");
@@ -238,10 +239,18 @@ fn thick_cells_are_split_and_the_dense_cloud_keeps_its_image_mean() {
         );
         assert!(count > 500, "{count} pixels");
         assert!(
-            mean.abs() < 0.75 * whole_mean.abs() && mean.abs() < 0.03 && rms < 0.6 * whole_rms,
-            "view {turn}: split RMS {rms:.4}, mean {mean:+.4}; whole cells RMS {whole_rms:.4}, \
-             mean {whole_mean:+.4}"
+            mean.abs() < 0.025 && rms < 0.015,
+            "view {turn}: split RMS {rms:.4}, mean {mean:+.4}"
         );
+        // On the lit side the split still carries the light where it scatters, which the
+        // whole cells' linear source does only in part.
+        if turn == 0 {
+            assert!(
+                mean.abs() < 0.75 * whole_mean.abs() && rms < 0.6 * whole_rms,
+                "view {turn}: split RMS {rms:.4}, mean {mean:+.4}; whole cells RMS \
+                 {whole_rms:.4}, mean {whole_mean:+.4}"
+            );
+        }
     }
     // `volrad info` says what it chose and why.
     let file = std::env::temp_dir().join(format!("volrad-dense-{}.toml", std::process::id()));

@@ -19,6 +19,8 @@
 //!   default; unset or 0: none), for the g > 0 cases;
 //! - `DISORT_MAX_SHARES=1`: the sweep without face coupling (Max's fixed face shares,
 //!   `OrdinatesOptions::face_coupling` off);
+//! - `DISORT_FLAT=1`: the scattered source uniform in each cell (without
+//!   `OrdinatesOptions::linear_source`);
 //! - `DISORT_DETAIL=1`: every radiance.
 //!
 //! The transmitted radiances and T of cases whose DISORT `T_diffuse` is below 1e-6 (τ = 64 at
@@ -130,14 +132,20 @@ fn main() {
                 phase_quadrature: pq,
                 match_asymmetry,
                 face_coupling: std::env::var("DISORT_MAX_SHARES").is_err(),
+                linear_source: std::env::var("DISORT_FLAT").is_err(),
                 ..Default::default()
             };
             println!(
-                "\n## discrete ordinates, {label} bins, {nz} layers{}{}{}{}",
+                "\n## discrete ordinates, {label} bins, {nz} layers{}{}{}{}{}",
                 if base.face_coupling {
                     ""
                 } else {
                     ", Max's face shares"
+                },
+                if base.linear_source && base.face_coupling {
+                    ""
+                } else {
+                    ", flat source"
                 },
                 if match_asymmetry {
                     ""

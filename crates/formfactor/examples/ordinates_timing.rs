@@ -3,7 +3,8 @@
 //! `cargo run --release -p formfactor --example ordinates_timing -- 64 64 48 [sigma_scale]`
 //! (σ scale 4 is the benchmark's dense cloud, `ORDINATES_SIGMA_SCALE=4`; 0.4 its default). With `ORDINATES_SOLVE=1`
 //! it runs the full Gauss–Seidel solve of `benches/ordinates.rs` instead (same cloud, light,
-//! loop and stopping rule), without building the whole workspace.
+//! loop and stopping rule), without building the whole workspace. `ORDINATES_FLAT=1` sweeps
+//! the scattered source uniform in each cell (without `OrdinatesOptions::linear_source`).
 
 use std::time::Instant;
 
@@ -37,7 +38,10 @@ fn main() {
         &medium,
         0,
         DirectionBins::max96(),
-        OrdinatesOptions::default(),
+        OrdinatesOptions {
+            linear_source: std::env::var("ORDINATES_FLAT").is_err(),
+            ..Default::default()
+        },
     )
     .unwrap();
     let len = op.len();

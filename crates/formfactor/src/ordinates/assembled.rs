@@ -4,7 +4,8 @@
 //! Built column by column: for each piece of each bin and each source cell, a unit source is
 //! propagated through the downstream box of that cell only (not a whole-grid sweep), giving
 //! the transport "form factors" `F_{c l, c' l}`; the matrix is then
-//! `K[(c,l), (c',j)] = F_{c l, c' l} σs_{c'} P_lj Ω_j`. Vacuum sides only.
+//! `K[(c,l), (c',j)] = F_{c l, c' l} σs_{c'} P_lj Ω_j`. Vacuum sides only. With a linear
+//! source the unit source's slopes reach its neighbours, so the box starts one cell upstream.
 
 use solver::operator::{RowAccess, TransportOperator};
 use sprs::{CsMat, TriMat};
@@ -51,13 +52,34 @@ impl AssembledOrdinates {
         // Each cell's outflow through its downstream x, y and z faces, and its response.
         let mut out = vec![[0.0f64; 3]; n];
         let mut response = vec![0.0f64; n];
+        // One bin's source densities: a unit one in the source cell (a linear source's
+        // slopes reach its neighbours).
+        let mut density = vec![0.0f64; n];
+        let reach = usize::from(op.linear_source());
         for (p, piece) in op.pieces().iter().enumerate() {
             let l = piece.bin;
             for (src, &sigma_s_src) in sigma_s.iter().enumerate() {
                 if sigma_s_src == 0.0 {
                     continue;
                 }
-                let [si, sj, sk] = grid.coords(src);
+                let [ci, cj, ck] = grid.coords(src);
+                // The box's upstream corner: the source cell, or with a linear source its
+                // upstream neighbours, whose slopes it changes.
+                let first = |v: usize, len: usize, fwd: bool| {
+                    if fwd {
+                        v.saturating_sub(reach)
+                    } else {
+                        (v + reach).min(len - 1)
+                    }
+                };
+                let (si, sj, sk) = (
+                    first(ci, nx, piece.forward[0]),
+                    first(cj, ny, piece.forward[1]),
+                    first(ck, nz, piece.forward[2]),
+                );
+                // A unit density, as the sweep reads it (the source function with a linear
+                // source).
+                density[src] = op.source_function_of_unit_density(src);
                 // Downstream box of the source cell, walked in downwind order.
                 let range = |start: usize, len: usize, fwd: bool| -> Vec<usize> {
                     if fwd {
@@ -94,8 +116,8 @@ impl AssembledOrdinates {
                             if let Some(u) = up(k, piece.forward[2], sk) {
                                 inflow[2] = out[grid.index(i, j, u)][2];
                             }
-                            let unit = if c == src { 1.0 } else { 0.0 };
-                            (out[c], response[c]) = op.cell_response(p, c, inflow, unit);
+                            (out[c], response[c]) =
+                                op.cell_response(p, c, [i, j, k], inflow, &density);
                         }
                     }
                 }
@@ -115,6 +137,7 @@ impl AssembledOrdinates {
                         }
                     }
                 }
+                density[src] = 0.0;
             }
         }
         Ok(AssembledOrdinates {

@@ -494,7 +494,7 @@ fn infinite_medium_limit() {
         let op = operator(grid, &ch, g, 2, true);
         let external = op.external_density(Some(&vec![emission; nz]), &[]).unwrap();
         let mut e = vec![0.0; op.len()];
-        op.transport(&external, &mut e);
+        op.transport_emission(&external, &mut e);
         let (x, _) = jacobi(&op, &e, 1e-11);
         let expect = emission / (sigma as f64 * (1.0 - albedo as f64));
         let m = op.bins().len();

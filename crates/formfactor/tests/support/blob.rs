@@ -95,7 +95,7 @@ pub fn scattered_ordinates(r: usize, n: usize) -> Vec<f64> {
     .unwrap();
     let external = op.external_density(Some(&e), &[]).unwrap();
     let mut t = vec![0.0; op.len()];
-    op.transport(&external, &mut t);
+    op.transport_emission(&external, &mut t);
     let radiance = iterate(&op, &t);
     let fluence = op.fluence(&radiance);
     let s: Vec<f64> = (0..grid.cell_count())
