@@ -110,30 +110,29 @@ pub struct OrdinatesInfo {
 /// the cloud24 orbit and the DISORT slab tables).
 fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64, split: usize) -> String {
     let angular = if g <= 0.3 {
-        "about 2 % (DISORT slabs, τ ≤ 4; the isotropic cloud24, 8 views: 1.8 %, −1.0 … +0.1 % \
+        "about 2 % (DISORT slabs, τ ≤ 4; the isotropic cloud24, 8 views: 1.2 %, −0.6 … −0.3 % \
          in the mean)"
             .to_string()
     } else if g <= 0.7 {
         if bins >= 216 {
             "about 3 % per view, image mean within about 1 % (cloud24, g = 0.6, 8 views, 216 bins: \
-             2.7 %, −1.1 … 0.0 %)"
+             2.3 %, −1.1 … −0.1 %)"
                 .to_string()
         } else {
             format!(
-                "about 3 % per view, image mean up to +2 % (cloud24, g = 0.6, 8 views, 96 bins; \
-                 {bins} bins here): set [solve] bins = 216 for a mean within 1 % (about 2.5× \
-                 the solve)"
+                "about 3 % per view, image mean up to +1.5 % (cloud24, g = 0.6, 8 views, 96 bins: \
+                 2.6 %, +1.5 %; {bins} bins here): set [solve] bins = 216 for a mean within 1 % \
+                 (about 2.5× the solve)"
             )
         }
     } else if bins >= 384 && split > 1 {
         "about 3 % per view, image mean within 1.5 % (cloud24, g = 0.85, 384 bins, cells split \
-         in 2³, 8 views: 2.9 %, −0.5 … +1.4 %)"
+         in 2³, 8 views: 2.8 %, −0.5 … +1.3 %)"
             .to_string()
     } else if bins >= 384 {
-        "about 4.5 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, 8 views \
-         against 16384-path references; the 192-class cloud: 3.5 %, −1.7 %): most of it is \
-         spatial, [solve] transport_refinement = 2 gives 2.9 % (about 8× the solve and its \
-         state)"
+        "about 4.5 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, 8 views: \
+         4.3 %, −1.6 … +0.6 %; the 192-class cloud: 3.5 %, −1.7 %): most of it is spatial, \
+         [solve] transport_refinement = 2 gives 2.8 % (about 8× the solve and its state)"
             .to_string()
     } else {
         format!(
@@ -144,15 +143,15 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64, split: usize) ->
     };
     if tau_cell > 1.0 {
         format!(
-            "{angular}; transport cells up to optical depth {tau_cell:.2}: a source uniform \
-             over thick cells carries light too deep (cloud24 at σt × 4, cells up to 4: 6.0 % \
-             per view, −4.0 … +3.5 % in the mean; split in 2³ by [solve] \
-             transport_refinement: 2.9 %, −1.4 … +2.4 %)"
+            "{angular}; transport cells up to optical depth {tau_cell:.2}: thick cells carry \
+             their light a little too deep (cloud24 at σt × 4, cells up to 4: 3.1 % per view, \
+             −1.7 … +1.1 % in the mean; split in 2³ by [solve] transport_refinement: 2.0 %, \
+             −0.6 … +1.5 %)"
         )
     } else if tau_cell > 0.25 {
         format!(
             "{angular}; transport cells up to optical depth {tau_cell:.2}: wide uniform slabs \
-             of such cells transmit too much (DISORT τ = 16 slab at 0.25 per cell: +20 %)"
+             of such cells transmit too much (DISORT τ = 16 slab at 0.25 per cell: +14 %)"
         )
     } else {
         angular

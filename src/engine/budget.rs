@@ -293,16 +293,19 @@ pub fn smallest_scale_within(grid: &Grid, cells: usize) -> usize {
 }
 
 /// Transport cells of optical depth above this are split by `transport_refinement =
-/// "auto"`: a source uniform over a thicker cell carries light too deep (the cloud24 orbit at
-/// σt × 4, cells up to 4, discrete ordinates: 6.0 % per view, −4.0 … +3.5 % in the image
-/// mean; split in 2³: 2.9 %, −1.4 … +2.4 %; at σt × 1, cells up to 1: 1.8 %).
+/// "auto"`: a thicker cell carries its light too deep (the cloud24 orbit at σt × 4, cells up
+/// to 4, discrete ordinates with the source linear in each cell: 3.1 % per view, −1.7 … +1.1 %
+/// in the image mean; split in 2³: 2.0 %, −0.6 … +1.5 %; at σt × 1, cells up to 1: 1.2 %;
+/// with a flat source 6.0 %, −4.0 … +3.5 % and 2.9 %, −1.4 … +2.4 %; the zonal methods keep
+/// a flat source).
 pub const AUTO_SPLIT_CELL_OPTICAL_DEPTH: f64 = 1.0;
 
 /// The same for discrete ordinates with a forward peak past
 /// [`AUTO_BINS_MODERATE_UP_TO`](formfactor::ordinates::AUTO_BINS_MODERATE_UP_TO) (the class
 /// `bins = "auto"` gives 384 bins): the step scheme's sideways spreading, which a forward
 /// peak carries further, is most of what is left there (the cloud24 orbit at g = 0.85, 99 %
-/// of the cells up to 0.82: 4.5 % per view whole, 3.1 % split in 2³; docs/validation.md).
+/// of the cells up to 0.82: 4.3 % per view whole, 2.8 % split in 2³ with the source linear
+/// in each cell; 4.5 % and 3.1 % flat; docs/validation.md).
 pub const AUTO_SPLIT_FORWARD_CELL_OPTICAL_DEPTH: f64 = 0.5;
 
 /// The optical depth above which `transport_refinement = "auto"` splits a cell, for a solve

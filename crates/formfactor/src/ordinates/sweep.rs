@@ -2164,24 +2164,24 @@ impl OrdinatesOperator {
                     };
                     [in_x, in_y, inz[i + nx * j]]
                 };
+                // Cell (tx, ty) of the layer: its index in the layer, inflows, coefficients
+                // and source.
+                let cell = |buf: &LayerBuffers, tx: usize, ty: usize| {
+                    let ijk = [at(tx, nx, fwx), at(ty, ny, fwy), k];
+                    let lc = ijk[0] + nx * ijk[1];
+                    let inflow = inflow_of(&buf.out_x, &buf.out_y, &buf.inz, tx, ty);
+                    let ct = &terms[level[lc] as usize];
+                    let slope = slopes.get(level[lc] as usize);
+                    let src = self.cell_source((ct, slope), density, base + lc, ijk, piece, axes);
+                    (lc, inflow, ct, src)
+                };
                 buf.inz.copy_from_slice(&buf.out);
                 let mut passes = 0;
                 loop {
                     let (mut change, mut scale) = (0.0f64, 0.0f64);
                     for ty in 0..ny {
                         for tx in 0..nx {
-                            let ijk = [at(tx, nx, fwx), at(ty, ny, fwy), k];
-                            let lc = ijk[0] + nx * ijk[1];
-                            let mut inflow = inflow_of(&buf.out_x, &buf.out_y, &buf.inz, tx, ty);
-                            let ct = &terms[level[lc] as usize];
-                            let src = self.cell_source(
-                                (ct, slopes.get(level[lc] as usize)),
-                                density,
-                                base + lc,
-                                ijk,
-                                piece,
-                                axes,
-                            );
+                            let (lc, mut inflow, ct, src) = cell(buf, tx, ty);
                             let new = ct.outflow_looped(&mut inflow, &src, axes, loops);
                             let old = [buf.out_x[lc], buf.out_y[lc], buf.out[lc]];
                             for k in 0..3 {
@@ -2200,18 +2200,7 @@ impl OrdinatesOperator {
                 }
                 for ty in 0..ny {
                     for tx in 0..nx {
-                        let ijk = [at(tx, nx, fwx), at(ty, ny, fwy), k];
-                        let lc = ijk[0] + nx * ijk[1];
-                        let mut inflow = inflow_of(&buf.out_x, &buf.out_y, &buf.inz, tx, ty);
-                        let ct = &terms[level[lc] as usize];
-                        let src = self.cell_source(
-                            (ct, slopes.get(level[lc] as usize)),
-                            density,
-                            base + lc,
-                            ijk,
-                            piece,
-                            axes,
-                        );
+                        let (lc, mut inflow, ct, src) = cell(buf, tx, ty);
                         ct.outflow_looped(&mut inflow, &src, axes, loops);
                         let mean = ct.mean_radiance(inflow, &src, axes);
                         out[lc] = weight * mean;
