@@ -2344,40 +2344,12 @@ impl OrdinatesOperator {
             [0.0, -0.5, 0.5],
             [-0.25, 0.0, 0.25],
         ];
-        // A missing neighbour's index is the cell's own (its weight is 0).
-        let lower = |i: usize, stride: usize| if i > 0 { c - stride } else { c };
-        let upper = |i: usize, len: usize, stride: usize| if i + 1 < len { c + stride } else { c };
-        let wrap_lower = |i: usize, len: usize, stride: usize| {
-            if i > 0 {
-                c - stride
-            } else {
-                c + (len - 1) * stride
-            }
-        };
-        let wrap_upper = |i: usize, len: usize, stride: usize| {
-            if i + 1 < len {
-                c + stride
-            } else {
-                c - (len - 1) * stride
-            }
-        };
-        let layer = nx * ny;
-        let (xl, xh, yl, yh) = if self.options.periodic_xy {
-            (
-                wrap_lower(ijk[0], nx, 1),
-                wrap_upper(ijk[0], nx, 1),
-                wrap_lower(ijk[1], ny, nx),
-                wrap_upper(ijk[1], ny, nx),
-            )
-        } else {
-            (
-                lower(ijk[0], 1),
-                upper(ijk[0], nx, 1),
-                lower(ijk[1], nx),
-                upper(ijk[1], ny, nx),
-            )
-        };
-        let (zl, zh) = (lower(ijk[2], layer), upper(ijk[2], nz, layer));
+        // Wrapped at the grid's sides: always a cell of the grid, weighted 0 where it is not
+        // a neighbour.
+        let dims = [nx, ny, nz];
+        let [xl, xh] = neighbour_cells(dims, c, ijk, 0);
+        let [yl, yh] = neighbour_cells(dims, c, ijk, 1);
+        let [zl, zh] = neighbour_cells(dims, c, ijk, 2);
         let [ax, ay, az] = [0, 1, 2].map(|a| WEIGHTS[((has >> (2 * a)) & 3) as usize]);
         let sx = ax[0] * source_function[xl] + ax[1] * own + ax[2] * source_function[xh];
         let sy = ay[0] * source_function[yl] + ay[1] * own + ay[2] * source_function[yh];
