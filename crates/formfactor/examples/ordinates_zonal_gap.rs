@@ -2,7 +2,8 @@
 //! `6 n²`, `ZONAL_N=4,6,8`) or spatial (both methods on grids refined `r`×, `ZONAL_R=1,2,3`,
 //! `ZONAL_ZR`; the 7³ zonal solution is the reference). `ZONAL_REFINE=r` sweeps `r³`
 //! sub-cells per cell, `ZONAL_MAX_SHARES=1` uses Max's fixed face shares instead of the
-//! face-coupled sweep, `ZONAL_EXACT_T=1` (with Max's shares) the exact chord transmission.
+//! face-coupled sweep, `ZONAL_EXACT_T=1` (with Max's shares) the exact chord transmission,
+//! `ZONAL_FLAT=1` a scattered source uniform in each cell (not linear).
 //!
 //! `cargo run --release -p formfactor --example ordinates_zonal_gap`
 

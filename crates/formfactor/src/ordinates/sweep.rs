@@ -1044,6 +1044,37 @@ impl CellTerms {
     }
 }
 
+/// A class-major table of the piece classes' coefficients (one per class `representatives`
+/// and level `level_tau`): `make(piece, τ0, table_coordinate(τ0))`.
+fn per_class_and_level<T: Send>(
+    (representatives, pieces, level_tau): (&[usize], &[Piece], &[f64]),
+    make: &(dyn Fn(&Piece, f64, f64) -> T + Sync),
+) -> Vec<T> {
+    let levels = level_tau.len();
+    (0..representatives.len() * levels)
+        .into_par_iter()
+        .map(|k| {
+            let tau0 = level_tau[k % levels];
+            make(
+                &pieces[representatives[k / levels]],
+                tau0,
+                table_coordinate(tau0),
+            )
+        })
+        .collect()
+}
+
+/// `1 / τ0`, the factor from a source density to the source function `J = S / (σt* h)`, and
+/// 1 for a cell without medium (which keeps its density).
+#[inline(always)]
+fn per_optical_side(tau0: f64) -> f64 {
+    if tau0 > 0.0 {
+        1.0 / tau0
+    } else {
+        1.0
+    }
+}
+
 /// The least extinction of a neighbour, relative to the cell's, whose source function a
 /// linear source's slope uses: a steeper jump in σt is an edge, not a smooth field, and
 /// there `J = S / σt` of an optically thin neighbour (emission in thin smoke, say) would
@@ -1243,8 +1274,6 @@ pub struct OrdinatesOperator {
     terms: Vec<CellTerms>,
     /// Per cell, its level: the index of its σt* among the medium's distinct values.
     cell_level: Vec<u32>,
-    /// Per level, `1 / (σt* h)` (1 for no medium): densities to the source function.
-    level_inv_tau: Vec<f64>,
     /// Per cell, `σs / (σt* h)` with a linear source ([`sweep_scale`](Self::sweep_scale));
     /// empty otherwise.
     source_function_scale: Vec<f64>,
@@ -1415,47 +1444,26 @@ impl OrdinatesOperator {
         let level_tau: Vec<f64> = level_sigma.iter().map(|s| s * h).collect();
         let levels = level_tau.len();
         tracing::debug!(levels, cells = n, "discrete-ordinates coefficient levels");
-        let mut terms = vec![CellTerms::default(); representatives.len() * levels];
-        for (class_terms, &r) in terms.chunks_mut(levels).zip(&representatives) {
-            let piece = &pieces[r];
-            class_terms
-                .par_iter_mut()
-                .zip(&level_tau)
-                .for_each(|(ct, &tau0)| {
-                    *ct = piece.canonical_terms(
-                        tau0,
-                        table_coordinate(tau0),
-                        h,
-                        options.face_coupling,
-                    );
-                });
-        }
-        let level_inv_tau: Vec<f64> = level_tau
-            .iter()
-            .map(|&t| if t > 0.0 { 1.0 / t } else { 1.0 })
-            .collect();
-        let source_function_scale: Vec<f64> = if options.linear_source && options.face_coupling {
-            sigma_s
-                .iter()
-                .zip(&cell_level)
-                .map(|(s, &l)| s * level_inv_tau[l as usize])
-                .collect()
+        let classes = (&representatives[..], &pieces[..], &level_tau[..]);
+        let terms: Vec<CellTerms> = per_class_and_level(classes, &|piece, tau0, x| {
+            piece.canonical_terms(tau0, x, h, options.face_coupling)
+        });
+        // The linear source's state: the slopes' coefficients, the scattering product's
+        // scale to the source function, and which neighbours each cell's slopes read.
+        let linear = options.linear_source && options.face_coupling;
+        let (slope_terms, source_function_scale, source_neighbours) = if linear {
+            (
+                per_class_and_level(classes, &|piece, tau0, x| piece.slope_terms(tau0, x, h)),
+                sigma_s
+                    .iter()
+                    .zip(&cell_level)
+                    .map(|(s, &l)| s * per_optical_side(level_tau[l as usize]))
+                    .collect(),
+                source_neighbour_mask(grid.dims, options.periodic_xy, &sweep_sigma_t),
+            )
         } else {
-            Vec::new()
+            (Vec::new(), Vec::new(), Vec::new())
         };
-        let mut slope_terms = Vec::new();
-        if options.linear_source && options.face_coupling {
-            slope_terms = vec![SlopeTerms::default(); representatives.len() * levels];
-            for (class_terms, &r) in slope_terms.chunks_mut(levels).zip(&representatives) {
-                let piece = &pieces[r];
-                class_terms
-                    .par_iter_mut()
-                    .zip(&level_tau)
-                    .for_each(|(st, &tau0)| {
-                        *st = piece.slope_terms(tau0, table_coordinate(tau0), h)
-                    });
-            }
-        }
         Ok(OrdinatesOperator {
             grid,
             sigma_t,
@@ -1473,13 +1481,8 @@ impl OrdinatesOperator {
             piece_class,
             terms,
             source_function_scale,
-            level_inv_tau,
             slope_terms,
-            source_neighbours: if options.linear_source && options.face_coupling {
-                source_neighbour_mask(grid.dims, options.periodic_xy, &sweep_sigma_t)
-            } else {
-                Vec::new()
-            },
+            source_neighbours,
             cell_level,
             level_tau,
             stride,
@@ -1534,7 +1537,7 @@ impl OrdinatesOperator {
     /// linear source the source function `1 / (σt* h)`.
     pub(crate) fn source_function_of_unit_density(&self, c: usize) -> f64 {
         if self.linear_source() {
-            self.level_inv_tau[self.cell_level[c] as usize]
+            per_optical_side(self.level_tau[self.cell_level[c] as usize])
         } else {
             1.0
         }
@@ -1963,19 +1966,29 @@ impl OrdinatesOperator {
             density.len() == n * m && out.len() == n * m,
             "transport: vectors must have cells × bins entries"
         );
-        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-        let s = &mut *guard;
-        let sweep = Sweep {
-            tally: true,
-            linear,
-        };
         // Each group's bin-major copy for the sweeps.
-        self.transport_all(out, s, sweep, false, |bins, dst| {
+        self.transport_tallied(out, linear, false, |bins, dst| {
             self.cells_to_bins(density, bins.clone(), dst);
             if linear && self.linear_source() {
                 self.densities_to_source_function(dst, bins.len());
             }
         })
+    }
+
+    /// [`transport_all`](Self::transport_all) with power tallied, under the scratch's lock.
+    fn transport_tallied(
+        &self,
+        out: &mut [f64],
+        linear: bool,
+        add: bool,
+        fill: impl Fn(std::ops::Range<usize>, &mut [f64]),
+    ) -> SweepEnergy {
+        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
+        let sweep = Sweep {
+            tally: true,
+            linear,
+        };
+        self.transport_all(out, &mut guard, sweep, add, fill)
     }
 
     /// The system's source from the lights' first scattering `scattered` (cell-major, as
@@ -1987,13 +2000,7 @@ impl OrdinatesOperator {
     pub fn transport_external(&self, scattered: &[f64], out: &mut [f64]) -> SweepEnergy {
         let mut energy = self.transport(scattered, out);
         if self.emission.iter().any(|&e| e != 0.0) {
-            let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-            let s = &mut *guard;
-            let sweep = Sweep {
-                tally: true,
-                linear: false,
-            };
-            let emitted = self.transport_all(out, s, sweep, true, |bins, dst| {
+            let emitted = self.transport_tallied(out, false, true, |bins, dst| {
                 let stride = self.stride;
                 dst[..bins.len() * stride]
                     .par_chunks_mut(stride)
@@ -2023,7 +2030,6 @@ impl OrdinatesOperator {
         let mut total = SweepEnergy::default();
         for (bins, pieces) in self.groups.iter().zip(&self.group_pieces) {
             fill(bins.clone(), &mut s.density);
-
             let density = &s.density;
             let energies: Vec<SweepEnergy> = s.piece_out[..pieces.len() * stride]
                 .par_chunks_mut(stride)
@@ -2309,7 +2315,7 @@ impl OrdinatesOperator {
             .par_chunks_mut(self.stride)
             .for_each(|column| {
                 for (v, &level) in column[..n].iter_mut().zip(&self.cell_level) {
-                    *v *= self.level_inv_tau[level as usize];
+                    *v *= per_optical_side(self.level_tau[level as usize]);
                 }
             });
     }
@@ -2335,7 +2341,7 @@ impl OrdinatesOperator {
         let [nx, ny, nz] = self.grid.dims;
         let tau_c = self.level_tau[self.cell_level[c] as usize];
         let own = source_function[c];
-        let density = if tau_c > 0.0 { tau_c * own } else { own };
+        let density = own / per_optical_side(tau_c);
         // Weights of (lower, own, upper) by which neighbours are there (bits 2a, 2a + 1):
         // no branches, and the three axes written out so that their loads overlap.
         const WEIGHTS: [[f64; 3]; 4] = [
@@ -2405,7 +2411,7 @@ impl OrdinatesOperator {
                     let in_y = up_row.map_or(0.0, |u| buf.out_y[u + fi]);
                     let inflow = [up_x, in_y, buf.out[lc]];
                     let ct = &terms[self.cell_level[c] as usize];
-                    let (sd, src) = if !slopes.is_empty() {
+                    let src = if !slopes.is_empty() {
                         // The coarse cell's linear source on this sub-cell: its value at the
                         // sub-cell's centre, and the slopes over the sub-cell's width.
                         let (mean, slope) =
@@ -2420,12 +2426,9 @@ impl OrdinatesOperator {
                                 })
                                 .sum::<f64>();
                         let st = &slopes[self.cell_level[c] as usize];
-                        (
-                            sd,
-                            ct.linear_source(st, sd, slope.map(|v| v / r as f64), axes),
-                        )
+                        ct.linear_source(st, sd, slope.map(|v| v / r as f64), axes)
                     } else {
-                        (density[c], ct.uniform_source(density[c]))
+                        ct.uniform_source(density[c])
                     };
                     let o = ct.outflow(inflow, &src, axes);
                     buf.out[lc] = o[2];
@@ -2434,7 +2437,12 @@ impl OrdinatesOperator {
                     let mean = ct.mean_radiance(inflow, &src, axes);
                     out[c] += share * mean;
                     if tally {
-                        energy.tally_cell(mean, self.level_tau[self.cell_level[c] as usize], sd, h);
+                        energy.tally_cell(
+                            mean,
+                            self.level_tau[self.cell_level[c] as usize],
+                            src.density,
+                            h,
+                        );
                         if tx == fnx - 1 {
                             energy.escaped[piece.side(0)] += o[0];
                         }

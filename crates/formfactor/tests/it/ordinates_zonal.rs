@@ -111,8 +111,9 @@ fn isotropic_ordinates_agree_with_zonal() {
     // flat source throughout 2.5 % and 1.0 % (3.5 % and 1.6 % with Max's face shares): first
     // order in the sub-cell size. The zonal 7³ reference is itself the flat-source
     // discretisation (zonal on the 14³ and 21³ grids: +0.4 % and +0.6 % over it, 0.8 % and
-    // 1.0 % RMS; `ordinates_zonal_gap`). More bins do not close the gap (384 bins: 4.2 % with
-    // Max's shares), so it is spatial, not angular.
+    // 1.0 % RMS). All from `ordinates_zonal_gap` with `ZONAL_ZR=1,2,3`, `ZONAL_REFINE=2`
+    // and `ZONAL_FLAT=1`. More bins do not close the gap (384 bins: 4.2 % with Max's
+    // shares), so it is spatial, not angular.
     assert!(
         refined < 0.02,
         "relative RMS {refined} with 2×2×2 sub-cells"

@@ -89,6 +89,7 @@ pub fn scattered_ordinates(r: usize, n: usize) -> Vec<f64> {
             exact_transmission: std::env::var("ZONAL_EXACT_T").is_ok_and(|v| v == "1"),
             transport_refinement: std::env::var("ZONAL_REFINE").map_or(1, |v| v.parse().unwrap()),
             face_coupling: std::env::var("ZONAL_MAX_SHARES").is_err(),
+            linear_source: std::env::var("ZONAL_FLAT").is_err(),
             ..Default::default()
         },
     )
