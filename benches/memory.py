@@ -7,7 +7,8 @@
 For each case it writes a scene (Max's cloud generator, about 12 % of cells non-empty, or a
 uniform medium filling every cell), asks `volrad info --json` for the predicted peak, runs
 `volrad solve` under /usr/bin/time and prints a Markdown table of predicted and measured peak
-resident memory and wall-clock time (docs/performance.md, "Memory" and "Time"). Needs only the
+resident memory and wall-clock time (docs/performance.md, "Memory" and "Time"); beside each
+predicted time, the machine's speed `volrad info` measured and scaled it by. Needs only the
 standard library.
 """
 
@@ -119,6 +120,9 @@ def main():
             )
             predicted = info["peak_memory_bytes"] / 2**20
             predicted_seconds = info["predicted_seconds"]
+            # The machine's measured speed the prediction was scaled by (None: not measured).
+            machine = info["time"].get("machine")
+            speed = f" (×{machine:.2f})" if machine else ""
             timed = subprocess.run(
                 ["/usr/bin/time", "-f", "%M %e", args.volrad, "--quiet", "solve", scene,
                  "-o", folder / "s.volrad"],
@@ -140,7 +144,7 @@ def main():
             print(
                 f"| {method} | {dims[0]}×{dims[1]}×{dims[2]} | {medium} | {settings} | "
                 f"{predicted:.0f} MiB | {measured:.0f} MiB | {100 * error:+.0f} % | "
-                f"{predicted_seconds:.2f} s | {seconds:.2f} s | {100 * time_error:+.0f} % |",
+                f"{predicted_seconds:.2f} s{speed} | {seconds:.2f} s | {100 * time_error:+.0f} % |",
                 flush=True,
             )
     print(f"\nworst |error|: memory {100 * worst:.0f} %, time {100 * worst_time:.0f} %")

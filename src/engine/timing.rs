@@ -4,7 +4,8 @@
 //! [`solve_time`] sums named parts — the light pass, the emitter pass, each method's operator
 //! build and its iterations — each a count of work (cells, direction bins, links, pairs of
 //! cells, rays) times seconds per unit measured on the project's 2-core machine, scaled to the
-//! solve's worker threads. The one quantity not counted from the scene is the number of
+//! solve's worker threads and to this machine's speed, which [`machine_factor`] measures
+//! with a fixed kernel (about 40 ms). The one quantity not counted from the scene is the number of
 //! iterations: [`probe`] measures it on a copy of the medium coarsened to a few thousand
 //! cells (the spectral radius of the scattering operator by power iteration, and the solve's
 //! iteration run there from the lights' first scattering), which costs about 0.2 s and is a
@@ -37,6 +38,10 @@ pub struct TimeEstimate {
     /// Whether the iterations and radius were measured by [`probe`] (not diffusion theory).
     probed: bool,
     threads: usize,
+    /// This machine's time per unit of work over the coefficients' machine's
+    /// ([`machine_factor`]), which every part has been multiplied by (`None`: not measured,
+    /// for the methods that take a fraction of a second).
+    machine: Option<f64>,
 }
 
 impl TimeEstimate {
@@ -55,6 +60,11 @@ impl TimeEstimate {
     /// Whether the iterations were measured on a coarse copy of the medium ([`probe`]).
     pub fn probed(&self) -> bool {
         self.probed
+    }
+
+    /// This machine's time per unit of work over the coefficients' machine's, where measured.
+    pub fn machine_factor(&self) -> Option<f64> {
+        self.machine
     }
 }
 
@@ -82,6 +92,12 @@ impl fmt::Display for TimeEstimate {
             .collect();
         if !shown.is_empty() {
             write!(f, " ({})", shown.join(", "))?;
+        }
+        if let Some(machine) = self.machine {
+            write!(
+                f,
+                "; this machine measured at {machine:.2}× the model's time"
+            )?;
         }
         Ok(())
     }
@@ -176,6 +192,98 @@ const KRYLOV_SECONDS_PER_ENTRY_PASS: f64 = 1.35e-9;
 /// The threads the coefficients were measured with.
 const MEASURED_THREADS: f64 = 2.0;
 
+/// The machine's own speed against the one the coefficients were measured on: the time of
+/// one application of a fixed discrete-ordinates operator ([`CALIBRATION_SIDE`]³ uniform
+/// cells, [`PROBE_BINS`] bins, g = 0.6) on one thread, over
+/// [`CALIBRATION_REFERENCE_SECONDS`], measured on the coefficients' machine the hour their
+/// table was (docs/performance.md, "Time"). Machines, and one machine from hour to hour,
+/// differ by tens of percent per core; the model's own thread scaling does the rest. One
+/// thread, because what the other cores happen to be doing for the few milliseconds of the
+/// kernel says little of the minutes of a solve: on 2 threads it took 1.4 ms, and 2.6 ms —
+/// one thread's time — whenever another process held the second core; on one thread it
+/// varies by 1–2 %. About 40 ms, once per process; `VOLRAD_MACHINE_FACTOR`
+/// sets it instead (1: the coefficients as they are); 1 where it cannot run.
+pub fn machine_factor() -> f64 {
+    static FACTOR: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *FACTOR.get_or_init(|| {
+        let given = std::env::var("VOLRAD_MACHINE_FACTOR")
+            .ok()
+            .and_then(|v| v.parse::<f64>().ok())
+            .filter(|f| f.is_finite() && *f > 0.0);
+        let factor = given.or_else(measure_machine_factor).unwrap_or(1.0);
+        tracing::debug!(
+            factor,
+            given = given.is_some(),
+            "machine speed against the time model's"
+        );
+        factor
+    })
+}
+
+/// Whether a prediction for `method` runs [`machine_factor`]'s kernel: not for the methods
+/// without a linear solve, which take a fraction of a second.
+pub fn measures_the_machine(method: SolveMethod) -> bool {
+    method.solves_linear_system() || method == SolveMethod::TwoPass
+}
+
+/// Cells per side of [`machine_factor`]'s medium (16³ × 24 bins: about 2.5 ms an
+/// application).
+const CALIBRATION_SIDE: usize = 16;
+/// Applications of [`machine_factor`]'s operator before the timed ones, and timed.
+const CALIBRATION_WARM_UP: usize = 2;
+const CALIBRATION_APPLICATIONS: usize = 15;
+/// [`machine_factor`]'s seconds per application on the coefficients' machine (its lower
+/// third).
+const CALIBRATION_REFERENCE_SECONDS: f64 = 1.76e-3;
+/// The factor's bounds: outside them the timing is taken as disturbed, not as the machine.
+const CALIBRATION_BOUNDS: (f64, f64) = (0.25, 4.0);
+
+fn measure_machine_factor() -> Option<f64> {
+    use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+    use solver::TransportOperator;
+    let grid = medium::Grid::new([CALIBRATION_SIDE; 3], 1.0).ok()?;
+    let medium = medium::Medium::homogeneous(
+        grid,
+        0.5,
+        0.9,
+        0.0,
+        medium::PhaseFunction::HenyeyGreenstein { g: 0.6 },
+    )
+    .ok()?;
+    let bins = DirectionBins::with_count(PROBE_BINS).ok()?;
+    let op = OrdinatesOperator::new(&medium, 0, bins, OrdinatesOptions::default()).ok()?;
+    let x = vec![1.0; op.len()];
+    let mut y = vec![0.0; op.len()];
+    let mut seconds = Vec::with_capacity(CALIBRATION_APPLICATIONS);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .ok()?
+        .install(|| {
+            // Untimed: the scratch is allocated and the caches filled.
+            for _ in 0..CALIBRATION_WARM_UP {
+                op.apply(&x, &mut y);
+            }
+            for _ in 0..CALIBRATION_APPLICATIONS {
+                let start = std::time::Instant::now();
+                op.apply(&x, &mut y);
+                seconds.push(start.elapsed().as_secs_f64());
+            }
+        });
+    seconds.sort_by(f64::total_cmp);
+    tracing::debug!(
+        fastest = seconds[0],
+        median = seconds[seconds.len() / 2],
+        slowest = seconds[seconds.len() - 1],
+        "the time model's kernel, seconds per application"
+    );
+    // The lower third, not the median: a disturbance of part of the window (another process
+    // waking) does not count.
+    let factor = seconds[seconds.len() / 3] / CALIBRATION_REFERENCE_SECONDS;
+    (factor.is_finite() && (CALIBRATION_BOUNDS.0..=CALIBRATION_BOUNDS.1).contains(&factor))
+        .then_some(factor)
+}
+
 /// The predicted time of solving `scene` with `settings` on `threads` worker threads;
 /// `occupancy` is [`Occupancy::of`] its medium.
 pub fn solve_time(
@@ -183,6 +291,19 @@ pub fn solve_time(
     settings: &SolveSettings,
     occupancy: &Occupancy,
     threads: usize,
+) -> TimeEstimate {
+    let machine = measures_the_machine(settings.method).then(machine_factor);
+    solve_time_at_speed(scene, settings, occupancy, threads, machine)
+}
+
+/// [`solve_time`] on a machine `machine` times slower than the coefficients' (`None`: as
+/// fast, and not measured).
+pub fn solve_time_at_speed(
+    scene: &Scene,
+    settings: &SolveSettings,
+    occupancy: &Occupancy,
+    threads: usize,
+    machine: Option<f64>,
 ) -> TimeEstimate {
     let medium = &scene.medium;
     let grid = medium.grid();
@@ -355,7 +476,7 @@ pub fn solve_time(
             });
         }
     }
-    let speed = MEASURED_THREADS / threads.max(1) as f64;
+    let speed = machine.unwrap_or(1.0) * MEASURED_THREADS / threads.max(1) as f64;
     for p in &mut parts {
         p.seconds *= speed;
     }
@@ -365,6 +486,7 @@ pub fn solve_time(
         spectral_radius: settings.method.solves_linear_system().then_some(rho),
         probed: probed.is_some(),
         threads: threads.max(1),
+        machine,
     }
 }
 

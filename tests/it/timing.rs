@@ -125,3 +125,26 @@ fn predicted_iterations_follow_the_solves() {
         report.join("\n")
     );
 }
+
+#[test]
+fn the_prediction_runs_on_the_machines_measured_clock() {
+    use volrad::engine::timing::{machine_factor, solve_time_at_speed};
+    let scene = scene(false, 0.3, 0.9, 0.6, "discrete-ordinates", "bins = 24");
+    let occupancy = Occupancy::of(&scene.medium);
+    let at = |machine| solve_time_at_speed(&scene, &scene.solve, &occupancy, 2, machine);
+    let (reference, slower) = (at(Some(1.0)), at(Some(2.5)));
+    // Every part is on the machine's clock: the whole scales by the factor, the iterations
+    // (measured on the probe's copy) do not.
+    let ratio = slower.total().as_secs_f64() / reference.total().as_secs_f64();
+    assert!((ratio - 2.5).abs() < 1e-3, "{ratio}");
+    assert_eq!(slower.iterations(), reference.iterations());
+    assert!(
+        slower.to_string().contains("2.50× the model's time"),
+        "{slower}"
+    );
+    assert!(!at(None).to_string().contains("the model's time"));
+    // The kernel itself: a positive factor within its bounds (here, under the other tests'
+    // load, a factor outside them falls back to 1, which is within them too).
+    let measured = machine_factor();
+    assert!((0.25..=4.0).contains(&measured), "{measured}");
+}
