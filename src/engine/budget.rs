@@ -68,15 +68,16 @@ const LIGHT_PASS_KEPT_BYTES_PER_CELL: u64 = 24;
 /// rows it is assembled from.
 const ZONAL_BYTES_PER_PAIR: u64 = 32;
 /// Hierarchical zonal: per non-empty cell (its links, the cluster tree, the diffusion
-/// operator), per non-empty cell whose near-field row is stored rather than shared (the row,
-/// and its traced column while the rows are made), per cell of the grid, and what the build
-/// holds whatever the grid. Fitted to the peaks of solves of 32 × 32 × 24 and 64 × 64 × 48
+/// operator), per entry of the near-field rows stored rather than shared
+/// ([`NearRows::stored_entries`]: the entry, and its traced column while the rows are made;
+/// 5,750 bytes per stored row before they were counted, at about 500 entries a row), per
+/// cell of the grid, and what the build holds whatever the grid. Fitted to the peaks of solves of 32 × 32 × 24 and 64 × 64 × 48
 /// clouds (12 % non-empty, no row shared), uniform 24³ and 40³ blocks (every row shared) —
 /// 98, 444, 146 and 373 MiB, `benches/memory.py --only zonal-hierarchical` — and Kobayashi's
 /// 60³ source in a void (78 % of rows shared; 1,720–1,733 MiB, `examples/source_in_void.rs
 /// --case ii --method zonal-hierarchical`).
 const HIERARCHICAL_BYTES_PER_OCCUPIED_CELL: u64 = 5_500;
-const HIERARCHICAL_NEAR_BYTES_PER_STORED_ROW: u64 = 5_750;
+const HIERARCHICAL_NEAR_BYTES_PER_STORED_ENTRY: u64 = 11;
 const HIERARCHICAL_BYTES_PER_CELL: u64 = 300;
 const HIERARCHICAL_FIXED_BYTES: u64 = 40 << 20;
 /// Hierarchical zonal: each further channel builds its operator again while the allocator
@@ -135,9 +136,9 @@ struct Sizes {
     /// The transport grid's cells and non-empty cells (what the solve's state grows with).
     transport_cells: u64,
     transport_occupied: u64,
-    /// Non-empty transport cells whose near-field row the hierarchy shares (0 for the
-    /// other methods, which do not count them).
-    transport_shared_rows: u64,
+    /// Entries of the near-field rows the hierarchy stores, one row per non-empty transport
+    /// cell whose row is not shared (0 for the other methods, which do not count them).
+    transport_near_entries: u64,
     /// Data cells per side of a transport cell.
     scale: usize,
     /// Transport cells per side of a data cell.
@@ -155,8 +156,8 @@ impl Sizes {
             cells: medium.grid().cell_count() as u64,
             transport_cells: transport_cell_count(scene, settings) as u64,
             transport_occupied: occupancy.at(scale) as u64 * parts,
-            transport_shared_rows: if settings.method == SolveMethod::ZonalHierarchical {
-                occupancy.hierarchy_shared_rows(scale) as u64 * parts
+            transport_near_entries: if settings.method == SolveMethod::ZonalHierarchical {
+                occupancy.hierarchy_near_rows(scale).stored_entries * parts
             } else {
                 0
             },
@@ -173,9 +174,9 @@ impl Sizes {
 pub struct Occupancy<'a> {
     medium: &'a medium::Medium,
     occupied: Vec<bool>,
-    /// [`hierarchy_shared_rows`](Occupancy::hierarchy_shared_rows) per transport scale asked
+    /// [`hierarchy_near_rows`](Occupancy::hierarchy_near_rows) per transport scale asked
     /// for: the memory check, its alternatives and the predicted time all ask.
-    shared_rows: std::sync::Mutex<Vec<(usize, usize)>>,
+    near_rows: std::sync::Mutex<Vec<(usize, NearRows)>>,
 }
 
 impl<'a> Occupancy<'a> {
@@ -185,7 +186,7 @@ impl<'a> Occupancy<'a> {
             occupied: (0..medium.grid().cell_count())
                 .map(|i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
                 .collect(),
-            shared_rows: std::sync::Mutex::new(Vec::new()),
+            near_rows: std::sync::Mutex::new(Vec::new()),
         }
     }
 
@@ -194,13 +195,21 @@ impl<'a> Occupancy<'a> {
     /// is uniform: `formfactor::zonal::uniform_neighbourhoods`), the fewest over the channels.
     /// Such cells cost the operator no near-field memory and no near-field build time.
     pub fn hierarchy_shared_rows(&self, scale: usize) -> usize {
-        let mut known = self.shared_rows.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(&(_, count)) = known.iter().find(|(s, _)| *s == scale) {
-            return count;
+        self.hierarchy_near_rows(scale).shared
+    }
+
+    /// The hierarchy's near field on the transport grid at `scale`: the rows it shares
+    /// ([`hierarchy_shared_rows`](Self::hierarchy_shared_rows)) and the entries of those it
+    /// stores.
+    pub fn hierarchy_near_rows(&self, scale: usize) -> NearRows {
+        let mut known = self.near_rows.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(&(_, rows)) = known.iter().find(|(s, _)| *s == scale) {
+            return rows;
         }
-        let count = shared_rows_of(self.medium, scale);
-        known.push((scale, count));
-        count
+        let rows = near_rows_of(self.medium, scale);
+        tracing::debug!(scale, ?rows, "the hierarchy's near field, counted");
+        known.push((scale, rows));
+        rows
     }
 
     /// Non-empty cells of the transport grid at `scale` (1: the data grid's).
@@ -242,8 +251,18 @@ impl<'a> Occupancy<'a> {
     }
 }
 
-/// [`Occupancy::hierarchy_shared_rows`], counted.
-fn shared_rows_of(medium: &medium::Medium, scale: usize) -> usize {
+/// The hierarchical operator's near field on one transport grid, counted from the medium.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NearRows {
+    /// Non-empty cells whose row is shared ([`Occupancy::hierarchy_shared_rows`]).
+    pub shared: usize,
+    /// Entries of the rows stored one per cell: for each non-empty cell whose row is not
+    /// shared, the non-empty cells within the near radius (Chebyshev), itself included.
+    pub stored_entries: u64,
+}
+
+/// [`Occupancy::hierarchy_near_rows`], counted; of the channel that shares the fewest rows.
+fn near_rows_of(medium: &medium::Medium, scale: usize) -> NearRows {
     let radius = formfactor::HierarchicalOptions::default().near.radius;
     let coarse;
     let medium = if scale > 1 {
@@ -252,22 +271,73 @@ fn shared_rows_of(medium: &medium::Medium, scale: usize) -> usize {
                 coarse = m;
                 &coarse
             }
-            Err(_) => return 0,
+            Err(_) => return NearRows::default(),
         }
     } else {
         medium
     };
+    let grid = medium.grid();
     medium
         .channels()
         .iter()
         .map(|c| {
-            formfactor::zonal::uniform_neighbourhoods(medium.grid(), &c.sigma_t, radius)
-                .into_iter()
-                .filter(|&u| u)
-                .count()
+            let shared = formfactor::zonal::uniform_neighbourhoods(grid, &c.sigma_t, radius);
+            let occupied: Vec<bool> = c.sigma_t.iter().map(|&s| s > 0.0).collect();
+            let around = cells_within(grid.dims, &occupied, radius);
+            let stored_entries = (0..occupied.len())
+                .filter(|&i| occupied[i] && !shared[i])
+                .map(|i| u64::from(around[i]))
+                .sum();
+            NearRows {
+                shared: shared.iter().filter(|&&u| u).count(),
+                stored_entries,
+            }
         })
-        .min()
-        .unwrap_or(0)
+        .min_by_key(|r| r.shared)
+        .unwrap_or_default()
+}
+
+/// Per cell, the `marked` cells within Chebyshev distance `radius` (the `(2R+1)³` block
+/// clipped to the grid), itself included: box sums of a summed-volume table.
+fn cells_within(dims: [usize; 3], marked: &[bool], radius: usize) -> Vec<u32> {
+    let [nx, ny, nz] = dims;
+    // table[(x, y, z)] = marked cells in [0, x) × [0, y) × [0, z), on (n + 1)³ corners.
+    let (sx, sy) = (nx + 1, (nx + 1) * (ny + 1));
+    let mut table = vec![0u32; sy * (nz + 1)];
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let here = u32::from(marked[x + nx * (y + ny * z)]);
+                let at = |dx: usize, dy: usize, dz: usize| {
+                    table[(x + dx) + sx * (y + dy) + sy * (z + dz)]
+                };
+                let value = here + at(0, 1, 1) + at(1, 0, 1) + at(1, 1, 0)
+                    - at(0, 0, 1)
+                    - at(0, 1, 0)
+                    - at(1, 0, 0)
+                    + at(0, 0, 0);
+                table[(x + 1) + sx * (y + 1) + sy * (z + 1)] = value;
+            }
+        }
+    }
+    let mut out = Vec::with_capacity(marked.len());
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let (x0, x1) = (x.saturating_sub(radius), (x + radius + 1).min(nx));
+                let (y0, y1) = (y.saturating_sub(radius), (y + radius + 1).min(ny));
+                let (z0, z1) = (z.saturating_sub(radius), (z + radius + 1).min(nz));
+                let t = |x: usize, y: usize, z: usize| i64::from(table[x + sx * y + sy * z]);
+                let sum = t(x1, y1, z1) - t(x0, y1, z1) - t(x1, y0, z1) - t(x1, y1, z0)
+                    + t(x0, y0, z1)
+                    + t(x0, y1, z0)
+                    + t(x1, y0, z0)
+                    - t(x0, y0, z0);
+                out.push(sum as u32);
+            }
+        }
+    }
+    out
 }
 
 /// Transport grids up to this many cells (64³) are solved at the data's resolution by
@@ -489,9 +559,8 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                 .transport_occupied
                 .saturating_mul(HIERARCHICAL_BYTES_PER_OCCUPIED_CELL)
                 .saturating_add(
-                    s.transport_occupied
-                        .saturating_sub(s.transport_shared_rows)
-                        .saturating_mul(HIERARCHICAL_NEAR_BYTES_PER_STORED_ROW),
+                    s.transport_near_entries
+                        .saturating_mul(HIERARCHICAL_NEAR_BYTES_PER_STORED_ENTRY),
                 )
                 .saturating_add(
                     s.transport_cells
@@ -897,5 +966,35 @@ mod tests {
             err.contains("direction bins") && err.contains("bins = 24"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn the_near_fields_neighbours_are_counted_as_a_walk_over_each_block_counts_them() {
+        let dims = [7, 5, 6];
+        let n = dims[0] * dims[1] * dims[2];
+        // A scattered pattern, not symmetric in any axis.
+        let marked: Vec<bool> = (0..n).map(|i| (i * 7 + i / 9) % 5 < 2).collect();
+        for radius in [0, 1, 2, 4] {
+            let fast = cells_within(dims, &marked, radius);
+            for (i, &count) in fast.iter().enumerate() {
+                let c = [
+                    i % dims[0],
+                    (i / dims[0]) % dims[1],
+                    i / (dims[0] * dims[1]),
+                ];
+                let mut walked = 0;
+                for (j, &m) in marked.iter().enumerate() {
+                    let d = [
+                        j % dims[0],
+                        (j / dims[0]) % dims[1],
+                        j / (dims[0] * dims[1]),
+                    ];
+                    if m && (0..3).all(|a| c[a].abs_diff(d[a]) <= radius) {
+                        walked += 1;
+                    }
+                }
+                assert_eq!(count, walked, "cell {c:?}, radius {radius}");
+            }
+        }
     }
 }

@@ -426,7 +426,7 @@ pub fn solve_time_at_speed(
         SolveMethod::ZonalHierarchical => operator(
             "the hierarchical operator",
             transport_occupied * far_links_per_occupied_cell(transport_occupied)
-                + stored_rows() * NEAR_ENTRIES_PER_STORED_ROW,
+                + occupancy.hierarchy_near_rows(scale).stored_entries as f64 * parts_per_cell,
             HIERARCHICAL_BUILD_SECONDS_PER_LINK,
             0.0,
             HIERARCHICAL_APPLY_SECONDS_PER_LINK,
@@ -498,11 +498,6 @@ pub fn solve_time_at_speed(
 fn far_links_per_occupied_cell(occupied: f64) -> f64 {
     (50.0 * occupied.max(2.0).log2() - 370.0).max(100.0)
 }
-
-/// Near-field entries of a non-empty cell whose row is stored (not shared): its non-empty
-/// neighbours within the near radius (measured 434–568 on clouds, 728 of 728 in a dense
-/// shield's mixed border).
-const NEAR_ENTRIES_PER_STORED_ROW: f64 = 600.0;
 
 /// Passes over a vector of unknowns per iteration of a Krylov method beyond its
 /// applications of the operator: GMRES(m) orthogonalises against half its basis on average
