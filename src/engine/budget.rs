@@ -71,8 +71,9 @@ const ZONAL_BYTES_PER_PAIR: u64 = 32;
 /// operator), per entry of the near-field rows stored rather than shared
 /// ([`NearRows::stored_entries`]: the entry, and its traced column while the rows are made;
 /// 5,750 bytes per stored row before they were counted, at about 500 entries a row), per
-/// cell of the grid, and what the build holds whatever the grid. Fitted to the peaks of solves of 32 × 32 × 24 and 64 × 64 × 48
-/// clouds (12 % non-empty, no row shared), uniform 24³ and 40³ blocks (every row shared) —
+/// cell of the grid, and what the build holds whatever the grid. Fitted to the peaks of
+/// solves of 32 × 32 × 24 and 64 × 64 × 48 clouds (12 % non-empty, no row shared), uniform
+/// 24³ and 40³ blocks (every row shared) —
 /// 98, 444, 146 and 373 MiB, `benches/memory.py --only zonal-hierarchical` — and Kobayashi's
 /// 60³ source in a void (78 % of rows shared; 1,720–1,733 MiB, `examples/source_in_void.rs
 /// --case ii --method zonal-hierarchical`).

@@ -201,8 +201,9 @@ const MEASURED_THREADS: f64 = 2.0;
 /// thread, because what the other cores happen to be doing for the few milliseconds of the
 /// kernel says little of the minutes of a solve: on 2 threads it took 1.4 ms, and 2.6 ms —
 /// one thread's time — whenever another process held the second core; on one thread it
-/// varies by 1–2 %. About 40 ms, once per process; `VOLRAD_MACHINE_FACTOR`
-/// sets it instead (1: the coefficients as they are); 1 where it cannot run.
+/// took 2.3–2.5 ms on a quiet machine and 2.0–2.5 ms beside other work. About 40 ms, once
+/// per process; `VOLRAD_MACHINE_FACTOR` sets it instead (1: the coefficients as they are);
+/// 1 where it cannot run.
 pub fn machine_factor() -> f64 {
     static FACTOR: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
     *FACTOR.get_or_init(|| {
@@ -232,8 +233,10 @@ const CALIBRATION_SIDE: usize = 16;
 /// Applications of [`machine_factor`]'s operator before the timed ones, and timed.
 const CALIBRATION_WARM_UP: usize = 2;
 const CALIBRATION_APPLICATIONS: usize = 15;
-/// [`machine_factor`]'s seconds per application on the coefficients' machine (its lower
-/// third).
+/// [`machine_factor`]'s seconds per application (the lower third of its times) on a
+/// machine as fast as the coefficients say: fitted so that the solves of docs/performance.md's
+/// table, measured the same hour, are centred (the kernel took 2.3–2.5 ms there, the solves
+/// about 1.4× the coefficients' seconds).
 const CALIBRATION_REFERENCE_SECONDS: f64 = 1.76e-3;
 /// The factor's bounds: outside them the timing is taken as disturbed, not as the machine.
 const CALIBRATION_BOUNDS: (f64, f64) = (0.25, 4.0);
