@@ -317,6 +317,13 @@ pub fn solve_time_at_speed(
     let parts_per_cell = transport_split(scene, settings).pow(3) as f64;
     let transport_cells = super::budget::transport_cell_count(scene, settings) as f64;
     let transport_occupied = occupancy.at(scale) as f64 * parts_per_cell;
+    tracing::debug!(
+        cells,
+        transport_cells,
+        transport_occupied,
+        scale,
+        "the time model's counts"
+    );
     let mut parts = vec![TimePart {
         what: "set-up",
         seconds: BASE_SECONDS,
