@@ -178,7 +178,13 @@ pub fn solve_scene(
             light_pass,
             scattered,
             report,
-            emitted_fluence: emitters.map(|e| e.fluence().iter().map(|&v| v as f32).collect()),
+            emitted_fluence: emitters
+                .as_ref()
+                .map(|e| e.fluence().iter().map(|&v| v as f32).collect()),
+            emitted_beam: emitters
+                .as_ref()
+                .filter(|_| settings.method == SolveMethod::DiscreteOrdinates)
+                .map(|e| crate::engine::methods::emitter_beam(transport_medium, c, e)),
             render_cache: Default::default(),
         });
     }

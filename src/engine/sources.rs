@@ -8,10 +8,10 @@ use formfactor::ordinates::bins::{face_bilinear, interpolate_with};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
 use gather::{InScattering, OpticalModel, RayCarry, StepSample, Trilinear, ViewSegment};
 use glam::DVec3;
-use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium};
+use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 
 use crate::engine::solution::{
-    ChannelSolution, InverseScattering, RenderCache, ScatteredField, Solution,
+    ChannelSolution, InverseScattering, RenderCache, ScatteredField, Solution, EMITTER_BEAM_VALUES,
 };
 
 /// Where a per-cell source is drawn between cell centres: `trilinear` renders (which call
@@ -598,6 +598,72 @@ impl InScattering for BinnedSource<'_> {
     }
 }
 
+/// The emitters' first scattering (discrete ordinates with an emitter pass), in the view's own
+/// direction: per cell of the solved grid `[σs φ, ḡ, d]`
+/// ([`emitter_beam`](crate::engine::methods::emitter_beam)), the source toward `ω` being
+/// `σs φ · p_ḡ(ω·d)` ([`PhaseFunction::eval_from_lobe`]) with the true phase function, drawn
+/// between cells as the solved sources are.
+pub struct EmitterBeamSource<'a> {
+    values: &'a [f32],
+    phase: PhaseFunction,
+    lattice: CellLattice<'a>,
+    max: f64,
+}
+
+impl<'a> EmitterBeamSource<'a> {
+    /// `values` holds [`EMITTER_BEAM_VALUES`] per cell of the lattice's solved grid.
+    pub fn new(values: &'a [f32], phase: PhaseFunction, lattice: CellLattice<'a>) -> Self {
+        // Each cell's largest value: forward or backward, whichever its lobe favours.
+        let largest: Vec<f32> = values
+            .chunks(EMITTER_BEAM_VALUES)
+            .map(|v| {
+                let a = v[1] as f64;
+                let peak = phase
+                    .eval_from_lobe(a, 1.0)
+                    .max(phase.eval_from_lobe(a, -1.0));
+                (v[0] as f64 * peak) as f32
+            })
+            .collect();
+        let max = lattice.bound(&largest, 1);
+        EmitterBeamSource {
+            values,
+            phase,
+            lattice,
+            max,
+        }
+    }
+
+    /// The source of `cell` toward `w` (the direction light flows).
+    #[inline]
+    fn toward(&self, cell: usize, w: DVec3) -> f64 {
+        let v = &self.values[cell * EMITTER_BEAM_VALUES..(cell + 1) * EMITTER_BEAM_VALUES];
+        let d = DVec3::new(v[2] as f64, v[3] as f64, v[4] as f64);
+        v[0] as f64 * self.phase.eval_from_lobe(v[1] as f64, w.dot(d))
+    }
+}
+
+impl InScattering for EmitterBeamSource<'_> {
+    #[inline]
+    fn segment(&self, seg: &ViewSegment, _: &mut RayCarry) -> f64 {
+        let w = -seg.ray.direction;
+        self.lattice.segment(seg, |c| self.toward(c, w)) * seg.weight
+    }
+    #[inline]
+    fn at(&self, x: DVec3, cell: usize, w: DVec3) -> f64 {
+        self.lattice.at(x, cell, |c| self.toward(c, w))
+    }
+    #[inline]
+    fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
+        self.lattice.at_step(step, |c| self.toward(c, w))
+    }
+    fn max_source(&self) -> f64 {
+        self.max
+    }
+    fn is_zero(&self) -> bool {
+        self.max == 0.0
+    }
+}
+
 /// The two-pass method's stored field drawn between cell centres as the other solved fields
 /// are: its mean over directions per cell (the tallies of all bins together, the least noisy
 /// part) as a [`CellSource`], times the cell's own angular shape (its value in the bin of the
@@ -718,15 +784,18 @@ pub fn channel_scattering<'a>(
         )),
         (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
             let logs = ch.render_cache.log_source(higher_order);
-            Box::new((
-                first,
-                BinnedSource::new(
-                    higher_order,
-                    logs,
-                    bins.face_resolution,
-                    CellLattice::of(solution, c, ch)?,
-                ),
-            ))
+            let lattice = CellLattice::of(solution, c, ch)?;
+            let higher = BinnedSource::new(higher_order, logs, bins.face_resolution, lattice);
+            match &ch.emitted_beam {
+                Some(beam) => Box::new((
+                    first,
+                    (
+                        higher,
+                        EmitterBeamSource::new(beam, solution.medium.phase(), lattice),
+                    ),
+                )),
+                None => Box::new((first, higher)),
+            }
         }
         (ScatteredField::TwoPass(t), _) => {
             let means = ch

@@ -108,6 +108,27 @@ impl PhaseFunction {
         }
     }
 
+    /// The light this phase function scatters toward `cos θ` from the axis of an incident
+    /// field whose directions spread about that axis as a Henyey–Greenstein lobe of mean
+    /// cosine `incident` (0: isotropic, 1: a beam), per unit of incident fluence. Exact for
+    /// Henyey–Greenstein and the two-lobe mix, whose convolution with such a lobe is a
+    /// Henyey–Greenstein of `g · incident` (the Legendre moments multiply: `g^l incident^l`);
+    /// for other phase functions the lobe is taken as a beam of that share and an isotropic
+    /// rest. Integrates to 1 over the sphere in both cases. What the light of emitting cells
+    /// scatters on its first collision: the emitter pass gives each cell the field's fluence
+    /// and flux vector, whose ratio is the mean cosine (docs/physics.md).
+    pub fn eval_from_lobe(&self, incident: f64, cos_theta: f64) -> f64 {
+        let a = incident.clamp(0.0, 1.0);
+        match *self {
+            PhaseFunction::Isotropic => INV_4PI,
+            PhaseFunction::HenyeyGreenstein { g } => hg(g * a, cos_theta),
+            PhaseFunction::TwoLobe { r, g1, g2 } => {
+                r * hg(g1 * a, cos_theta) + (1.0 - r) * hg(g2 * a, cos_theta)
+            }
+            PhaseFunction::LambertianSphere => a * self.eval(cos_theta) + (1.0 - a) * INV_4PI,
+        }
+    }
+
     /// Samples `cos θ` from the density (importance sampling for Monte Carlo).
     pub fn sample_cos<R: Rng + ?Sized>(&self, rng: &mut R) -> f64 {
         match *self {
@@ -147,6 +168,52 @@ pub fn rotate_about(axis: DVec3, cos_theta: f64, phi: f64) -> DVec3 {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_lobe_of_incident_light_scatters_as_its_moments_say() {
+        let phases = [
+            PhaseFunction::Isotropic,
+            PhaseFunction::HenyeyGreenstein { g: 0.85 },
+            PhaseFunction::HenyeyGreenstein { g: -0.3 },
+            PhaseFunction::TwoLobe {
+                r: 0.7,
+                g1: 0.8,
+                g2: -0.4,
+            },
+            PhaseFunction::LambertianSphere,
+        ];
+        // Midpoint rule in cos θ: ∫ f dω = 2π ∫ f dμ.
+        let steps = 200_000;
+        let integral = |f: &dyn Fn(f64) -> f64| -> f64 {
+            (0..steps)
+                .map(|k| {
+                    let mu = -1.0 + (k as f64 + 0.5) * 2.0 / steps as f64;
+                    f(mu) * 2.0 / steps as f64
+                })
+                .sum::<f64>()
+                * 2.0
+                * PI
+        };
+        for p in phases {
+            for a in [0.0, 0.3, 0.7, 1.0] {
+                let norm = integral(&|mu| p.eval_from_lobe(a, mu));
+                assert!((norm - 1.0).abs() < 1e-3, "{p:?}, incident {a}: ∫ = {norm}");
+                // The scattered light's mean cosine about the axis is the phase function's
+                // times the incident lobe's (the first Legendre moments multiply).
+                let mean = integral(&|mu| mu * p.eval_from_lobe(a, mu));
+                let want = p.mean_cosine() * a;
+                assert!(
+                    (mean - want).abs() < 2e-3,
+                    "{p:?}, incident {a}: {mean} vs {want}"
+                );
+            }
+            // A beam scatters as the phase function itself; an isotropic field isotropically.
+            for mu in [-0.9, 0.0, 0.5, 0.99] {
+                assert!((p.eval_from_lobe(1.0, mu) - p.eval(mu)).abs() < 1e-12);
+                assert!((p.eval_from_lobe(0.0, mu) - INV_4PI).abs() < 1e-12);
+            }
+        }
+    }
+
     use super::*;
     use rand::SeedableRng;
 

@@ -49,6 +49,10 @@ pub enum ScatteredField {
     TwoPass(Box<montecarlo::two_pass::TwoPassSolution>),
 }
 
+/// Values per transport cell of [`ChannelSolution::emitted_beam`]: the isotropic part of the
+/// emitters' first scattering, its beam's, and the beam's direction.
+pub const EMITTER_BEAM_VALUES: usize = 5;
+
 /// Direction bins as stored: what a render needs to look radiance up by direction (in the
 /// file as [`records::BinsRecord`]).
 #[derive(Clone, Debug, PartialEq)]
@@ -68,6 +72,12 @@ pub struct ChannelSolution {
     /// method solved with it as its first-collision source (zonal methods and discrete
     /// ordinates in a channel that emits); `None` otherwise.
     pub emitted_fluence: Option<Vec<f32>>,
+    /// Discrete ordinates with an emitter pass: the emitters' first scattering, drawn by the
+    /// render in the view's own direction ([`crate::engine::sources::EmitterBeamSource`];
+    /// the bins then hold no first scattering of the emission): per transport cell
+    /// [`EMITTER_BEAM_VALUES`] values ([`crate::engine::methods::emitter_beam`]). `None`
+    /// otherwise.
+    pub emitted_beam: Option<Vec<f32>>,
     /// Built from the light pass on first render, shared by every later one; not stored.
     pub render_cache: RenderCache,
 }
@@ -397,10 +407,14 @@ impl Solution {
             if let Some(f) = &sol.emitted_fluence {
                 arrays.push((format!("emitted_fluence/{c}"), Cow::Borrowed(&f[..])));
             }
+            if let Some(b) = &sol.emitted_beam {
+                arrays.push((format!("emitted_beam/{c}"), Cow::Borrowed(&b[..])));
+            }
             channels.push(ChannelRecord {
                 albedo,
                 emission,
                 has_emitted_fluence: sol.emitted_fluence.is_some(),
+                has_emitted_beam: sol.emitted_beam.is_some(),
                 light_energy: sol
                     .light_pass
                     .fields
@@ -587,6 +601,14 @@ impl Solution {
                     .map_err(|e| bad(format!("channel {ci}: {e}")))?,
                 emitted_fluence: if cm.has_emitted_fluence {
                     Some(take(format!("emitted_fluence/{ci}"), transport_cells)?)
+                } else {
+                    None
+                },
+                emitted_beam: if cm.has_emitted_beam {
+                    Some(take(
+                        format!("emitted_beam/{ci}"),
+                        EMITTER_BEAM_VALUES * transport_cells,
+                    )?)
                 } else {
                     None
                 },

@@ -1887,10 +1887,12 @@ impl OrdinatesOperator {
 
     /// Adds the first-collision density of uncollided light with scalar flux `fluence` and net
     /// flux vector `current` per cell (an emitter pass) to the cell-major `density`. The
-    /// angular shape of that light is taken as an isotropic part `φ − |J|` plus a beam `|J|`
-    /// along `J`, which keeps both moments exactly (a single beam and an isotropic field are
-    /// exact); the beam scatters by `p(ω_l · Ĵ)` at bin centres, renormalised per cell as for
-    /// point lights. So `Σ_l density Ω_l` grows by `σs φ` per cell.
+    /// angular shape of that light is taken as a lobe about `J` of mean cosine `|J|/φ`, which
+    /// keeps both moments exactly (a single beam and an isotropic field are exact), scattered
+    /// by [`PhaseFunction::eval_from_lobe`] toward the bin centres, renormalised per cell as
+    /// for point lights. So `Σ_l density Ω_l` grows by `σs φ` per cell. (A beam `|J|` and an
+    /// isotropic rest `φ − |J|`, the split before, scattered a nearby emitter's light, which
+    /// arrives from a wide cone, as sharply as a distant one's.)
     pub fn add_collision_density(
         &self,
         fluence: &[f64],
@@ -1923,19 +1925,18 @@ impl OrdinatesOperator {
             if ss == 0.0 || phi <= 0.0 {
                 return;
             }
-            let beam = current[c].length().min(phi);
-            let isotropic = ss * (phi - beam) / (4.0 * std::f64::consts::PI);
-            for dl in d.iter_mut() {
-                *dl += isotropic;
-            }
-            if beam > 0.0 {
-                let dir = current[c] / current[c].length();
-                let norm: f64 = (0..m)
-                    .map(|l| self.phase.eval(centres[l].dot(dir)) * omega[l])
-                    .sum();
-                for (l, dl) in d.iter_mut().enumerate() {
-                    *dl += ss * beam * self.phase.eval(centres[l].dot(dir)) / norm;
-                }
+            // The incident light as a lobe about the flux vector, of its mean cosine |J|/φ.
+            let length = current[c].length();
+            let lobe = (length / phi).min(1.0);
+            let dir = if length > 0.0 {
+                current[c] / length
+            } else {
+                DVec3::Z
+            };
+            let scattered = |l: usize| self.phase.eval_from_lobe(lobe, centres[l].dot(dir));
+            let norm: f64 = (0..m).map(|l| scattered(l) * omega[l]).sum();
+            for (l, dl) in d.iter_mut().enumerate() {
+                *dl += ss * phi * scattered(l) / norm;
             }
         });
         Ok(())
