@@ -859,15 +859,10 @@ pub fn emitter_beam(medium: &Medium, c: usize, pass: &EmitterPass) -> Vec<f32> {
             values.extend_from_slice(&[0.0; EMITTER_BEAM_VALUES]);
             continue;
         }
-        let length = j.length();
-        let d = if length > 0.0 {
-            j / length
-        } else {
-            DVec3::ZERO
-        };
+        let (lobe, d) = medium::phase::incident_lobe(phi, j);
         values.extend_from_slice(&[
             (sigma_s * phi) as f32,
-            (length / phi).min(1.0) as f32,
+            lobe as f32,
             d.x as f32,
             d.y as f32,
             d.z as f32,

@@ -207,18 +207,28 @@ const MEASURED_THREADS: f64 = 2.0;
 pub fn machine_factor() -> f64 {
     static FACTOR: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
     *FACTOR.get_or_init(|| {
-        let given = std::env::var("VOLRAD_MACHINE_FACTOR")
-            .ok()
-            .and_then(|v| v.parse::<f64>().ok())
-            .filter(|f| f.is_finite() && *f > 0.0);
-        let factor = given.or_else(measure_machine_factor).unwrap_or(1.0);
-        tracing::debug!(
-            factor,
-            given = given.is_some(),
-            "machine speed against the time model's"
-        );
+        let given = std::env::var("VOLRAD_MACHINE_FACTOR").ok();
+        let factor = machine_factor_from(given.as_deref(), kernel_seconds);
+        tracing::debug!(factor, ?given, "machine speed against the time model's");
         factor
     })
+}
+
+/// [`machine_factor`]'s choice: a positive finite `given` factor as it is; otherwise the
+/// kernel's seconds (`measure`) over [`CALIBRATION_REFERENCE_SECONDS`] within
+/// [`CALIBRATION_BOUNDS`] (outside them the timing is taken as disturbed, not as the
+/// machine); otherwise 1.
+pub fn machine_factor_from(given: Option<&str>, measure: impl FnOnce() -> Option<f64>) -> f64 {
+    if let Some(f) = given
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|f| f.is_finite() && *f > 0.0)
+    {
+        return f;
+    }
+    measure()
+        .map(|seconds| seconds / CALIBRATION_REFERENCE_SECONDS)
+        .filter(|f| f.is_finite() && (CALIBRATION_BOUNDS.0..=CALIBRATION_BOUNDS.1).contains(f))
+        .unwrap_or(1.0)
 }
 
 /// Whether a prediction for `method` runs [`machine_factor`]'s kernel: not for the methods
@@ -238,10 +248,12 @@ const CALIBRATION_APPLICATIONS: usize = 15;
 /// table, measured the same hour, are centred (the kernel took 2.3–2.5 ms there, the solves
 /// about 1.4× the coefficients' seconds).
 const CALIBRATION_REFERENCE_SECONDS: f64 = 1.76e-3;
-/// The factor's bounds: outside them the timing is taken as disturbed, not as the machine.
+/// The factor's bounds ([`machine_factor_from`]).
 const CALIBRATION_BOUNDS: (f64, f64) = (0.25, 4.0);
 
-fn measure_machine_factor() -> Option<f64> {
+/// The kernel of [`machine_factor`]: the lower third of the times of its applications, in
+/// seconds (`None` if its operator cannot be built).
+pub fn kernel_seconds() -> Option<f64> {
     use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
     use solver::TransportOperator;
     let grid = medium::Grid::new([CALIBRATION_SIDE; 3], 1.0).ok()?;
@@ -282,9 +294,7 @@ fn measure_machine_factor() -> Option<f64> {
     );
     // The lower third, not the median: a disturbance of part of the window (another process
     // waking) does not count.
-    let factor = seconds[seconds.len() / 3] / CALIBRATION_REFERENCE_SECONDS;
-    (factor.is_finite() && (CALIBRATION_BOUNDS.0..=CALIBRATION_BOUNDS.1).contains(&factor))
-        .then_some(factor)
+    Some(seconds[seconds.len() / 3])
 }
 
 /// The predicted time of solving `scene` with `settings` on `threads` worker threads;

@@ -44,6 +44,17 @@ fn hg_sample_cos(g: f64, u: f64) -> f64 {
     ((1.0 + g * g - s * s) / (2.0 * g)).clamp(-1.0, 1.0)
 }
 
+/// The lobe [`PhaseFunction::eval_from_lobe`] takes an incident field of scalar flux `fluence`
+/// and net flux vector `current` to be: its mean cosine `|J| / φ` (at most 1) and its axis
+/// (`J`'s direction; +z, which no lobe of mean cosine 0 depends on, where `J` vanishes).
+pub fn incident_lobe(fluence: f64, current: DVec3) -> (f64, DVec3) {
+    let length = current.length();
+    if !(fluence > 0.0 && length > 0.0) {
+        return (0.0, DVec3::Z);
+    }
+    ((length / fluence).min(1.0), current / length)
+}
+
 impl PhaseFunction {
     /// Refuses parameters for which the function is not a normalisable density.
     pub fn validate(&self) -> Result<(), MediumError> {

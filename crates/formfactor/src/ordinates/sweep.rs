@@ -1925,14 +1925,7 @@ impl OrdinatesOperator {
             if ss == 0.0 || phi <= 0.0 {
                 return;
             }
-            // The incident light as a lobe about the flux vector, of its mean cosine |J|/φ.
-            let length = current[c].length();
-            let lobe = (length / phi).min(1.0);
-            let dir = if length > 0.0 {
-                current[c] / length
-            } else {
-                DVec3::Z
-            };
+            let (lobe, dir) = medium::phase::incident_lobe(phi, current[c]);
             let scattered = |l: usize| self.phase.eval_from_lobe(lobe, centres[l].dot(dir));
             let norm: f64 = (0..m).map(|l| scattered(l) * omega[l]).sum();
             for (l, dl) in d.iter_mut().enumerate() {
@@ -2312,11 +2305,17 @@ impl OrdinatesOperator {
     /// ([`source_slopes`](Self::source_slopes)); cells without medium keep `S`.
     fn densities_to_source_function(&self, columns: &mut [f64], bins: usize) {
         let n = self.grid.cell_count();
+        // Once per call, not a division per cell and bin.
+        let inverse: Vec<f64> = self
+            .level_tau
+            .iter()
+            .map(|&t| per_optical_side(t))
+            .collect();
         columns[..bins * self.stride]
             .par_chunks_mut(self.stride)
             .for_each(|column| {
                 for (v, &level) in column[..n].iter_mut().zip(&self.cell_level) {
-                    *v *= per_optical_side(self.level_tau[level as usize]);
+                    *v *= inverse[level as usize];
                 }
             });
     }
@@ -2342,7 +2341,8 @@ impl OrdinatesOperator {
         let [nx, ny, nz] = self.grid.dims;
         let tau_c = self.level_tau[self.cell_level[c] as usize];
         let own = source_function[c];
-        let density = own / per_optical_side(tau_c);
+        // `J τ0` (no division in the sweep's innermost step); a cell without medium keeps S.
+        let density = if tau_c > 0.0 { tau_c * own } else { own };
         // Weights of (lower, own, upper) by which neighbours are there (bits 2a, 2a + 1):
         // no branches, and the three axes written out so that their loads overlap.
         const WEIGHTS: [[f64; 3]; 4] = [
