@@ -94,10 +94,18 @@ const ORDINATES_BYTES_PER_CELL_BIN: u64 = 18;
 /// Discrete ordinates: per cell and bin, the uncollided light of a sky (kept through the
 /// solve, added to the solution after).
 const ORDINATES_SKY_BYTES_PER_CELL_BIN: u64 = 8;
-/// Discrete ordinates: what each further channel keeps, per cell and bin (its solved field
-/// and the higher orders toward each bin, f32, 8 bytes; fitted 10 on the three-channel cloud;
-/// the solution file is streamed from them).
-const ORDINATES_STORED_BYTES_PER_CELL_BIN: u64 = 10;
+/// Discrete ordinates: what each further channel keeps, per non-empty cell and bin (the
+/// higher orders toward each bin, f32, kept for the cells that scatter: 4 bytes, with the
+/// allocator's slack the old dense field's fit had, 10 for 8) and per cell (the bins'
+/// fluence and the rows' index); the solution file is streamed from them.
+const ORDINATES_STORED_BYTES_PER_OCCUPIED_CELL_BIN: u64 = 5;
+const ORDINATES_STORED_BYTES_PER_CELL: u64 = 8;
+/// Discrete ordinates: what the allocator still holds of a channel's solve when the next
+/// channel's begins, per cell and bin. Fitted between two three-channel scenes of
+/// `benches/memory.py --only discrete-ordinates`: the 32 × 32 × 24 cloud (216 bins) peaks
+/// 40–75 MiB above its one-channel self from run to run (4–7 bytes per cell and bin and
+/// further channel), `data/cloud-sky.toml` within 2 % of the model without this term.
+const ORDINATES_FURTHER_CHANNEL_BYTES_PER_CELL_BIN: u64 = 6;
 /// Discrete ordinates: per cell, the sweep's coefficient tables and one group's densities
 /// and per-piece outputs.
 const ORDINATES_BYTES_PER_CELL: u64 = 200;
@@ -592,7 +600,16 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                     unknowns
                         .saturating_mul(ORDINATES_BYTES_PER_CELL_BIN)
                         .saturating_add(s.transport_cells.saturating_mul(ORDINATES_BYTES_PER_CELL)),
-                    unknowns.saturating_mul(ORDINATES_STORED_BYTES_PER_CELL_BIN),
+                    s.transport_occupied
+                        .saturating_mul(direction_bins(scene, settings) as u64)
+                        .saturating_mul(ORDINATES_STORED_BYTES_PER_OCCUPIED_CELL_BIN)
+                        .saturating_add(
+                            unknowns.saturating_mul(ORDINATES_FURTHER_CHANNEL_BYTES_PER_CELL_BIN),
+                        )
+                        .saturating_add(
+                            s.transport_cells
+                                .saturating_mul(ORDINATES_STORED_BYTES_PER_CELL),
+                        ),
                 ),
             });
             if scene.environment.as_ref().is_some_and(|e| !e.is_dark()) {

@@ -21,7 +21,7 @@ use solver::{Method, SolveOptions, SolveReport, TransportOperator};
 
 use crate::engine::ground::{relative_change, ChannelGround, GROUND_TOLERANCE, MAX_GROUND_ROUNDS};
 use crate::engine::solution::{
-    ChannelSolution, ScatteredField, Solution, StoredBins, EMITTER_BEAM_VALUES,
+    CellRows, ChannelSolution, ScatteredField, Solution, StoredBins, EMITTER_BEAM_VALUES,
 };
 use crate::engine::SolveHooks;
 
@@ -824,13 +824,18 @@ pub fn solve_ordinates(
     });
     // The emission's own first scattering is not among them: the render draws it in the
     // view's own direction ([`emitter_beam`]), as it draws the lights'.
-    // Stored as f32: the f64 radiance let go before the higher orders' copy is made.
-    let stored: Vec<f32> = radiance.iter().map(|&v| v as f32).collect();
+    // Of the bins' radiance only its fluence is kept (the export's); the higher orders as
+    // f32, for the cells that scatter (the rest are zeros), after the f64 radiance is let go.
+    let fluence: Vec<f32> = op.fluence(&radiance).iter().map(|&v| v as f32).collect();
     drop(radiance);
-    let higher_order: Vec<f32> = higher.iter().map(|&v| v.max(0.0) as f32).collect();
+    let higher_order = CellRows::from_dense(op.grid().cell_count(), op.bins().len(), |i| {
+        higher[i].max(0.0) as f32
+    })
+    .context("the higher orders' rows")?;
+    drop(higher);
     Ok((
         ScatteredField::Binned {
-            radiance: stored,
+            fluence,
             higher_order,
         },
         Some(report),
@@ -1249,17 +1254,11 @@ fn fluence_on(
             // cell's tally averages out along the rays.
             flux_of_sources(medium, c, &g, unscattered, &emitted, isotropic, inside)?
         }
-        (ScatteredField::Binned { radiance, .. }, Some(bins)) => {
-            let binned: Vec<f64> = radiance
-                .chunks(bins.solid_angles.len())
+        (ScatteredField::Binned { fluence, .. }, Some(_)) => {
+            let binned: Vec<f64> = fluence
+                .iter()
                 .zip(unscattered.iter().zip(&emitted()?))
-                .map(|(r, (u, e))| {
-                    u + e
-                        + r.iter()
-                            .zip(&bins.solid_angles)
-                            .map(|(a, w)| *a as f64 * w)
-                            .sum::<f64>()
-                })
+                .map(|(f, (u, e))| u + e + *f as f64)
                 .collect();
             if !isotropic {
                 return Ok(binned);

@@ -11,7 +11,8 @@ use glam::DVec3;
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 
 use crate::engine::solution::{
-    ChannelSolution, InverseScattering, RenderCache, ScatteredField, Solution, EMITTER_BEAM_VALUES,
+    CellRows, ChannelSolution, InverseScattering, RenderCache, ScatteredField, Solution,
+    EMITTER_BEAM_VALUES,
 };
 
 /// Where a per-cell source is drawn between cell centres: `trilinear` renders (which call
@@ -415,8 +416,9 @@ impl InScattering for CellSource<'_> {
 /// (`formfactor::ordinates::bins::interpolate_bins`: geometric between positive centres; the
 /// layout of `formfactor::ordinates::bins`: bin `f n² + i n + j`).
 pub struct BinnedSource<'a> {
-    values: &'a [f32],
-    /// `ln` of `values` (−∞ for 0).
+    /// Per cell and bin; cells without a row read as zeros.
+    rows: &'a CellRows,
+    /// `ln` of the rows' values (−∞ for 0), as they are laid out.
     logs: &'a [f32],
     n: usize,
     lattice: CellLattice<'a>,
@@ -429,14 +431,15 @@ pub struct BinnedSource<'a> {
 static NEXT_SOURCE_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 impl<'a> BinnedSource<'a> {
-    /// `logs` is `ln` of `values`, element by element ([`RenderCache::log_source`]).
+    /// `logs` is `ln` of the rows' values, element by element ([`RenderCache::log_source`]).
     ///
     /// [`RenderCache::log_source`]: crate::engine::solution::RenderCache::log_source
-    pub fn new(values: &'a [f32], logs: &'a [f32], n: usize, lattice: CellLattice<'a>) -> Self {
-        debug_assert_eq!(values.len(), logs.len());
-        let max = lattice.bound(values, 6 * n * n);
+    pub fn new(rows: &'a CellRows, logs: &'a [f32], n: usize, lattice: CellLattice<'a>) -> Self {
+        debug_assert_eq!(rows.values().len(), logs.len());
+        debug_assert_eq!(rows.width(), 6 * n * n);
+        let max = lattice.bound(&rows.row_maxima(), 1);
         BinnedSource {
-            values,
+            rows,
             logs,
             n,
             lattice,
@@ -448,10 +451,13 @@ impl<'a> BinnedSource<'a> {
     /// The source of `cell` in the direction whose bin weights are `weights`.
     #[inline]
     fn lookup_with(&self, cell: usize, weights: &[(usize, f64); 4]) -> f64 {
-        let base = cell * 6 * self.n * self.n;
+        let Some(base) = self.rows.start_of(cell) else {
+            return 0.0;
+        };
+        let values = self.rows.values();
         interpolate_with(
             weights,
-            |l| self.values[base + l] as f64,
+            |l| values[base + l] as f64,
             |l| self.logs[base + l] as f64,
         )
     }
@@ -783,7 +789,7 @@ pub fn channel_scattering<'a>(
             ),
         )),
         (ScatteredField::Binned { higher_order, .. }, Some(bins)) => {
-            let logs = ch.render_cache.log_source(higher_order);
+            let logs = ch.render_cache.log_source(higher_order.values());
             let lattice = CellLattice::of(solution, c, ch)?;
             let higher = BinnedSource::new(higher_order, logs, bins.face_resolution, lattice);
             match &ch.emitted_beam {
@@ -932,6 +938,11 @@ mod tests {
         assert_eq!(nearest.at(DVec3::new(1.9, 0.5, 0.5), 1, DVec3::X), 6.0);
     }
 
+    /// One cell's row of bins.
+    fn one_row(values: &[f32]) -> CellRows {
+        CellRows::from_dense(1, values.len(), |i| values[i]).unwrap()
+    }
+
     /// A field peaked in one bin, looked up towards the far corner of its face, where the
     /// extrapolation weight of that bin is negative: the source is 0 there, not negative, and
     /// still the bin's value at its centre.
@@ -942,7 +953,8 @@ mod tests {
         // Face +x, bin (i = 0 along y, j = 1 along z).
         values[1] = 1.0;
         let logs: Vec<f32> = values.iter().map(|v| v.ln()).collect();
-        let source = BinnedSource::new(&values, &logs, n, one_cell());
+        let rows = one_row(&values);
+        let source = BinnedSource::new(&rows, &logs, n, one_cell());
         let corner = DVec3::new(1.0, 0.95, 0.95).normalize();
         let weights = face_bilinear(n, corner);
         let raw: f64 = weights.iter().map(|&(l, w)| w * values[l] as f64).sum();
@@ -962,9 +974,10 @@ mod tests {
         let b: Vec<f32> = a.iter().map(|v| 100.0 * v).collect();
         let logs = |v: &[f32]| v.iter().map(|x| x.ln()).collect::<Vec<f32>>();
         let (la, lb) = (logs(&a), logs(&b));
+        let (ra, rb) = (one_row(&a), one_row(&b));
         let (sa, sb) = (
-            BinnedSource::new(&a, &la, n, one_cell()),
-            BinnedSource::new(&b, &lb, n, one_cell()),
+            BinnedSource::new(&ra, &la, n, one_cell()),
+            BinnedSource::new(&rb, &lb, n, one_cell()),
         );
         let x = DVec3::splat(0.5);
         let d1 = DVec3::new(1.0, 0.2, -0.3).normalize();
@@ -991,14 +1004,16 @@ mod tests {
         values[2] = 1.0;
         values[3] = 1.0;
         let logs: Vec<f32> = values.iter().map(|v| v.ln()).collect();
-        let source = BinnedSource::new(&values, &logs, n, one_cell());
+        let rows = one_row(&values);
+        let source = BinnedSource::new(&rows, &logs, n, one_cell());
         let between = DVec3::new(1.0, 0.0, 0.0);
         assert!((source.at(DVec3::splat(0.5), 0, between) - 2.0).abs() < 1e-6);
         let at_centre = DVec3::new(1.0, -0.5, -0.5).normalize();
         assert!((source.at(DVec3::splat(0.5), 0, at_centre) - 4.0).abs() < 1e-5);
         values[3] = 0.0;
         let logs: Vec<f32> = values.iter().map(|v| v.ln()).collect();
-        let source = BinnedSource::new(&values, &logs, n, one_cell());
+        let rows = one_row(&values);
+        let source = BinnedSource::new(&rows, &logs, n, one_cell());
         assert!((source.at(DVec3::splat(0.5), 0, between) - 2.25).abs() < 1e-6);
     }
 }

@@ -464,19 +464,30 @@ fn golden_ordinates_decodes() {
     let cells = 18;
     for ch in &s.channels {
         let ScatteredField::Binned {
-            radiance,
+            fluence,
             higher_order,
         } = &ch.scattered
         else {
             panic!("{:?}", ch.scattered);
         };
-        assert_eq!((radiance.len(), higher_order.len()), (cells * 6, cells * 6));
+        // The bins' fluence per cell (format 12), and the higher orders of every cell here
+        // (all of them scatter) in rows of 6 bins.
+        assert_eq!(fluence.len(), cells);
+        assert!(fluence.iter().all(|&f| f > 0.0));
+        assert_eq!(
+            (
+                higher_order.cells(),
+                higher_order.kept_cells(),
+                higher_order.width()
+            ),
+            (cells, cells, 6)
+        );
         assert_eq!(ch.report.as_ref().unwrap().method, "gauss-seidel");
     }
-    let ScatteredField::Binned { radiance, .. } = &s.channels[2].scattered else {
+    let ScatteredField::Binned { fluence, .. } = &s.channels[2].scattered else {
         unreachable!()
     };
-    assert_eq!(radiance[..4], ORDINATES_RADIANCE_2);
+    assert_eq!(fluence[..4], ORDINATES_FLUENCE_2);
     // An emitting channel stores its emitter pass (format 7).
     let emitted = s.channels[2].emitted_fluence.as_ref().unwrap();
     assert_eq!(emitted.len(), cells);
@@ -549,7 +560,7 @@ const SMALL_SIGMA_T: [f32; 4] = [0.66302073, 1.6, 1.6, 0.66302073];
 const SMALL_ALBEDO: [f32; 4] = [0.74503577, 0.95, 0.95, 0.74503577];
 const SMALL_IRRADIANCE: [f32; 4] = [0.6758711, 0.34533805, 0.27765468, 0.44522983];
 const SMALL_SOURCE: [f32; 4] = [0.035039145, 0.081582904, 0.06898902, 0.024120944];
-const ORDINATES_RADIANCE_2: [f32; 4] = [0.0056545506, 0.02479215, 0.005496715, 0.03839094];
+const ORDINATES_FLUENCE_2: [f32; 4] = [0.20402516, 0.2728558, 0.20408429, 0.25504312];
 const TWO_PASS_INTERACTIONS: u64 = 42;
 const TWO_PASS_MAX_SOURCE: f64 = 0.09003358334302902;
 

@@ -7,6 +7,7 @@
 
 pub mod container;
 pub mod records;
+pub mod rows;
 
 use std::borrow::Cow;
 use std::path::Path;
@@ -23,6 +24,7 @@ use records::{ChannelRecord, FieldKind, MetaRecord};
 use scene::{CameraSpec, OpticalModel, RenderSettings, SolveMethod};
 
 pub use container::{Container, ContainerError};
+pub use rows::CellRows;
 
 /// The solved scattered light of one colour channel.
 #[derive(Clone, Debug, PartialEq)]
@@ -36,13 +38,14 @@ pub enum ScatteredField {
         source: Vec<f32>,
         higher_order: Vec<f32>,
     },
-    /// Discrete ordinates: `radiance[cell * bins + l]`, the radiance averaged over cell and
-    /// bin except the lights' unscattered beams (the scattered light, and the environment's
-    /// light, collided or not), and `higher_order[cell * bins + l]`, the
-    /// source of second and higher orders scattered into bin `l` (radiance per length).
+    /// Discrete ordinates: `fluence[cell]`, the bins' radiance integrated over directions
+    /// (`Σ_l I_l Ω_l`: all light but the lights' unscattered beams — the scattered light, and
+    /// the environment's, collided or not), and `higher_order`, per cell and bin `l` the
+    /// source of second and higher orders scattered into bin `l` (radiance per length), kept
+    /// for the cells that scatter only.
     Binned {
-        radiance: Vec<f32>,
-        higher_order: Vec<f32>,
+        fluence: Vec<f32>,
+        higher_order: CellRows,
     },
     /// Blasi & Wuethrich's two-pass method: second and higher orders stored per optical
     /// voxel and direction bin by the energetization pass.
@@ -273,7 +276,7 @@ impl Solution {
                 tracing::warn!("preparing renders: {e:#}");
             }
             if let ScatteredField::Binned { higher_order, .. } = &ch.scattered {
-                ch.render_cache.log_source(higher_order);
+                ch.render_cache.log_source(higher_order.values());
             }
         }
     }
@@ -393,13 +396,17 @@ impl Solution {
                     FieldKind::Isotropic
                 }
                 ScatteredField::Binned {
-                    radiance,
+                    fluence,
                     higher_order,
                 } => {
-                    arrays.push((format!("radiance/{c}"), Cow::Borrowed(&radiance[..])));
+                    arrays.push((format!("fluence/{c}"), Cow::Borrowed(&fluence[..])));
+                    arrays.push((
+                        format!("higher_order_kept/{c}"),
+                        Cow::Owned(higher_order.kept_mask()),
+                    ));
                     arrays.push((
                         format!("higher_order/{c}"),
-                        Cow::Borrowed(&higher_order[..]),
+                        Cow::Borrowed(higher_order.values()),
                     ));
                     FieldKind::Binned
                 }
@@ -578,12 +585,13 @@ impl Solution {
                     if bin_count == 0 {
                         return Err(bad("binned radiance without direction bins".into()));
                     }
+                    let kept = take(format!("higher_order_kept/{ci}"), transport_cells)?;
+                    let kept_cells = kept.iter().filter(|&&k| k == 1.0).count();
+                    let values = take(format!("higher_order/{ci}"), kept_cells * bin_count)?;
                     ScatteredField::Binned {
-                        radiance: take(format!("radiance/{ci}"), transport_cells * bin_count)?,
-                        higher_order: take(
-                            format!("higher_order/{ci}"),
-                            transport_cells * bin_count,
-                        )?,
+                        fluence: take(format!("fluence/{ci}"), transport_cells)?,
+                        higher_order: CellRows::from_parts(bin_count, &kept, values)
+                            .map_err(|e| bad(format!("channel {ci}: higher orders: {e}")))?,
                     }
                 }
             };

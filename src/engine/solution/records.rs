@@ -280,7 +280,9 @@ pub enum FieldKind {
     None,
     /// `source/{c}` and `higher_order/{c}`, one value per cell.
     Isotropic,
-    /// `radiance/{c}` and `higher_order/{c}`, one value per cell and direction bin.
+    /// `fluence/{c}`, one value per cell; `higher_order_kept/{c}`, per cell 1 if it has a
+    /// row of higher orders (0 if they are all zero), and `higher_order/{c}`, those rows (one
+    /// value per direction bin) in cell order.
     Binned,
     /// No arrays: the result is in [`ChannelRecord::two_pass`].
     TwoPass,
