@@ -36,25 +36,42 @@ impl CellValues {
 
     /// Checks length against the grid and that every value lies in `[lo, hi]` and is finite.
     fn check(&self, what: &'static str, cells: usize, lo: f32, hi: f32) -> Result<(), MediumError> {
-        let ok = |v: f32| v.is_finite() && v >= lo && v <= hi;
         match self {
-            CellValues::Uniform(v) if !ok(*v) => Err(MediumError::invalid(
+            CellValues::Uniform(v) if !in_range(*v, lo, hi) => Err(MediumError::invalid(
                 what,
                 format!("{v} is outside [{lo}, {hi}]"),
             )),
-            CellValues::PerCell(v) if v.len() != cells => Err(MediumError::invalid(
-                what,
-                format!("{} values for {cells} cells", v.len()),
-            )),
-            CellValues::PerCell(v) => match v.iter().position(|&x| !ok(x)) {
-                Some(i) => Err(MediumError::invalid(
-                    what,
-                    format!("cell {i} has {} outside [{lo}, {hi}]", v[i]),
-                )),
-                None => Ok(()),
-            },
+            CellValues::PerCell(v) => check_cells(v, what, cells, lo, hi),
             _ => Ok(()),
         }
+    }
+}
+
+fn in_range(v: f32, lo: f32, hi: f32) -> bool {
+    v.is_finite() && v >= lo && v <= hi
+}
+
+/// [`CellValues::check`] of per-cell values where they are (a copy of a large grid's σt
+/// would cost its size in fresh memory).
+fn check_cells(
+    values: &[f32],
+    what: &'static str,
+    cells: usize,
+    lo: f32,
+    hi: f32,
+) -> Result<(), MediumError> {
+    if values.len() != cells {
+        return Err(MediumError::invalid(
+            what,
+            format!("{} values for {cells} cells", values.len()),
+        ));
+    }
+    match values.iter().position(|&x| !in_range(x, lo, hi)) {
+        Some(i) => Err(MediumError::invalid(
+            what,
+            format!("cell {i} has {} outside [{lo}, {hi}]", values[i]),
+        )),
+        None => Ok(()),
     }
 }
 
@@ -268,7 +285,7 @@ impl Medium {
             ));
         }
         for ch in &channels {
-            CellValues::PerCell(ch.sigma_t.clone()).check("sigma_t", cells, 0.0, f32::MAX)?;
+            check_cells(&ch.sigma_t, "sigma_t", cells, 0.0, f32::MAX)?;
             ch.albedo.check("albedo", cells, 0.0, 1.0)?;
             ch.emission.check("emission", cells, 0.0, f32::MAX)?;
         }
