@@ -16,6 +16,7 @@ mod empty_space;
 pub mod error;
 mod exponential;
 pub mod exposure;
+mod extinction_bound;
 pub mod image_io;
 pub mod light_depth;
 pub mod render;
