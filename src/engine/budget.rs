@@ -591,9 +591,8 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
             parts.push(zonal_vectors);
         }
         SolveMethod::DiscreteOrdinates => {
-            let unknowns = s
-                .transport_cells
-                .saturating_mul(direction_bins(scene, settings) as u64);
+            let bins = direction_bins(scene, settings) as u64;
+            let unknowns = s.transport_cells.saturating_mul(bins);
             parts.push(MemoryPart {
                 what: "the discrete-ordinates state (cells × direction bins)",
                 bytes: per_channel(
@@ -601,7 +600,7 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                         .saturating_mul(ORDINATES_BYTES_PER_CELL_BIN)
                         .saturating_add(s.transport_cells.saturating_mul(ORDINATES_BYTES_PER_CELL)),
                     s.transport_occupied
-                        .saturating_mul(direction_bins(scene, settings) as u64)
+                        .saturating_mul(bins)
                         .saturating_mul(ORDINATES_STORED_BYTES_PER_OCCUPIED_CELL_BIN)
                         .saturating_add(
                             unknowns.saturating_mul(ORDINATES_FURTHER_CHANNEL_BYTES_PER_CELL_BIN),

@@ -485,26 +485,21 @@ impl<'a> RayIntegrator<'a> {
                 continue;
             }
             // Where this step and the next lie in thin medium (σt bounded near them), one
-            // step of twice the length about their common end.
-            if let Some(bound) = &self.index.extinction {
-                if k + 1 < steps {
-                    let t2 = t_in + (k + 1) as f64 * dt;
-                    let x2 = ray.at(t2);
-                    if bound.at(x2) * 2.0 * dt <= MAX_PIECE_DEPTH {
-                        k += 2;
-                        let corners =
-                            Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x2);
-                        let (q, attenuation) = self.piece::<FMA>(x2, corners, None, 2.0 * dt, flow);
-                        radiance += transmittance * q;
-                        transmittance *= attenuation;
-                        if self.can_stop(transmittance, radiance, t2 + dt, t_out) {
-                            return radiance;
-                        }
-                        continue;
-                    }
-                }
-            }
-            k += 1;
+            // step of twice the length about their common end (the bound keeps it one piece).
+            let thin_pair = k + 1 < steps
+                && self.index.extinction.as_ref().is_some_and(|bound| {
+                    bound.at(ray.at(t_in + (k + 1) as f64 * dt)) * 2.0 * dt <= MAX_PIECE_DEPTH
+                });
+            let (t, x, corners, length) = if thin_pair {
+                let t = t_in + (k + 1) as f64 * dt;
+                let x = ray.at(t);
+                k += 2;
+                let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
+                (t, x, corners, 2.0 * dt)
+            } else {
+                k += 1;
+                (t, x, corners, dt)
+            };
             // Where the step may be optically thick, the source and σt change too much within
             // it for one midpoint: split it into pieces of at most `MAX_PIECE_DEPTH` (bounded
             // by the largest σt of the midpoint's neighbours).
@@ -512,7 +507,7 @@ impl<'a> RayIntegrator<'a> {
             let (pieces, sigma) = if self.use_sigma {
                 let values = corners.gather(self.sigma_t);
                 let sigma_max = values.into_iter().fold(0.0, f64::max);
-                let pieces = (sigma_max * dt / MAX_PIECE_DEPTH)
+                let pieces = (sigma_max * length / MAX_PIECE_DEPTH)
                     .ceil()
                     .clamp(1.0, MAX_PIECES);
                 (pieces, Some(corners.dot(&values)))
@@ -520,11 +515,11 @@ impl<'a> RayIntegrator<'a> {
                 (1.0, None)
             };
             if pieces == 1.0 {
-                let (q, attenuation) = self.piece::<FMA>(x, corners, sigma, dt, flow);
+                let (q, attenuation) = self.piece::<FMA>(x, corners, sigma, length, flow);
                 radiance += transmittance * q;
                 transmittance *= attenuation;
             } else {
-                let piece = dt / pieces;
+                let piece = length / pieces;
                 for j in 0..pieces as usize {
                     let x = ray.at(t + (j as f64 + 0.5 - 0.5 * pieces) * piece);
                     let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
@@ -533,7 +528,7 @@ impl<'a> RayIntegrator<'a> {
                     transmittance *= attenuation;
                 }
             }
-            if self.can_stop(transmittance, radiance, t + 0.5 * dt, t_out) {
+            if self.can_stop(transmittance, radiance, t + 0.5 * length, t_out) {
                 return radiance;
             }
         }

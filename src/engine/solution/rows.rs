@@ -115,11 +115,6 @@ impl CellRows {
         self.start_of(cell).map(|s| &self.rows[s..s + self.width])
     }
 
-    /// The value of `(cell, column)`: 0 for a cell without a row.
-    pub fn get(&self, cell: usize, column: usize) -> f32 {
-        self.row(cell).map_or(0.0, |r| r[column])
-    }
-
     /// Per cell, 1 if it has a row and 0 if not (how a solution file stores which cells do).
     pub fn kept_mask(&self) -> Vec<f32> {
         self.row_of
@@ -136,11 +131,6 @@ impl CellRows {
                     .map_or(0.0, |r| r.iter().copied().fold(0.0f32, f32::max))
             })
             .collect()
-    }
-
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        self.rows.len() * 4 + self.row_of.len() * 4
     }
 }
 
@@ -159,11 +149,8 @@ mod tests {
         assert_eq!(rows.values().len(), 9);
         for cell in 0..5 {
             for l in 0..3 {
-                assert_eq!(
-                    rows.get(cell, l),
-                    dense[cell * 3 + l],
-                    "cell {cell} bin {l}"
-                );
+                let value = rows.row(cell).map_or(0.0, |r| r[l]);
+                assert_eq!(value, dense[cell * 3 + l], "cell {cell} bin {l}");
             }
         }
         assert!(rows.row(1).is_none() && rows.row(4).is_none());
