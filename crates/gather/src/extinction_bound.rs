@@ -1,6 +1,7 @@
 //! [`ExtinctionBound`]: the largest σt near each block of 2³ cells, so that a `trilinear`
 //! march can tell, with one lookup, that a whole cell's length of ray is optically thin.
 
+use medium::grid::clamped_floor;
 use medium::Grid;
 
 /// Data cells per side of a block.
@@ -62,7 +63,7 @@ impl ExtinctionBound {
     #[inline]
     pub fn at(&self, x: glam::DVec3) -> f64 {
         let q = x * self.inverse_block_size;
-        let c = |a: usize, v: f64| (v.max(0.0) as usize).min(self.dims[a] - 1);
+        let c = |a: usize, v: f64| clamped_floor(v, self.dims[a] - 1);
         let (i, j, k) = (c(0, q.x), c(1, q.y), c(2, q.z));
         self.max[i + self.dims[0] * (j + self.dims[1] * k)] as f64
     }

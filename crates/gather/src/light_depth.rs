@@ -22,6 +22,7 @@ use std::fmt;
 
 use glam::DVec3;
 use medium::fma::mul_add;
+use medium::grid::clamped_floor;
 use medium::light_pass::{directional_corner_depths, LightPass};
 use medium::{Grid, Light};
 use rayon::prelude::*;
@@ -170,7 +171,7 @@ impl DepthLattice {
         let h = self.sub_size * r as f64;
         let lo = DVec3::new(coords[0] as f64, coords[1] as f64, coords[2] as f64) * h;
         let f = (x - lo) * self.inv_sub_size;
-        let at = |q: usize| coords[q] * r + (f[q].max(0.0) as usize).min(r - 1);
+        let at = |q: usize| coords[q] * r + clamped_floor(f[q], r - 1);
         self.corners([at(0), at(1), at(2)]).at::<FMA>(x)
     }
 
@@ -346,7 +347,7 @@ impl DepthLattice {
         let mut t_delta = [0.0f64; 3];
         let mut step_up = [false; 3];
         for a in 0..3 {
-            let q = (f0[a].max(0.0) as usize).min(r - 1);
+            let q = clamped_floor(f0[a], r - 1);
             sub[a] = coords[a] * r + q;
             let d = ray.direction[a];
             if d > 0.0 {

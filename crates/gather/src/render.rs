@@ -17,7 +17,7 @@
 //! source has no known bound, the rule falls back to `T < termination`.
 
 use glam::DVec3;
-use medium::grid::Grid;
+use medium::grid::{clamped_floor, Grid};
 use medium::ground::GroundRadiance;
 use medium::traversal::Ray;
 use medium::{CellValues, Environment, Interpolation, Medium};
@@ -470,12 +470,13 @@ impl<'a> RayIntegrator<'a> {
         while k < steps {
             let t = t_in + (k as f64 + 0.5) * dt;
             let x = ray.at(t);
-            let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
             // The interpolated field is zero in cells whose neighbours are all empty; jump over
-            // the whole known-empty cube, keeping to the lattice of step midpoints.
-            let radius = empty.empty_radius(corners.cell, 1);
+            // the whole known-empty cube, keeping to the lattice of step midpoints. (The cell
+            // alone: most steps go on as a thin pair about another point.)
+            let (cell, coords) = own_cell(&self.grid, inverse_cell_size, x);
+            let radius = empty.empty_radius(cell, 1);
             if radius >= 0 {
-                let t_next = empty.exit(ray, corners.coords, radius);
+                let t_next = empty.exit(ray, coords, radius);
                 let k_next = ((t_next - t_in) / dt - 0.5).ceil();
                 k = if k_next > k as f64 {
                     k_next as usize
@@ -498,18 +499,29 @@ impl<'a> RayIntegrator<'a> {
                 (t, x, corners, 2.0 * dt)
             } else {
                 k += 1;
+                let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
                 (t, x, corners, dt)
             };
             // Where the step may be optically thick, the source and σt change too much within
             // it for one midpoint: split it into pieces of at most `MAX_PIECE_DEPTH` (bounded
-            // by the largest σt of the midpoint's neighbours).
-            // σt of the 8 neighbours, read once for the bound and the midpoint's value.
+            // by the largest σt of the midpoint's 8 neighbours, read once for the bound and the
+            // midpoint's value). A thin pair is one piece: its bound bounds those neighbours.
             let (pieces, sigma) = if self.use_sigma {
                 let values = corners.gather(self.sigma_t);
-                let sigma_max = values.into_iter().fold(0.0, f64::max);
-                let pieces = (sigma_max * length / MAX_PIECE_DEPTH)
-                    .ceil()
-                    .clamp(1.0, MAX_PIECES);
+                let pieces = if thin_pair {
+                    1.0
+                } else {
+                    // σt is finite and ≥ 0 (the medium checks it): a plain comparison fold.
+                    let sigma_max = values
+                        .into_iter()
+                        .fold(0.0, |m, v| if v > m { v } else { m });
+                    let depth = sigma_max * length;
+                    if depth <= MAX_PIECE_DEPTH {
+                        1.0
+                    } else {
+                        (depth / MAX_PIECE_DEPTH).ceil().clamp(1.0, MAX_PIECES)
+                    }
+                };
                 (pieces, Some(corners.dot(&values)))
             } else {
                 (1.0, None)
@@ -589,6 +601,19 @@ fn emission_ratio_max(sigma_t: &[f32], emission: &CellValues) -> f64 {
     ratio
 }
 
+/// The cell containing `x` (clamped to the grid) and its coordinates: [`Trilinear::cell`] and
+/// [`Trilinear::coords`] without the neighbours and weights.
+#[inline(always)]
+fn own_cell(grid: &Grid, inverse_cell_size: f64, x: DVec3) -> (usize, [usize; 3]) {
+    let [nx, ny, nz] = grid.dims;
+    let coords = [
+        clamped_floor(x.x * inverse_cell_size, nx - 1),
+        clamped_floor(x.y * inverse_cell_size, ny - 1),
+        clamped_floor(x.z * inverse_cell_size, nz - 1),
+    ];
+    (coords[0] + nx * (coords[1] + ny * coords[2]), coords)
+}
+
 /// The 8 cell-centred neighbours of a point and their trilinear weights (values clamped to
 /// the edge cells outside the outermost centres): the `trilinear` reconstruction.
 pub struct Trilinear {
@@ -616,9 +641,13 @@ impl Trilinear {
         for a in 0..3 {
             let n = grid.dims[a];
             let q = x[a] * inverse_cell_size;
-            own[a] = (q.max(0.0) as usize).min(n - 1);
-            let u = (q - 0.5).clamp(0.0, (n - 1) as f64);
-            let i0 = (u as usize).min(n.saturating_sub(2));
+            own[a] = clamped_floor(q, n - 1);
+            // `q − ½` clamped to `[0, n − 1]` (comparisons: NaN-free, one instruction each).
+            let last = (n - 1) as f64;
+            let u = q - 0.5;
+            let u = if u > 0.0 { u } else { 0.0 };
+            let u = if u < last { u } else { last };
+            let i0 = clamped_floor(u, n.saturating_sub(2));
             let i1 = (i0 + 1).min(n - 1);
             index[a] = [i0, i1];
             frac[a] = u - i0 as f64;

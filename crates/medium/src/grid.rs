@@ -117,6 +117,19 @@ impl Grid {
     }
 }
 
+/// `⌊v⌋` clamped to `0 ..= last` (NaN gives 0): the cell or lattice index of a coordinate in
+/// cells. Marches take several per step; the standard `as usize` cast saturates out-of-range
+/// values with a handful of extra instructions each, which this clamp makes unnecessary.
+#[inline(always)]
+pub fn clamped_floor(v: f64, last: usize) -> usize {
+    // Comparisons, not `f64::max`/`min`: one instruction each (`NaN > 0` is false, so NaN → 0).
+    let v = if v > 0.0 { v } else { 0.0 };
+    let high = last as f64;
+    let v = if v < high { v } else { high };
+    // SAFETY: `v` is finite and within `0 ..= last`, so its truncation fits an `i64`.
+    unsafe { v.to_int_unchecked::<i64>() as usize }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -137,5 +150,17 @@ mod tests {
         assert!(Grid::new([1, 1, 1], -1.0).is_err());
         assert!(Grid::new([1, 1, 1], f64::NAN).is_err());
         assert!(Grid::new([1 << 20, 1 << 20, 1 << 20], 1.0).is_err());
+    }
+
+    #[test]
+    fn clamped_floor_floors_within_the_range_and_clamps_outside_it() {
+        assert_eq!(clamped_floor(2.999, 5), 2);
+        assert_eq!(clamped_floor(3.0, 5), 3);
+        assert_eq!(clamped_floor(-0.5, 5), 0);
+        assert_eq!(clamped_floor(7.5, 5), 5);
+        assert_eq!(clamped_floor(f64::INFINITY, 5), 5);
+        assert_eq!(clamped_floor(f64::NEG_INFINITY, 5), 0);
+        assert_eq!(clamped_floor(f64::NAN, 5), 0);
+        assert_eq!(clamped_floor(0.7, 0), 0);
     }
 }
