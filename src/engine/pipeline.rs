@@ -270,6 +270,11 @@ pub fn render_view_through(
         );
     }
     let camera = Camera::from_spec(camera)?;
+    // The solution's caches, built together on a first view (at once after that); a
+    // rescaled view medium gets its own render index below.
+    if std::ptr::eq(view_medium, &solution.medium) {
+        solution.prepare_renders();
+    }
     let mut options = RenderOptions::from_settings(&solution.render, solution.background);
     options.environment = solution.environment.clone();
     options.ground = solution.ground.clone();

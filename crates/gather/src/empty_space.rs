@@ -13,7 +13,13 @@ const MAX_DISTANCE: u8 = 255;
 #[derive(Clone)]
 pub(crate) struct EmptySpace {
     grid: Grid,
-    distance: Vec<u8>,
+    /// Per cell of the grid padded by one cell on every side (the array the transform runs
+    /// on, kept as it is rather than copied out: on a large grid a copy is tens of MB of
+    /// fresh memory per render index).
+    padded: Vec<u8>,
+    /// The padded grid's strides in y and z.
+    stride_y: usize,
+    stride_z: usize,
 }
 
 impl EmptySpace {
@@ -42,25 +48,28 @@ impl EmptySpace {
         padded.reverse();
         chamfer_pass(&mut padded, px, py, pz);
         padded.reverse();
-        let mut distance = vec![0u8; grid.cell_count()];
-        for k in 0..nz {
-            for j in 0..ny {
-                let src = 1 + px * (j + 1 + py * (k + 1));
-                let dst = nx * (j + ny * k);
-                distance[dst..dst + nx].copy_from_slice(&padded[src..src + nx]);
-            }
-        }
         EmptySpace {
             grid: *grid,
-            distance,
+            padded,
+            stride_y: px,
+            stride_z: px * py,
         }
     }
 
-    /// How many cells around `cell` (max-norm radius, beyond the cell itself) are known to be
-    /// empty, when up to `reach` cells of margin are needed (1 for trilinear reconstruction).
+    /// The Chebyshev distance of the cell at `coords` to the nearest occupied cell (capped at
+    /// 255).
     #[inline]
-    pub(crate) fn empty_radius(&self, cell: usize, reach: u8) -> i64 {
-        self.distance[cell] as i64 - 1 - reach as i64
+    pub(crate) fn distance(&self, coords: [usize; 3]) -> u8 {
+        let [i, j, k] = coords;
+        self.padded[1 + i + self.stride_y * (1 + j) + self.stride_z * (1 + k)]
+    }
+
+    /// How many cells around the cell at `coords` (max-norm radius, beyond the cell itself)
+    /// are known to be empty, when up to `reach` cells of margin are needed (1 for trilinear
+    /// reconstruction).
+    #[inline]
+    pub(crate) fn empty_radius(&self, coords: [usize; 3], reach: u8) -> i64 {
+        self.distance(coords) as i64 - 1 - reach as i64
     }
 
     /// Where `ray`, now inside the cell at `coords`, leaves the cube of cells within `radius`
@@ -144,7 +153,12 @@ mod tests {
                 .map(|&(a, b, e)| (i - a).abs().max((j - b).abs()).max((k - e).abs()))
                 .min()
                 .unwrap();
-            assert_eq!(space.distance[c] as i64, want, "cell {:?}", grid.coords(c));
+            assert_eq!(
+                space.distance(grid.coords(c)) as i64,
+                want,
+                "cell {:?}",
+                grid.coords(c)
+            );
         }
     }
 
@@ -171,7 +185,11 @@ mod tests {
                     .map(|m| (0..3).map(|a| (p[a] - m[a]).abs()).max().unwrap())
                     .min()
                     .map_or(MAX_DISTANCE, |d| d.min(MAX_DISTANCE as i64) as u8);
-                assert_eq!(space.distance[c], want, "dims {dims:?}, cell {p:?}");
+                assert_eq!(
+                    space.distance(grid.coords(c)),
+                    want,
+                    "dims {dims:?}, cell {p:?}"
+                );
             }
         }
     }

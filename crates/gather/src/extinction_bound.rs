@@ -3,6 +3,7 @@
 
 use medium::grid::clamped_floor;
 use medium::Grid;
+use rayon::prelude::*;
 
 /// Data cells per side of a block.
 const BLOCK: usize = 2;
@@ -22,18 +23,26 @@ impl ExtinctionBound {
         let [nx, ny, nz] = grid.dims;
         let dims = grid.dims.map(|n| n.div_ceil(BLOCK));
         let [bx, by, bz] = dims;
-        // Each block's own largest σt.
+        // Each block's own largest σt, a layer of blocks per task (σt is finite: a plain
+        // comparison).
         let mut own = vec![0.0f32; bx * by * bz];
-        for k in 0..nz {
-            for j in 0..ny {
-                let row = nx * (j + ny * k);
-                let brow = bx * (j / BLOCK + by * (k / BLOCK));
-                for i in 0..nx {
-                    let b = &mut own[brow + i / BLOCK];
-                    *b = b.max(sigma_t[row + i]);
+        own.par_chunks_mut(bx * by)
+            .enumerate()
+            .for_each(|(kb, layer)| {
+                for k in kb * BLOCK..((kb + 1) * BLOCK).min(nz) {
+                    for j in 0..ny {
+                        let row = &sigma_t[nx * (j + ny * k)..][..nx];
+                        let blocks = &mut layer[bx * (j / BLOCK)..][..bx];
+                        for (b, cells) in blocks.iter_mut().zip(row.chunks(BLOCK)) {
+                            for &s in cells {
+                                if s > *b {
+                                    *b = s;
+                                }
+                            }
+                        }
+                    }
                 }
-            }
-        }
+            });
         // Grown by one block each way, axis by axis (a block's two cells of margin).
         let strides = [1, bx, bx * by];
         let mut max = own;

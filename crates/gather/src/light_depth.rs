@@ -19,6 +19,7 @@
 //! for grids too large to refine.
 
 use std::fmt;
+use std::sync::Arc;
 
 use glam::DVec3;
 use medium::fma::mul_add;
@@ -76,7 +77,8 @@ pub struct DepthLattice {
     /// Corner strides in y and z (x is 1).
     stride_y: usize,
     stride_z: usize,
-    depth: Vec<f32>,
+    /// The corner depths: the light pass's own (shared) at refinement 1.
+    depth: Arc<Vec<f32>>,
 }
 
 impl DepthLattice {
@@ -90,7 +92,7 @@ impl DepthLattice {
         }
         let grid = pass.grid;
         let depth = if refine == 1 {
-            pass.fields[l].corner_optical_depth.clone()
+            Arc::clone(&pass.fields[l].corner_optical_depth)
         } else {
             let fine = Grid::new(
                 grid.dims.map(|n| n * refine),
@@ -115,8 +117,10 @@ impl DepthLattice {
                     "light {l} is not directional: only directional lights take a lattice"
                 )));
             };
-            directional_corner_depths(&fine, &sigma_t, direction)
-                .map_err(|e| GatherError::Render(format!("refined corner depths: {e}")))?
+            Arc::new(
+                directional_corner_depths(&fine, &sigma_t, direction)
+                    .map_err(|e| GatherError::Render(format!("refined corner depths: {e}")))?,
+            )
         };
         let stride_y = grid.dims[0] * refine + 1;
         Ok(DepthLattice {
@@ -129,7 +133,7 @@ impl DepthLattice {
         })
     }
 
-    /// Bytes held.
+    /// Bytes of its corner depths (at refinement 1 the light pass's own, shared).
     pub fn bytes(&self) -> usize {
         self.depth.len() * std::mem::size_of::<f32>()
     }

@@ -406,7 +406,7 @@ impl<'a> RayIntegrator<'a> {
             for seg in self.grid.traverse(ray, t_start, t_out) {
                 // Deep in empty space: jump to where the ray leaves the known-empty cube and
                 // restart the traversal there (worth it only for cubes of several cells).
-                let radius = empty.empty_radius(seg.cell, 0);
+                let radius = empty.empty_radius(seg.coords, 0);
                 if radius >= JUMP_RADIUS {
                     let t_next = empty.exit(ray, seg.coords, radius);
                     if t_next >= t_out {
@@ -473,8 +473,8 @@ impl<'a> RayIntegrator<'a> {
             // The interpolated field is zero in cells whose neighbours are all empty; jump over
             // the whole known-empty cube, keeping to the lattice of step midpoints. (The cell
             // alone: most steps go on as a thin pair about another point.)
-            let (cell, coords) = own_cell(&self.grid, inverse_cell_size, x);
-            let radius = empty.empty_radius(cell, 1);
+            let coords = own_coords(&self.grid, inverse_cell_size, x);
+            let radius = empty.empty_radius(coords, 1);
             if radius >= 0 {
                 let t_next = empty.exit(ray, coords, radius);
                 let k_next = ((t_next - t_in) / dt - 0.5).ceil();
@@ -601,17 +601,16 @@ fn emission_ratio_max(sigma_t: &[f32], emission: &CellValues) -> f64 {
     ratio
 }
 
-/// The cell containing `x` (clamped to the grid) and its coordinates: [`Trilinear::cell`] and
-/// [`Trilinear::coords`] without the neighbours and weights.
+/// The coordinates of the cell containing `x` (clamped to the grid): [`Trilinear::coords`]
+/// without the neighbours and weights.
 #[inline(always)]
-fn own_cell(grid: &Grid, inverse_cell_size: f64, x: DVec3) -> (usize, [usize; 3]) {
+fn own_coords(grid: &Grid, inverse_cell_size: f64, x: DVec3) -> [usize; 3] {
     let [nx, ny, nz] = grid.dims;
-    let coords = [
+    [
         clamped_floor(x.x * inverse_cell_size, nx - 1),
         clamped_floor(x.y * inverse_cell_size, ny - 1),
         clamped_floor(x.z * inverse_cell_size, nz - 1),
-    ];
-    (coords[0] + nx * (coords[1] + ny * coords[2]), coords)
+    ]
 }
 
 /// The 8 cell-centred neighbours of a point and their trilinear weights (values clamped to
@@ -869,6 +868,19 @@ impl RenderIndex {
             (0.0, 0.0)
         };
         let occupancy = occupancy(&ch.sigma_t, &ch.emission, use_sigma, use_emission);
+        // The distance transform is serial: the rest is built beside it.
+        let (empty, (occupied, extinction)) = rayon::join(
+            || EmptySpace::new(medium.grid(), &occupancy),
+            || {
+                rayon::join(
+                    || occupied_box(medium.grid(), &occupancy, medium.interpolation()),
+                    || {
+                        (use_sigma && medium.interpolation() == Interpolation::Trilinear)
+                            .then(|| ExtinctionBound::new(medium.grid(), &ch.sigma_t))
+                    },
+                )
+            },
+        );
         Ok(RenderIndex {
             grid: *medium.grid(),
             channel,
@@ -878,10 +890,9 @@ impl RenderIndex {
             use_emission,
             emission_max,
             emission_ratio_max,
-            occupied: occupied_box(medium.grid(), &occupancy, medium.interpolation()),
-            empty: EmptySpace::new(medium.grid(), &occupancy),
-            extinction: (use_sigma && medium.interpolation() == Interpolation::Trilinear)
-                .then(|| ExtinctionBound::new(medium.grid(), &ch.sigma_t)),
+            occupied,
+            empty,
+            extinction,
         })
     }
 

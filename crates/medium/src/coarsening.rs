@@ -324,7 +324,7 @@ impl Coarsening {
                 LightField {
                     light: f.light,
                     cell_irradiance,
-                    corner_optical_depth,
+                    corner_optical_depth: std::sync::Arc::new(corner_optical_depth),
                     energy: LightEnergy {
                         extinguished,
                         ..f.energy

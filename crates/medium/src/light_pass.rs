@@ -28,6 +28,7 @@
 //! `T_L(x) = T(exit point, bilinear on that face's corners) · e^{−σt d}`.
 
 use std::f64::consts::PI;
+use std::sync::Arc;
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -93,8 +94,10 @@ pub struct LightField {
     /// Optical depth toward the light, `τ = −ln T_L`, at every cell corner, indexed by
     /// [`Grid::corner_index`] (no `1/r²`, no cone). Stored as depth, not transmittance, because
     /// renders interpolate it across cell faces: τ varies about linearly there while `T_L`
-    /// varies exponentially, and linear interpolation of `T_L` overestimates it.
-    pub corner_optical_depth: Vec<f32>,
+    /// varies exponentially, and linear interpolation of `T_L` overestimates it. Shared: a
+    /// render's light-depth lattice reads the same array (a copy is 171 MB on a 384-class
+    /// cloud).
+    pub corner_optical_depth: Arc<Vec<f32>>,
     pub energy: LightEnergy,
 }
 
@@ -1055,7 +1058,7 @@ impl LightPass {
             fields.push(LightField {
                 light,
                 cell_irradiance,
-                corner_optical_depth,
+                corner_optical_depth: Arc::new(corner_optical_depth),
                 energy: LightEnergy {
                     entering: deposit.entering,
                     extinguished,

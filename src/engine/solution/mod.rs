@@ -264,20 +264,29 @@ impl Solution {
     /// Builds what renders derive from the solution and share (each channel's
     /// [`RenderCache`]), so that the first view is as fast as the rest. Errors are left for the
     /// renders to report.
+    /// The three are built side by side: the render index's distance transform is serial,
+    /// and on a large grid each is a fraction of a second of mostly fresh memory.
     pub fn prepare_renders(&self) {
         for (c, ch) in self.channels.iter().enumerate() {
-            if let Err(e) = ch.render_cache.light_depth(&ch.light_pass) {
-                tracing::warn!("preparing renders: {e:#}");
-            }
-            if let Err(e) = ch
-                .render_cache
-                .render_index(&self.medium, c, self.render.model)
-            {
-                tracing::warn!("preparing renders: {e:#}");
-            }
-            if let ScatteredField::Binned { higher_order, .. } = &ch.scattered {
-                ch.render_cache.log_source(higher_order.values());
-            }
+            let light_depth = || {
+                if let Err(e) = ch.render_cache.light_depth(&ch.light_pass) {
+                    tracing::warn!("preparing renders: {e:#}");
+                }
+            };
+            let render_index = || {
+                if let Err(e) = ch
+                    .render_cache
+                    .render_index(&self.medium, c, self.render.model)
+                {
+                    tracing::warn!("preparing renders: {e:#}");
+                }
+            };
+            let log_source = || {
+                if let ScatteredField::Binned { higher_order, .. } = &ch.scattered {
+                    ch.render_cache.log_source(higher_order.values());
+                }
+            };
+            rayon::join(render_index, || rayon::join(light_depth, log_source));
         }
     }
 }
@@ -553,10 +562,10 @@ impl Solution {
                 fields.push(LightField {
                     light: *light,
                     cell_irradiance: take(format!("light/{ci}/{l}/cell_irradiance"), cells)?,
-                    corner_optical_depth: take(
+                    corner_optical_depth: std::sync::Arc::new(take(
                         format!("light/{ci}/{l}/corner_optical_depth"),
                         grid.corner_count(),
-                    )?,
+                    )?),
                     energy: energy.into_library(),
                 });
             }

@@ -532,7 +532,7 @@ fn zonal_source_adds_emission_and_scattered_light_of_every_light() {
             irradiance: 1.0,
         },
         cell_irradiance,
-        corner_optical_depth: vec![0.0; 12],
+        corner_optical_depth: std::sync::Arc::new(vec![0.0; 12]),
         energy: LightEnergy::default(),
     };
     let half = (2.0 * std::f64::consts::PI) as f32;
