@@ -41,13 +41,11 @@ impl EmptySpace {
                 }
             }
         }
-        // Forward pass, then the same on the reversed array (the mask is symmetric). Each row's
-        // 12 neighbours in earlier rows are taken as whole shifted rows (which vectorises); only
+        // A forward pass, then its mirror image (the mask is symmetric). Each row's 12
+        // neighbours in earlier rows are taken as whole shifted rows (which vectorises); only
         // the in-row neighbour is a serial scan.
-        chamfer_pass(&mut padded, px, py, pz);
-        padded.reverse();
-        chamfer_pass(&mut padded, px, py, pz);
-        padded.reverse();
+        chamfer_pass(&mut padded, px, py, pz, true);
+        chamfer_pass(&mut padded, px, py, pz, false);
         EmptySpace {
             grid: *grid,
             padded,
@@ -94,37 +92,60 @@ impl EmptySpace {
 }
 
 /// One chamfer sweep over a padded `px × py × pz` array of distances (x fastest): each inner
-/// cell becomes the minimum of itself and 1 + its 13 neighbours that come before it. The
-/// padding (one cell on every side, never written) keeps every neighbour in bounds.
-fn chamfer_pass(d: &mut [u8], px: usize, py: usize, pz: usize) {
+/// cell becomes the minimum of itself and 1 + its 13 neighbours that come before it in the
+/// sweep's order (`forward`: planes, rows and cells in increasing order; else decreasing, the
+/// mirror image). The padding (one cell on every side, never written) keeps every neighbour
+/// in bounds.
+fn chamfer_pass(d: &mut [u8], px: usize, py: usize, pz: usize, forward: bool) {
     let plane = px * py;
     let mut before = vec![MAX_DISTANCE; px];
-    for k in 1..pz - 1 {
-        for j in 1..py - 1 {
-            let row = px * j + plane * k;
-            // The minimum over the earlier rows' neighbours, for every cell of the row at once:
-            // rows (j−1, j, j+1) of plane k−1 and row j−1 of plane k, each at i−1, i, i+1.
-            before.fill(MAX_DISTANCE);
-            for src in [row - plane - px, row - plane, row - plane + px, row - px] {
-                // Cell i (1 ≤ i ≤ px − 2) sees columns i − 1, i, i + 1 of the source row.
-                let (left, mid, right) = (
-                    &d[src..src + px - 2],
-                    &d[src + 1..src + px - 1],
-                    &d[src + 2..src + px],
-                );
-                for (((b, &l), &m), &r) in
-                    before[1..px - 1].iter_mut().zip(left).zip(mid).zip(right)
-                {
-                    *b = (*b).min(l).min(m).min(r);
-                }
+    let mut sweep_row = |d: &mut [u8], row: usize| {
+        // The minimum over the earlier rows' neighbours, for every cell of the row at once:
+        // rows (j∓1, j, j±1) of the plane before and row j∓1 of this plane, each at i−1, i,
+        // i+1.
+        before.fill(MAX_DISTANCE);
+        let sources = if forward {
+            [row - plane - px, row - plane, row - plane + px, row - px]
+        } else {
+            [row + plane + px, row + plane, row + plane - px, row + px]
+        };
+        for src in sources {
+            // Cell i (1 ≤ i ≤ px − 2) sees columns i − 1, i, i + 1 of the source row.
+            let (left, mid, right) = (
+                &d[src..src + px - 2],
+                &d[src + 1..src + px - 1],
+                &d[src + 2..src + px],
+            );
+            for (((b, &l), &m), &r) in before[1..px - 1].iter_mut().zip(left).zip(mid).zip(right) {
+                *b = (*b).min(l).min(m).min(r);
             }
-            let mut previous = d[row];
-            for (cell, &seen) in d[row + 1..row + px - 1].iter_mut().zip(&before[1..px - 1]) {
-                let v = (*cell)
-                    .min(seen.saturating_add(1))
-                    .min(previous.saturating_add(1));
-                *cell = v;
-                previous = v;
+        }
+        let step = |previous: &mut u8, (cell, &seen): (&mut u8, &u8)| {
+            let v = (*cell)
+                .min(seen.saturating_add(1))
+                .min(previous.saturating_add(1));
+            *cell = v;
+            *previous = v;
+        };
+        // The row's padding cells, where each direction's scan starts.
+        let (mut first, mut last) = (d[row], d[row + px - 1]);
+        let cells = d[row + 1..row + px - 1].iter_mut().zip(&before[1..px - 1]);
+        if forward {
+            cells.for_each(|c| step(&mut first, c));
+        } else {
+            cells.rev().for_each(|c| step(&mut last, c));
+        }
+    };
+    if forward {
+        for k in 1..pz - 1 {
+            for j in 1..py - 1 {
+                sweep_row(d, px * j + plane * k);
+            }
+        }
+    } else {
+        for k in (1..pz - 1).rev() {
+            for j in (1..py - 1).rev() {
+                sweep_row(d, px * j + plane * k);
             }
         }
     }

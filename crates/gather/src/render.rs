@@ -938,12 +938,12 @@ fn occupancy(
 ) -> Vec<bool> {
     match (use_emission, emission) {
         (true, CellValues::PerCell(e)) => sigma_t
-            .iter()
-            .zip(e)
+            .par_iter()
+            .zip(e.par_iter())
             .map(|(&s, &e)| (use_sigma && s > 0.0) || e > 0.0)
             .collect(),
         (true, CellValues::Uniform(e)) if *e > 0.0 => vec![true; sigma_t.len()],
-        _ => sigma_t.iter().map(|&s| use_sigma && s > 0.0).collect(),
+        _ => sigma_t.par_iter().map(|&s| use_sigma && s > 0.0).collect(),
     }
 }
 

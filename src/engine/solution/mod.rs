@@ -264,8 +264,8 @@ impl Solution {
     /// Builds what renders derive from the solution and share (each channel's
     /// [`RenderCache`]), so that the first view is as fast as the rest. Errors are left for the
     /// renders to report.
-    /// The three are built side by side: the render index's distance transform is serial,
-    /// and on a large grid each is a fraction of a second of mostly fresh memory.
+    /// They are built side by side: the render index's distance transform is serial, and on
+    /// a large grid each is a fraction of a second of mostly fresh memory.
     pub fn prepare_renders(&self) {
         for (c, ch) in self.channels.iter().enumerate() {
             let light_depth = || {
@@ -281,12 +281,17 @@ impl Solution {
                     tracing::warn!("preparing renders: {e:#}");
                 }
             };
-            let log_source = || {
+            let solved_field = || {
                 if let ScatteredField::Binned { higher_order, .. } = &ch.scattered {
                     ch.render_cache.log_source(higher_order.values());
                 }
+                if !self.transport.is_data_grid() {
+                    if let Err(e) = ch.render_cache.transport(&self.medium, &self.transport, c) {
+                        tracing::warn!("preparing renders: {e:#}");
+                    }
+                }
             };
-            rayon::join(render_index, || rayon::join(light_depth, log_source));
+            rayon::join(render_index, || rayon::join(light_depth, solved_field));
         }
     }
 }
