@@ -608,3 +608,36 @@ fn a_solution_that_is_a_fifo_or_a_directory_is_refused() {
         );
     }
 }
+
+/// First views of one solution rendered at once from several threads (as the service's
+/// requests and its background preparation do) all finish and agree: the shared render
+/// caches are built once, and no thread waits on a cache that its own stack is building.
+#[test]
+fn concurrent_first_views_of_one_solution_finish_and_agree() {
+    let golden = std::fs::read(golden_path(ORDINATES.file)).unwrap();
+    for _ in 0..20 {
+        let solution = std::sync::Arc::new(
+            Solution::from_bytes(&golden, &golden_path(ORDINATES.file)).unwrap(),
+        );
+        let (sender, receiver) = std::sync::mpsc::channel();
+        for _ in 0..6 {
+            let (solution, sender) = (solution.clone(), sender.clone());
+            std::thread::spawn(move || {
+                let image =
+                    volrad::engine::pipeline::render_view(&solution, &solution.cameras[0], None)
+                        .map(|image| image.pixels);
+                let _ = sender.send(image);
+            });
+        }
+        let images: Vec<Vec<f32>> = (0..6)
+            .map(|_| {
+                receiver
+                    .recv_timeout(std::time::Duration::from_secs(60))
+                    .expect("a first view did not finish within a minute")
+                    .unwrap()
+            })
+            .collect();
+        assert!(images[0].iter().any(|&v| v > 0.0));
+        assert!(images.iter().all(|image| *image == images[0]));
+    }
+}

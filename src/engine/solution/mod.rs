@@ -291,7 +291,14 @@ impl Solution {
                     }
                 }
             };
-            rayon::join(render_index, || rayon::join(light_depth, solved_field));
+            // On threads of their own, not rayon tasks: a rayon worker that waits inside one
+            // cache's initialisation (its parallel loops) may run another task meanwhile, and
+            // a task initialising the same cache there would wait on itself.
+            std::thread::scope(|scope| {
+                scope.spawn(render_index);
+                scope.spawn(solved_field);
+                light_depth();
+            });
         }
     }
 }
