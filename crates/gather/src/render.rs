@@ -487,21 +487,23 @@ impl<'a> RayIntegrator<'a> {
             }
             // Where this step and the next lie in thin medium (σt bounded near them), one
             // step of twice the length about their common end (the bound keeps it one piece).
-            let thin_pair = k + 1 < steps
-                && self.index.extinction.as_ref().is_some_and(|bound| {
-                    bound.at(ray.at(t_in + (k + 1) as f64 * dt)) * 2.0 * dt <= MAX_PIECE_DEPTH
+            let pair_end = self
+                .index
+                .extinction
+                .as_ref()
+                .filter(|_| k + 1 < steps)
+                .and_then(|bound| {
+                    let t = t_in + (k + 1) as f64 * dt;
+                    let x = ray.at(t);
+                    (bound.at(x) * 2.0 * dt <= MAX_PIECE_DEPTH).then_some((t, x))
                 });
-            let (t, x, corners, length) = if thin_pair {
-                let t = t_in + (k + 1) as f64 * dt;
-                let x = ray.at(t);
-                k += 2;
-                let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
-                (t, x, corners, 2.0 * dt)
-            } else {
-                k += 1;
-                let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
-                (t, x, corners, dt)
+            let thin_pair = pair_end.is_some();
+            let (t, x, length) = match pair_end {
+                Some((t, x)) => (t, x, 2.0 * dt),
+                None => (t, x, dt),
             };
+            k += if thin_pair { 2 } else { 1 };
+            let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
             // Where the step may be optically thick, the source and σt change too much within
             // it for one midpoint: split it into pieces of at most `MAX_PIECE_DEPTH` (bounded
             // by the largest σt of the midpoint's 8 neighbours, read once for the bound and the

@@ -264,10 +264,21 @@ impl Solution {
     /// Builds what renders derive from the solution and share (each channel's
     /// [`RenderCache`]), so that the first view is as fast as the rest. Errors are left for the
     /// renders to report.
-    /// They are built side by side: the render index's distance transform is serial, and on
-    /// a large grid each is a fraction of a second of mostly fresh memory.
+    ///
+    /// They are built side by side (the render index's distance transform is serial, and on
+    /// a large grid each is a fraction of a second of mostly fresh memory); a channel whose
+    /// caches are all built costs a few lookups, so every render may call this.
     pub fn prepare_renders(&self) {
         for (c, ch) in self.channels.iter().enumerate() {
+            let cache = &ch.render_cache;
+            let built = cache.light_depth.get().is_some()
+                && cache.render_index.get().is_some()
+                && (!matches!(ch.scattered, ScatteredField::Binned { .. })
+                    || cache.log_source.get().is_some())
+                && (self.transport.is_data_grid() || cache.transport.get().is_some());
+            if built {
+                continue;
+            }
             let light_depth = || {
                 if let Err(e) = ch.render_cache.light_depth(&ch.light_pass) {
                     tracing::warn!("preparing renders: {e:#}");
