@@ -207,6 +207,15 @@ pub struct SolveArgs {
     /// Print the report as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub overrides: SolveOverrides,
+}
+
+/// Changes to a scene's `[solve]` settings for one solve: `volrad solve` solves with them,
+/// `volrad info` predicts what that solve would choose, need and take, and the Python
+/// package's `Scene.solve(method=…)` builds them too ([`SolveOverrides::apply`]).
+#[derive(Clone, Debug, Args, Default)]
+pub struct SolveOverrides {
     /// Override `[solve] method` (discrete-ordinates, zonal, zonal-hierarchical,
     /// single-scatter, two-pass, none); a new method brings its default iteration.
     #[arg(long)]
@@ -278,6 +287,9 @@ pub struct InfoArgs {
     /// Print as JSON.
     #[arg(long)]
     pub json: bool,
+    /// What a `volrad solve` with these overrides would choose, need and take.
+    #[command(flatten)]
+    pub overrides: SolveOverrides,
 }
 
 #[derive(Debug, Args)]

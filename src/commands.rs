@@ -10,6 +10,7 @@ use anyhow::{bail, Context, Result};
 use montecarlo::path_trace::Surroundings;
 use scene::{CameraSpec, Scene};
 
+pub use crate::cli::SolveOverrides;
 use crate::cli::{ExportArgs, InfoArgs, RenderArgs, SolveArgs};
 use crate::engine::pipeline::{render_view, render_view_through, solve_scene, view_medium};
 use crate::engine::solution::Solution;
@@ -49,17 +50,6 @@ pub fn run_default(output: &Path, quiet: bool, max_memory: Option<u64>) -> Resul
     }
     println!("wrote {}", output.display());
     Ok(())
-}
-
-/// Changes to a scene's `[solve]` settings for one solve (`volrad solve --method …`, the
-/// Python package's `Scene.solve(method=…)`).
-#[derive(Clone, Debug, Default)]
-pub struct SolveOverrides {
-    pub method: Option<scene::SolveMethod>,
-    pub iteration: Option<solver::Method>,
-    pub tolerance: Option<f64>,
-    pub max_iterations: Option<usize>,
-    pub transport_scale: Option<scene::TransportScale>,
 }
 
 impl SolveOverrides {
@@ -373,14 +363,7 @@ fn render_path_traced(args: &RenderArgs, quiet: bool, max_memory: Option<u64>) -
 
 pub fn solve(args: &SolveArgs, quiet: bool, max_memory: Option<u64>) -> Result<()> {
     let scene = load_scene(&args.scene)?;
-    let settings = SolveOverrides {
-        method: args.method,
-        iteration: args.iteration,
-        tolerance: args.tolerance,
-        max_iterations: args.max_iterations,
-        transport_scale: args.transport_scale,
-    }
-    .apply(&scene.solve)?;
+    let settings = args.overrides.apply(&scene.solve)?;
     // Refused before the solve, not after it: a folder as output, or a folder that cannot be made.
     if is_directory_target(&args.output) {
         bail!(
@@ -589,7 +572,8 @@ pub fn load_scene(path: &Path) -> Result<Scene> {
 
 /// `volrad info`.
 pub fn info(args: &InfoArgs) -> Result<()> {
-    let scene = load_scene(&args.scene)?;
+    let mut scene = load_scene(&args.scene)?;
+    scene.solve = args.overrides.apply(&scene.solve)?;
     let report = crate::info::SceneInfo::of(&scene);
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

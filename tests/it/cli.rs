@@ -273,6 +273,30 @@ fn info_and_export_describe_the_solution() {
         text.contains("time             solve about") && text.contains("iterations per channel"),
         "{text}"
     );
+    // The solve's overrides: what `volrad solve --method …` would choose and need, without
+    // editing the scene; a bad value refused as `solve` refuses it.
+    let o = volrad(&[
+        "info",
+        s(&scene),
+        "--json",
+        "--method",
+        "discrete-ordinates",
+        "--tolerance",
+        "1e-3",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let other: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(info["method"], "zonal");
+    assert_eq!(other["method"], "discrete-ordinates");
+    assert_eq!(other["iteration"], "gauss-seidel");
+    assert!(other["ordinates"].is_object() && info["ordinates"].is_null());
+    assert_ne!(other["peak_memory_bytes"], info["peak_memory_bytes"]);
+    let o = volrad(&["info", s(&scene), "--tolerance", "0"]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("tolerance 0"),
+        "{}",
+        stderr(&o)
+    );
 
     let sol = dir.path().join("s.volrad");
     assert!(volrad(&["-q", "solve", s(&scene), "-o", s(&sol)])
