@@ -260,7 +260,9 @@ impl<'a> Occupancy<'a> {
     }
 }
 
-/// The hierarchical operator's near field on one transport grid, counted from the medium.
+/// The hierarchical operator's near field on one transport grid, counted from the medium,
+/// and the optical size of its non-empty cells (what sets how far its far field's links
+/// reach: the time model's far links per cell).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct NearRows {
     /// Non-empty cells whose row is shared ([`Occupancy::hierarchy_shared_rows`]).
@@ -268,6 +270,8 @@ pub struct NearRows {
     /// Entries of the rows stored one per cell: for each non-empty cell whose row is not
     /// shared, the non-empty cells within the near radius (Chebyshev), itself included.
     pub stored_entries: u64,
+    /// The mean optical side `σt h` of the non-empty cells (0 when there are none).
+    pub mean_optical_side: f64,
 }
 
 /// [`Occupancy::hierarchy_near_rows`], counted; of the channel that shares the fewest rows.
@@ -297,9 +301,15 @@ fn near_rows_of(medium: &medium::Medium, scale: usize) -> NearRows {
                 .filter(|&i| occupied[i] && !shared[i])
                 .map(|i| u64::from(around[i]))
                 .sum();
+            let (sides, count) = c
+                .sigma_t
+                .iter()
+                .filter(|&&s| s > 0.0)
+                .fold((0.0, 0usize), |(sum, n), &s| (sum + s as f64, n + 1));
             NearRows {
                 shared: shared.iter().filter(|&&u| u).count(),
                 stored_entries,
+                mean_optical_side: sides * grid.cell_size / count.max(1) as f64,
             }
         })
         .min_by_key(|r| r.shared)

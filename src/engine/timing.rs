@@ -141,8 +141,14 @@ const EMITTER_SECONDS_PER_RAY: f64 = 2.0e-7;
 const ZONAL_BUILD_SECONDS_PER_PAIR: f64 = 1.7e-7;
 const ZONAL_NEAR_SECONDS_PER_STORED_ROW: f64 = 3.0e-4;
 const ZONAL_APPLY_SECONDS_PER_PAIR: f64 = 8.0e-10;
-/// Hierarchical zonal: building, and one application, per link.
-const HIERARCHICAL_BUILD_SECONDS_PER_LINK: f64 = 1.3e-7;
+/// Hierarchical zonal: building a far link (its transmittance between the clusters, or the
+/// exact far estimate of a leaf pair) and a stored near-field entry (a column of the ray
+/// stencil), and one application per link of either. The two build costs fitted to the
+/// `hierarchy built` seconds of `RUST_LOG=info volrad solve` on the far-link model's cases
+/// ([`far_links_per_occupied_cell`]) with their own counts, within 13 % on all but a
+/// 0.4 s one (−18 %); one cost for both was −41 … +50 % (far links cost 2.4 near entries).
+const HIERARCHICAL_BUILD_SECONDS_PER_FAR_LINK: f64 = 1.9e-7;
+const HIERARCHICAL_BUILD_SECONDS_PER_NEAR_ENTRY: f64 = 8.0e-8;
 const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
 /// Discrete ordinates: the set-up (first-scattering source, the stored field, the file) per
 /// cell and bin; per sweep, the transport per cell and bin, the scattering product per cell
@@ -443,14 +449,23 @@ pub fn solve_time_at_speed(
             stored_rows() * ZONAL_NEAR_SECONDS_PER_STORED_ROW,
             ZONAL_APPLY_SECONDS_PER_PAIR,
         ),
-        SolveMethod::ZonalHierarchical => operator(
-            "the hierarchical operator",
-            transport_occupied * far_links_per_occupied_cell(transport_occupied)
-                + occupancy.hierarchy_near_rows(scale).stored_entries as f64 * parts_per_cell,
-            HIERARCHICAL_BUILD_SECONDS_PER_LINK,
-            0.0,
-            HIERARCHICAL_APPLY_SECONDS_PER_LINK,
-        ),
+        SolveMethod::ZonalHierarchical => {
+            let near = occupancy.hierarchy_near_rows(scale);
+            let fill = transport_occupied / transport_cells.max(1.0);
+            // A split transport cell is `split` times thinner.
+            let side = near.mean_optical_side / parts_per_cell.cbrt();
+            let far =
+                transport_occupied * far_links_per_occupied_cell(transport_occupied, fill, side);
+            let near_entries = near.stored_entries as f64 * parts_per_cell;
+            operator(
+                "the hierarchical operator",
+                far + near_entries,
+                0.0,
+                far * HIERARCHICAL_BUILD_SECONDS_PER_FAR_LINK
+                    + near_entries * HIERARCHICAL_BUILD_SECONDS_PER_NEAR_ENTRY,
+                HIERARCHICAL_APPLY_SECONDS_PER_LINK,
+            )
+        }
         SolveMethod::DiscreteOrdinates => {
             let bins = super::budget::direction_bins(scene, settings) as f64;
             let cell_bins = transport_cells * bins;
@@ -510,13 +525,26 @@ pub fn solve_time_at_speed(
     }
 }
 
-/// Links of the hierarchical operator beyond the near field per non-empty cell: they grow
-/// with the log of the cells (each level of the cluster tree adds its interactions; measured
-/// 208 per cell at 3 × 10³ non-empty cells and 396 at 2.4 × 10⁴ on clouds; fewer in uniform
-/// and dense media: 191 and 244 on uniform 24³ and 40³ blocks, 349 on Kobayashi's 60³; the
-/// `links_per_level` of `RUST_LOG=info volrad solve`'s `hierarchy built` line).
-fn far_links_per_occupied_cell(occupied: f64) -> f64 {
-    (50.0 * occupied.max(2.0).log2() - 370.0).max(100.0)
+/// Links of the hierarchical operator beyond the near field per non-empty cell, for
+/// `occupied` non-empty cells filling the share `fill` of the grid with a mean optical side
+/// `side` (σt h). They grow with the log of the cells (each level of the cluster tree adds its
+/// interactions) and fall as the cells grow optically thick (the transmittance between
+/// clusters lets the oracle take coarser links): sparse clouds and compact blocks follow
+/// different lines, blended by `fill`. Fitted to the `links_per_level` of
+/// `RUST_LOG=info volrad solve`'s `hierarchy built` line on seed-2 clouds (12–14 % filled)
+/// of 3 × 10³ to 2.7 × 10⁴ non-empty cells at mean sides 0.06 to 1.3 — data grids at
+/// `sigma_t_scale` 0.25, 1 and 4 and the transport grids of 96-, 192- and 384-class clouds —
+/// within 4 %, and to uniform 24³ and 40³ blocks and a 99 %-filled dense cloud within 4 %
+/// (docs/performance.md, *Time*).
+fn far_links_per_occupied_cell(occupied: f64, fill: f64, side: f64) -> f64 {
+    let levels = occupied.max(2.0).log2();
+    // Sparse clouds at a mean side of 0.24, scaled by how their links thin out with it.
+    let thin = (side.max(1e-3) / 0.24).min(1.0).powf(-0.14);
+    let thick = (side.clamp(0.24, 1.0) / 0.24).powf(-0.62);
+    let sparse = (70.9 * levels - 606.4).max(30.0) * thin * thick;
+    let compact = (30.2 * levels - 165.0).max(30.0);
+    let fill = fill.clamp(0.0, 1.0);
+    (1.0 - fill) * sparse + fill * compact
 }
 
 /// Passes over a vector of unknowns per iteration of a Krylov method beyond its
@@ -827,6 +855,58 @@ mod tests {
         // it leaks out (the transport correction: D = 1 / (3 σt (1 − ω g))).
         let forward = diffusion_spectral_radius(0.9, 0.8, [10.0; 3], 0.0);
         assert!(forward < diffusion_spectral_radius(0.9, 0.0, [10.0; 3], 0.0));
+    }
+
+    /// The far links the hierarchy builds, against the model's count, on clouds of another
+    /// seed than the fit's (thin and four times thicker: the thick one has about half as many
+    /// per cell) and a uniform block: −3 %, +1 % and +3 % when written. The single log-line
+    /// before (`50 log₂ n − 370`, whatever the medium) was −6 %, +93 % and +26 %.
+    #[test]
+    fn the_far_links_the_hierarchy_builds_are_predicted() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("block.f32"),
+            0.05f32.to_le_bytes().repeat(20 * 20 * 20),
+        )
+        .unwrap();
+        let mut per_cell = Vec::new();
+        for volume in [
+            "generator = { kind = \"cloud\", seed = 3 }\ndims = [32, 32, 24]",
+            "generator = { kind = \"cloud\", seed = 3 }\ndims = [32, 32, 24]\nsigma_t_scale = 4.0",
+            "file = \"block.f32\"\ndims = [20, 20, 20]",
+        ] {
+            let text = format!(
+                "[volume]\n{volume}\n[medium]\nalbedo = 0.9\n[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = 1.0\n"
+            );
+            let scene =
+                Scene::from_toml_str(&text, dir.path(), std::path::Path::new("far.toml")).unwrap();
+            let medium = &scene.medium;
+            let built: usize = formfactor::HierarchicalOperator::build(
+                medium,
+                0,
+                &formfactor::HierarchicalOptions {
+                    tolerance: super::super::methods::HIERARCHY_TOLERANCE,
+                    ..formfactor::HierarchicalOptions::default()
+                },
+            )
+            .unwrap()
+            .links_per_level()
+            .iter()
+            .sum();
+            let occupancy = Occupancy::of(medium);
+            let occupied = occupancy.at(1) as f64;
+            let fill = occupied / medium.grid().cell_count() as f64;
+            let side = occupancy.hierarchy_near_rows(1).mean_optical_side;
+            let predicted = occupied * far_links_per_occupied_cell(occupied, fill, side);
+            let error = predicted / built as f64 - 1.0;
+            assert!(
+                error.abs() < 0.15,
+                "{volume}: {built} far links built, {predicted:.0} predicted ({:+.1} %)",
+                100.0 * error
+            );
+            per_cell.push(built as f64 / occupied);
+        }
+        assert!(per_cell[1] < 0.7 * per_cell[0], "{per_cell:?}");
     }
 
     #[test]
