@@ -171,9 +171,13 @@ const ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN: f64 = 1.0e-9;
 const ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN: f64 = 12.1e-9;
 const ORDINATES_CACHED_CELL_BINS: f64 = 2.0e7;
 /// Two-pass: per cell and tally bin (the tallies and their sum), and per photon and cell
-/// along the grid's longest side (a photon's path crosses cells in proportion to it).
-const TWO_PASS_SECONDS_PER_CELL_BIN: f64 = 6.0e-8;
-const TWO_PASS_SECONDS_PER_PHOTON_SIDE: f64 = 9.0e-9;
+/// along the grid's longest side (a photon's path crosses cells in proportion to it). Fitted
+/// to the medians of three solves each of seed-2 clouds from 16 × 16 × 12 to 64 × 64 × 48
+/// (2²¹ photons; 10⁵ and 10⁶ on the 32 × 32 × 24 one: ten times the photons cost it 5 %) and
+/// a uniform 32³ block, 2026-12-06: within 17 % (the constants before, 6.0e-8 and 9.0e-9,
+/// −26 … +34 %). The first solve after a pause can take 1.5× (its threads' CPU the same).
+const TWO_PASS_SECONDS_PER_CELL_BIN: f64 = 7.2e-8;
+const TWO_PASS_SECONDS_PER_PHOTON_SIDE: f64 = 5.5e-9;
 /// The ground's rounds of coupling with the medium: each solves the medium again from the
 /// last solution, the early ones loosely, so their iterations add up to about one solve's
 /// (measured: 20 + 14 + 26 against 60); each round gathers the medium's light on the
