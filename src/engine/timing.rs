@@ -146,7 +146,8 @@ const ZONAL_APPLY_SECONDS_PER_PAIR: f64 = 8.0e-10;
 /// stencil), and one application per link of either. The two build costs fitted to the
 /// `hierarchy built` seconds of `RUST_LOG=info volrad solve` on the far-link model's cases
 /// ([`far_links_per_occupied_cell`]) with their own counts, within 13 % on all but a
-/// 0.4 s one (−18 %); one cost for both was −41 … +50 % (far links cost 2.4 near entries).
+/// 0.4 s one (−18 %); one cost for both, with the same counts, was −41 … +28 % (a far link
+/// costs 2.4 near entries).
 const HIERARCHICAL_BUILD_SECONDS_PER_FAR_LINK: f64 = 1.9e-7;
 const HIERARCHICAL_BUILD_SECONDS_PER_NEAR_ENTRY: f64 = 8.0e-8;
 const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
