@@ -62,7 +62,7 @@ CASES = [
 ]
 
 
-def scene_text(method, dims, medium, extra, folder):
+def scene_text(method, dims, medium, extra, folder, volume_extra=""):
     nx, ny, nz = dims
     if medium == "uniform":
         raw = folder / f"uniform{nx}x{ny}x{nz}.f32"
@@ -75,6 +75,7 @@ def scene_text(method, dims, medium, extra, folder):
 [volume]
 {volume}
 dims = [{nx}, {ny}, {nz}]
+{volume_extra}
 [medium]
 albedo = {albedo}
 phase = {{ kind = "henyey-greenstein", g = 0.6 }}

@@ -236,6 +236,34 @@ pub struct SolveOverrides {
     pub transport_scale: Option<scene::TransportScale>,
 }
 
+impl SolveOverrides {
+    /// `settings` with the overrides applied; a bad tolerance is refused.
+    pub fn apply(&self, settings: &scene::SolveSettings) -> anyhow::Result<scene::SolveSettings> {
+        let mut settings = settings.clone();
+        if let Some(method) = self.method {
+            settings.method = method;
+            // A new method brings its own default iteration unless an iteration is given.
+            settings.iteration = method.default_iteration();
+        }
+        if let Some(iteration) = self.iteration {
+            settings.iteration = iteration;
+        }
+        if let Some(t) = self.tolerance {
+            if !(t.is_finite() && t > 0.0) {
+                anyhow::bail!("tolerance {t}: must be a positive number");
+            }
+            settings.tolerance = t;
+        }
+        if let Some(n) = self.max_iterations {
+            settings.max_iterations = n;
+        }
+        if let Some(scale) = self.transport_scale {
+            settings.transport_scale = scale;
+        }
+        Ok(settings)
+    }
+}
+
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// Scene files to load at start, named by their file names (solved unless the cache

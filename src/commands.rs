@@ -52,34 +52,6 @@ pub fn run_default(output: &Path, quiet: bool, max_memory: Option<u64>) -> Resul
     Ok(())
 }
 
-impl SolveOverrides {
-    /// `settings` with the overrides applied; a bad tolerance is refused.
-    pub fn apply(&self, settings: &scene::SolveSettings) -> Result<scene::SolveSettings> {
-        let mut settings = settings.clone();
-        if let Some(method) = self.method {
-            settings.method = method;
-            // A new method brings its own default iteration unless an iteration is given.
-            settings.iteration = method.default_iteration();
-        }
-        if let Some(iteration) = self.iteration {
-            settings.iteration = iteration;
-        }
-        if let Some(t) = self.tolerance {
-            if !(t.is_finite() && t > 0.0) {
-                bail!("tolerance {t}: must be a positive number");
-            }
-            settings.tolerance = t;
-        }
-        if let Some(n) = self.max_iterations {
-            settings.max_iterations = n;
-        }
-        if let Some(scale) = self.transport_scale {
-            settings.transport_scale = scale;
-        }
-        Ok(settings)
-    }
-}
-
 /// Solves with a progress bar and Ctrl-C cancellation.
 /// `max_memory` is `--max-memory`; without it the solve must fit in the memory the machine
 /// has available.

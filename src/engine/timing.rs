@@ -145,9 +145,9 @@ const ZONAL_APPLY_SECONDS_PER_PAIR: f64 = 8.0e-10;
 /// exact far estimate of a leaf pair) and a stored near-field entry (a column of the ray
 /// stencil), and one application per link of either. The two build costs fitted to the
 /// `hierarchy built` seconds of `RUST_LOG=info volrad solve` on the far-link model's cases
-/// ([`far_links_per_occupied_cell`]) with their own counts, within 13 % on all but a
-/// 0.4 s one (−18 %); one cost for both, with the same counts, was −41 … +28 % (a far link
-/// costs 2.4 near entries).
+/// ([`far_links_per_occupied_cell`]; `benches/far_links.py`) with their own counts, within
+/// 14 % on all but the smallest (0.32 s against 0.37–0.51 s); one cost for both, with the same
+/// counts, was −41 … +28 % (a far link costs 2.4 near entries).
 const HIERARCHICAL_BUILD_SECONDS_PER_FAR_LINK: f64 = 1.9e-7;
 const HIERARCHICAL_BUILD_SECONDS_PER_NEAR_ENTRY: f64 = 8.0e-8;
 const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
@@ -462,6 +462,15 @@ pub fn solve_time_at_speed(
             let far =
                 transport_occupied * far_links_per_occupied_cell(transport_occupied, fill, side);
             let near_entries = near.stored_entries as f64 * parts_per_cell;
+            // `benches/far_links.py` compares these with the build's `hierarchy built` line.
+            tracing::debug!(
+                occupied = transport_occupied,
+                fill,
+                mean_optical_side = side,
+                far_links = far,
+                near_entries,
+                "the hierarchy's links, predicted"
+            );
             operator(
                 "the hierarchical operator",
                 far + near_entries,
@@ -539,8 +548,8 @@ pub fn solve_time_at_speed(
 /// `RUST_LOG=info volrad solve`'s `hierarchy built` line on seed-2 clouds (12–14 % filled)
 /// of 3 × 10³ to 2.7 × 10⁴ non-empty cells at mean sides 0.06 to 1.3 — data grids at
 /// `sigma_t_scale` 0.25, 1 and 4 and the transport grids of 96-, 192- and 384-class clouds —
-/// within 4 %, and to uniform 24³ and 40³ blocks and a 99 %-filled dense cloud within 4 %
-/// (docs/performance.md, *Time*).
+/// within 3 %, and to uniform 24³ and 40³ blocks; held out, a split cloud −2 % and
+/// `data/cloud-large.toml` −10 % (`benches/far_links.py`; docs/performance.md, *Time*).
 fn far_links_per_occupied_cell(occupied: f64, fill: f64, side: f64) -> f64 {
     let levels = occupied.max(2.0).log2();
     // Sparse clouds at a mean side of 0.24, scaled by how their links thin out with it.

@@ -50,8 +50,8 @@ const AUTO_CHECK_CELLS: usize = 4 << 20;
 
 /// The stride of the [`LightDepth::Auto`] check's sample on `grid`: 1 up to
 /// [`AUTO_CHECK_CELLS`] cells, else about `cells / AUTO_CHECK_CELLS`, raised until it shares
-/// no factor with a row's or a layer's cells, so that the sample walks across every column
-/// and row rather than down a few of them.
+/// no factor with a layer's cells (nor so with a row's), so that the sample walks across every
+/// column and row rather than down a few of them.
 fn check_stride(grid: &Grid) -> usize {
     fn coprime(mut a: usize, mut b: usize) -> bool {
         while b != 0 {
@@ -63,8 +63,8 @@ fn check_stride(grid: &Grid) -> usize {
     if stride <= 1 {
         return 1;
     }
-    let [nx, ny, _] = grid.dims;
-    while !(coprime(stride, nx) && coprime(stride, nx * ny)) {
+    let layer = grid.dims[0] * grid.dims[1];
+    while !coprime(stride, layer) {
         stride += 1;
     }
     stride
