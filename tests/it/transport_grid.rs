@@ -307,3 +307,68 @@ fn a_strong_forward_peak_splits_cells_an_isotropic_solve_keeps_whole() {
     assert_eq!(split("0.6", "discrete-ordinates"), 1);
     assert_eq!(split("0.85", "zonal-hierarchical"), 1);
 }
+
+/// The solved sources as a march would read them one piece at a time: every call forwarded
+/// but [`InScattering::at_step_pair`], which keeps its default (each step on its own).
+struct EachPiece<'a>(&'a dyn gather::InScattering);
+
+impl gather::InScattering for EachPiece<'_> {
+    fn segment(&self, seg: &gather::ViewSegment, carry: &mut gather::RayCarry) -> f64 {
+        self.0.segment(seg, carry)
+    }
+    fn at(&self, x: glam::DVec3, cell: usize, w: glam::DVec3) -> f64 {
+        self.0.at(x, cell, w)
+    }
+    fn at_step(&self, step: &gather::StepSample, w: glam::DVec3) -> f64 {
+        self.0.at_step(step, w)
+    }
+    fn max_source(&self) -> f64 {
+        self.0.max_source()
+    }
+    fn is_zero(&self) -> bool {
+        self.0.is_zero()
+    }
+}
+
+/// In thin medium the march takes two pieces at once and the sources share what is the same
+/// at both (`InScattering::at_step_pair`): the first bounce one `exp` (exactly), the solved
+/// field of a transport grid twice as coarse as the data one lookup midway between them.
+/// The views are those of a march that reads every piece on its own within 0.03 % RMS and
+/// 0.015 % in the mean (measured 0.012–0.016 % and −0.009 … −0.007 %; taking the second
+/// piece's light transmittance as the first's gives 0.05 %), for the binned field
+/// (discrete ordinates) and the isotropic one (zonal-hierarchical).
+#[test]
+fn pieces_taken_in_pairs_keep_the_image() {
+    for (method, phase) in [
+        ("zonal-hierarchical", r#"{ kind = "isotropic" }"#),
+        (
+            "discrete-ordinates",
+            r#"{ kind = "henyey-greenstein", g = 0.6 }"#,
+        ),
+    ] {
+        let scene = cloud(method, phase, "2");
+        let solution = solve_scene(&scene, &scene.solve, &SolveHooks::default()).unwrap();
+        assert_eq!(solution.transport.scale(), 2);
+        let camera = gather::Camera::from_spec(&scene.cameras[0]).unwrap();
+        let options = gather::RenderOptions::from_settings(&solution.render, solution.background);
+        let ch = &solution.channels[0];
+        let source =
+            volrad::engine::sources::channel_scattering(&solution, 0, ch, options.model).unwrap();
+        let render = |s: &dyn gather::InScattering| {
+            gather::render_image(&solution.medium, &camera, &options, &[s]).unwrap()
+        };
+        let paired = render(source.as_ref());
+        let each = render(&EachPiece(source.as_ref()));
+        let c = montecarlo::compare::compare_images(&paired, None, &each, None, 0.01, 1).unwrap();
+        eprintln!(
+            "{method}: pieces in pairs against each piece: RMS {:.2e}, mean {:+.2e}",
+            c.relative_rms_error, c.relative_mean_difference
+        );
+        assert!(
+            c.relative_rms_error < 3e-4 && c.relative_mean_difference.abs() < 1.5e-4,
+            "{method}: RMS {}, mean {}",
+            c.relative_rms_error,
+            c.relative_mean_difference
+        );
+    }
+}

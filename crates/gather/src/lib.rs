@@ -33,5 +33,6 @@ pub use render::{
     OPTICAL_MODEL_NAMES,
 };
 pub use scattering::{
-    segment_weight, InScattering, RayCarry, ScatteringSum, StepSample, UniformSource, ViewSegment,
+    each_step, segment_weight, InScattering, RayCarry, ScatteringSum, StepSample, UniformSource,
+    ViewSegment,
 };

@@ -5,8 +5,10 @@
 //! `ΔI = T · Q · (1 − e^{−σt Δs}) / σt`, then `T ← T · e^{−σt Δs}`. `trilinear` media are
 //! marched in fixed steps (half a cell by default; a step that may be optically thick is
 //! split into pieces of optical depth ≤ `MAX_PIECE_DEPTH`) of the trilinearly interpolated σt
-//! and emission, each integrated with the same formula at its midpoint values. The
-//! background adds `T · I0` at the end.
+//! and emission, each integrated with the same formula at its midpoint values. In thin
+//! medium (σt bounded near them) two steps are one piece, and two consecutive such pieces are
+//! handed to the sources together ([`InScattering::at_step_pair`]), which may share what is
+//! the same at both. The background adds `T · I0` at the end.
 //!
 //! Early termination: a ray stops once the rest of it cannot change the pixel by more than
 //! `termination` (default 1e-4) relative to what it has gathered, i.e. when
@@ -497,6 +499,39 @@ impl<'a> RayIntegrator<'a> {
                     let x = ray.at(t);
                     (bound.at(x) * 2.0 * dt <= MAX_PIECE_DEPTH).then_some((t, x))
                 });
+            // A second thin pair right after the first: the two pieces are taken together, so
+            // that the sources may share what is the same at both (a directional light's
+            // `exp`, the solved field's lookups: `InScattering::at_step_pair`).
+            let quad = self.use_sigma && self.use_scattering && k + 3 < steps;
+            if let (Some((_, x1)), Some(bound), true) = (pair_end, &self.index.extinction, quad) {
+                let t2 = t_in + (k + 3) as f64 * dt;
+                let x2 = ray.at(t2);
+                if bound.at(x2) * 2.0 * dt <= MAX_PIECE_DEPTH {
+                    k += 4;
+                    let length = 2.0 * dt;
+                    let samples = [
+                        self.step_sample(x1, inverse_cell_size),
+                        self.step_sample(x2, inverse_cell_size),
+                    ];
+                    let scattered = self.scattering.at_step_pair(&samples, flow);
+                    for (s, q) in samples.iter().zip(scattered) {
+                        let sigma = s.sigma_t_from(self.sigma_t);
+                        let emitted = if self.use_emission {
+                            s.corners.sample(|c| self.emission.get(c) as f64)
+                        } else {
+                            0.0
+                        };
+                        let (weight, attenuation) =
+                            weight_and_attenuation_with::<FMA>(sigma, length);
+                        radiance += transmittance * (emitted + q) * weight;
+                        transmittance *= attenuation;
+                    }
+                    if self.can_stop(transmittance, radiance, t2 + dt, t_out) {
+                        return radiance;
+                    }
+                    continue;
+                }
+            }
             let thin_pair = pair_end.is_some();
             let (t, x, length) = match pair_end {
                 Some((t, x)) => (t, x, 2.0 * dt),
@@ -547,6 +582,14 @@ impl<'a> RayIntegrator<'a> {
             }
         }
         radiance + transmittance * self.backdrop(ray)
+    }
+
+    /// The step of a `trilinear` march at `x`, σt read there.
+    #[inline(always)]
+    fn step_sample(&self, x: DVec3, inverse_cell_size: f64) -> StepSample<'_> {
+        let corners = Trilinear::with_inverse_size(&self.grid, inverse_cell_size, x);
+        let sigma = corners.dot(&corners.gather(self.sigma_t));
+        StepSample::interpolated(x, corners, self.sigma_t, sigma)
     }
 
     /// One piece of `length` of a `trilinear` march with its midpoint `x` (neighbours

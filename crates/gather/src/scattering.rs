@@ -210,6 +210,14 @@ pub trait InScattering: Sync {
         self.at(step.x, step.corners.cell(), view_flow_dir)
     }
 
+    /// [`at_step`](Self::at_step) at two consecutive steps of a march in thin medium (the
+    /// renderer's *quads*). A source may share what is the same at both (a directional
+    /// light's `exp`, a lookup of the solved field); the default evaluates each step.
+    #[inline]
+    fn at_step_pair(&self, steps: &[StepSample; 2], view_flow_dir: DVec3) -> [f64; 2] {
+        each_step(self, steps, view_flow_dir)
+    }
+
     /// An upper bound on `Q_s` anywhere in the medium, for any direction. The renderer's
     /// early termination uses it to bound what the rest of a ray could still add; the default
     /// (infinity) makes the renderer fall back to stopping at a fixed transmittance.
@@ -221,6 +229,17 @@ pub trait InScattering: Sync {
     fn is_zero(&self) -> bool {
         false
     }
+}
+
+/// [`InScattering::at_step`] at each of `steps`: the default of
+/// [`InScattering::at_step_pair`], for sources that override it only in some cases.
+#[inline]
+pub fn each_step<S: InScattering + ?Sized>(
+    source: &S,
+    steps: &[StepSample; 2],
+    w: DVec3,
+) -> [f64; 2] {
+    [source.at_step(&steps[0], w), source.at_step(&steps[1], w)]
 }
 
 /// No scattered light (emission/absorption models, or a medium with albedo 0).
@@ -255,6 +274,10 @@ impl<S: InScattering> InScattering for Option<S> {
     fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
         self.as_ref().map_or(0.0, |s| s.at_step(step, w))
     }
+    #[inline]
+    fn at_step_pair(&self, steps: &[StepSample; 2], w: DVec3) -> [f64; 2] {
+        self.as_ref().map_or([0.0; 2], |s| s.at_step_pair(steps, w))
+    }
     fn max_source(&self) -> f64 {
         self.as_ref().map_or(0.0, |s| s.max_source())
     }
@@ -279,6 +302,10 @@ impl<S: InScattering + ?Sized> InScattering for &S {
     fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
         (**self).at_step(step, w)
     }
+    #[inline]
+    fn at_step_pair(&self, steps: &[StepSample; 2], w: DVec3) -> [f64; 2] {
+        (**self).at_step_pair(steps, w)
+    }
     fn max_source(&self) -> f64 {
         (**self).max_source()
     }
@@ -299,6 +326,10 @@ impl<S: InScattering + ?Sized> InScattering for Box<S> {
     #[inline]
     fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
         (**self).at_step(step, w)
+    }
+    #[inline]
+    fn at_step_pair(&self, steps: &[StepSample; 2], w: DVec3) -> [f64; 2] {
+        (**self).at_step_pair(steps, w)
     }
     fn max_source(&self) -> f64 {
         (**self).max_source()
@@ -333,6 +364,13 @@ impl InScattering for ScatteringSum<'_> {
     fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
         self.parts.iter().map(|s| s.at_step(step, w)).sum()
     }
+    #[inline]
+    fn at_step_pair(&self, steps: &[StepSample; 2], w: DVec3) -> [f64; 2] {
+        self.parts.iter().fold([0.0; 2], |[a, b], s| {
+            let [p, q] = s.at_step_pair(steps, w);
+            [a + p, b + q]
+        })
+    }
     fn max_source(&self) -> f64 {
         self.parts.iter().map(|s| s.max_source()).sum()
     }
@@ -354,6 +392,11 @@ impl<A: InScattering, B: InScattering> InScattering for (A, B) {
     #[inline]
     fn at_step(&self, step: &StepSample, w: DVec3) -> f64 {
         self.0.at_step(step, w) + self.1.at_step(step, w)
+    }
+    #[inline]
+    fn at_step_pair(&self, steps: &[StepSample; 2], w: DVec3) -> [f64; 2] {
+        let ([a, b], [p, q]) = (self.0.at_step_pair(steps, w), self.1.at_step_pair(steps, w));
+        [a + p, b + q]
     }
     fn max_source(&self) -> f64 {
         self.0.max_source() + self.1.max_source()

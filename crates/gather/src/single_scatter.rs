@@ -28,7 +28,7 @@ use std::borrow::Cow;
 use crate::exponential::exp;
 use crate::light_depth::{DepthLattice, LightAt};
 pub use crate::light_depth::{LightDepth, LightDepthModel, TRILINEAR_CELL_MEAN_TOLERANCE};
-use crate::scattering::{InScattering, RayCarry, StepSample, ViewSegment};
+use crate::scattering::{each_step, InScattering, RayCarry, StepSample, ViewSegment};
 use crate::GatherError;
 
 /// Gauss–Legendre nodes and weights on `[−1, 1]`, for 1 to 6 nodes (tabulated digits).
@@ -289,6 +289,59 @@ impl<'a> SingleScatter<'a> {
             view_flow_dir,
             step.sigma_t_from(self.sigma_t),
         )
+    }
+
+    /// [`InScattering::at_step_pair`] of a shadowed `trilinear` first bounce. A light on a
+    /// depth lattice (a directional one) has the same direction and irradiance at both
+    /// steps, and of `T_L` only the depths are read at each: one `exp` at their mean and a
+    /// short series for the half difference give both transmittances (exact to about 1e-9
+    /// where the depths differ by ≤ 0.2; a second `exp` beyond). Other lights, each step.
+    #[inline(always)]
+    fn pair_with<const FMA: bool>(
+        &self,
+        steps: &[StepSample; 2],
+        view_flow_dir: DVec3,
+    ) -> [f64; 2] {
+        let [a, b] = steps;
+        let (cell_a, cell_b) = (a.corners.cell(), b.corners.cell());
+        let sigma_s_a = a.sigma_t_from(self.sigma_t) * self.albedo.get(cell_a) as f64;
+        let sigma_s_b = b.sigma_t_from(self.sigma_t) * self.albedo.get(cell_b) as f64;
+        let mut q = [0.0; 2];
+        for (l, lattice) in self.depth.lattices().enumerate() {
+            let Some(lattice) = lattice else {
+                for (k, (s, sigma_s)) in [(a, sigma_s_a), (b, sigma_s_b)].into_iter().enumerate() {
+                    let cell = s.corners.cell();
+                    let (flow, e) = self.light_at_with::<FMA>(l, s.x, cell, s.corners.coords());
+                    q[k] += self.source_of(flow, e, cell, view_flow_dir, sigma_s);
+                }
+                continue;
+            };
+            let (flow, e) = self.pass.unshadowed_at(l, a.x);
+            if e == 0.0 {
+                continue;
+            }
+            let depth_a = lattice.depth_at_with::<FMA>(a.x, a.corners.coords());
+            let depth_b = lattice.depth_at_with::<FMA>(b.x, b.corners.coords());
+            let mean = exp::<FMA>(-0.5 * (depth_a + depth_b));
+            let half = 0.5 * (depth_b - depth_a);
+            let ratio = if half.abs() <= 0.1 {
+                // e^{half} to within half⁶/720 ≈ 1.4e-9.
+                1.0 + half
+                    * (1.0 + half * (0.5 + half * (1.0 / 6.0 + half * (1.0 / 24.0 + half / 120.0))))
+            } else {
+                exp::<FMA>(half)
+            };
+            q[0] += self.source_of(flow, e * mean * ratio, cell_a, view_flow_dir, sigma_s_a);
+            q[1] += self.source_of(flow, e * mean / ratio, cell_b, view_flow_dir, sigma_s_b);
+        }
+        q
+    }
+
+    /// [`SingleScatter::pair_with`] compiled with FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "fma")]
+    fn pair_fma(&self, steps: &[StepSample; 2], view_flow_dir: DVec3) -> [f64; 2] {
+        self.pair_with::<true>(steps, view_flow_dir)
     }
 
     /// Light `l`'s flow direction and irradiance (times `T_L` with shadows) at `x`. A
@@ -679,6 +732,20 @@ impl InScattering for SingleScatter<'_> {
         let (cell, coords) = (step.corners.cell(), step.corners.coords());
         let sigma_t = step.sigma_t_from(self.sigma_t);
         self.source_at_with::<false>(step.x, cell, coords, view_flow_dir, sigma_t)
+    }
+
+    /// One `exp` for both steps per light on a depth lattice.
+    #[inline]
+    fn at_step_pair(&self, steps: &[StepSample; 2], view_flow_dir: DVec3) -> [f64; 2] {
+        if !(self.trilinear && self.options.shadows) {
+            return each_step(self, steps, view_flow_dir);
+        }
+        #[cfg(target_arch = "x86_64")]
+        if self.fma {
+            // SAFETY: `fma` is set only where the CPU has FMA.
+            return unsafe { self.pair_fma(steps, view_flow_dir) };
+        }
+        self.pair_with::<false>(steps, view_flow_dir)
     }
 
     fn max_source(&self) -> f64 {

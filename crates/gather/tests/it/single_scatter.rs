@@ -777,3 +777,67 @@ fn trilinear_medium(grid: Grid, sigma_t: Vec<f32>, albedo: f32, g: f64) -> Mediu
         .unwrap()
         .with_interpolation(Interpolation::Trilinear)
 }
+
+/// Two steps taken together (`InScattering::at_step_pair`) give what each step gives on its
+/// own: with a directional light (its depth lattice, one `exp` for both) and a point light
+/// (no lattice: each step), at pairs of points a step apart whose light depths differ by a
+/// little and by a lot (the series and the second `exp`).
+#[test]
+fn a_pair_of_steps_gets_what_each_step_gets() {
+    let mut rng = Pcg64Mcg::seed_from_u64(23);
+    let grid = Grid::new([12, 12, 12], 0.5).unwrap();
+    let sigma_t: Vec<f32> = (0..grid.cell_count())
+        .map(|_| 3.0 * rng.random::<f32>())
+        .collect();
+    let medium = trilinear_medium(grid, sigma_t, 0.8, 0.5);
+    let lights = [
+        Light::Directional {
+            direction: DVec3::new(0.2, -0.9, 0.4).normalize(),
+            irradiance: 1.0,
+        },
+        Light::Point {
+            position: DVec3::new(-1.0, 3.0, 2.5),
+            intensity: 5.0,
+        },
+    ];
+    let pass = LightPass::compute(&medium, 0, &lights).unwrap();
+    let ss = SingleScatter::new(&medium, 0, &pass, SingleScatterOptions::default()).unwrap();
+    let cells = &medium.channels()[0].sigma_t;
+    let w = DVec3::new(-0.3, 0.5, 0.8).normalize();
+    // The directional light's depths, to see both regimes of the pair's transmittances.
+    let lattice = gather::light_depth::DepthLattice::build(&pass, 0, 1).unwrap();
+    let depth = |x: DVec3| {
+        let c = grid.coords(grid.cell_at(x).expect("inside the grid"));
+        lattice.depth_at(x, c)
+    };
+    let (mut near, mut far) = (0, 0);
+    for _ in 0..200 {
+        let a = DVec3::new(
+            rng.random_range(0.7..5.2),
+            rng.random_range(0.7..5.2),
+            rng.random_range(0.7..5.2),
+        );
+        let b = a + w * rng.random_range(0.1..0.6);
+        let steps = [
+            StepSample::new(&grid, cells, a),
+            StepSample::new(&grid, cells, b),
+        ];
+        let paired = ss.at_step_pair(&steps, w);
+        for (p, s) in paired.iter().zip(&steps) {
+            let single = ss.at_step(s, w);
+            assert!(
+                (p - single).abs() <= 1e-8 * single.abs() + 1e-15,
+                "{p} against {single}"
+            );
+        }
+        if 0.5 * (depth(a) - depth(b)).abs() <= 0.1 {
+            near += 1;
+        } else {
+            far += 1;
+        }
+    }
+    assert!(
+        near > 20 && far > 20,
+        "{near} pairs within the series' range, {far} beyond"
+    );
+}
