@@ -733,7 +733,13 @@ mod tests {
         let pass = LightPass::compute(&medium, 0, &[light]).unwrap();
         let lattice = DepthLattice::build(&pass, 0, 1).unwrap();
         let whole = lattice.cell_mean_error_every(&pass, 0, 1);
-        assert_eq!(lattice.cell_mean_error(&pass, 0), whole);
+        // The same cells (a grid below the sampled size); the parallel sum's order, and so
+        // its last bits, differ from call to call.
+        let checked = lattice.cell_mean_error(&pass, 0);
+        assert!(
+            (checked - whole).abs() <= 1e-12 * whole,
+            "{checked} against {whole}"
+        );
         assert!(whole > 1e-3, "{whole}");
         for stride in [7, 11, 13] {
             let sampled = lattice.cell_mean_error_every(&pass, 0, stride);
