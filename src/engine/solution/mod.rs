@@ -271,44 +271,51 @@ impl Solution {
     pub fn prepare_renders(&self) {
         for (c, ch) in self.channels.iter().enumerate() {
             let cache = &ch.render_cache;
-            let built = cache.light_depth.get().is_some()
-                && cache.render_index.get().is_some()
-                && (!matches!(ch.scattered, ScatteredField::Binned { .. })
-                    || cache.log_source.get().is_some())
-                && (self.transport.is_data_grid() || cache.transport.get().is_some());
-            if built {
-                continue;
-            }
-            let light_depth = || {
-                if let Err(e) = ch.render_cache.light_depth(&ch.light_pass) {
+            let warn = |result: anyhow::Result<()>| {
+                if let Err(e) = result {
                     tracing::warn!("preparing renders: {e:#}");
                 }
             };
+            let light_depth = || warn(cache.light_depth(&ch.light_pass).map(drop));
             let render_index = || {
-                if let Err(e) = ch
-                    .render_cache
-                    .render_index(&self.medium, c, self.render.model)
-                {
-                    tracing::warn!("preparing renders: {e:#}");
-                }
+                warn(
+                    cache
+                        .render_index(&self.medium, c, self.render.model)
+                        .map(drop),
+                )
             };
             let solved_field = || {
                 if let ScatteredField::Binned { higher_order, .. } = &ch.scattered {
-                    ch.render_cache.log_source(higher_order.values());
+                    cache.log_source(higher_order.values());
                 }
                 if !self.transport.is_data_grid() {
-                    if let Err(e) = ch.render_cache.transport(&self.medium, &self.transport, c) {
-                        tracing::warn!("preparing renders: {e:#}");
-                    }
+                    warn(cache.transport(&self.medium, &self.transport, c).map(drop));
                 }
+            };
+            // Each cache beside whether it is built already, so that a view after the first
+            // starts no thread.
+            let caches: [(bool, &(dyn Fn() + Sync)); 3] = [
+                (cache.render_index.get().is_some(), &render_index),
+                (
+                    (!matches!(ch.scattered, ScatteredField::Binned { .. })
+                        || cache.log_source.get().is_some())
+                        && (self.transport.is_data_grid() || cache.transport.get().is_some()),
+                    &solved_field,
+                ),
+                (cache.light_depth.get().is_some(), &light_depth),
+            ];
+            let mut to_build = caches.iter().filter(|(built, _)| !built).map(|(_, f)| f);
+            let Some(last) = to_build.next_back() else {
+                continue;
             };
             // On threads of their own, not rayon tasks: a rayon worker that waits inside one
             // cache's initialisation (its parallel loops) may run another task meanwhile, and
             // a task initialising the same cache there would wait on itself.
             std::thread::scope(|scope| {
-                scope.spawn(render_index);
-                scope.spawn(solved_field);
-                light_depth();
+                for build in to_build {
+                    scope.spawn(build);
+                }
+                last();
             });
         }
     }
