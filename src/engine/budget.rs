@@ -67,24 +67,29 @@ const LIGHT_PASS_KEPT_BYTES_PER_CELL: u64 = 24;
 /// Exact zonal: per pair of non-empty cells — the CSR matrix (value and column index) and the
 /// rows it is assembled from.
 const ZONAL_BYTES_PER_PAIR: u64 = 32;
-/// Hierarchical zonal: per non-empty cell (its links, the cluster tree, the diffusion
-/// operator), per entry of the near-field rows stored rather than shared
-/// ([`NearRows::stored_entries`]: the entry, and its traced column while the rows are made;
-/// 5,750 bytes per stored row before they were counted, at about 500 entries a row), per
-/// cell of the grid, and what the build holds whatever the grid. Fitted to the peaks of
-/// solves of 32 × 32 × 24 and 64 × 64 × 48 clouds (12 % non-empty, no row shared), uniform
-/// 24³ and 40³ blocks (every row shared) —
-/// 98, 444, 146 and 373 MiB, `benches/memory.py --only zonal-hierarchical` — and Kobayashi's
-/// 60³ source in a void (78 % of rows shared; 1,720–1,733 MiB, `examples/source_in_void.rs
-/// --case ii --method zonal-hierarchical`).
-const HIERARCHICAL_BYTES_PER_OCCUPIED_CELL: u64 = 5_500;
-const HIERARCHICAL_NEAR_BYTES_PER_STORED_ENTRY: u64 = 11;
+/// Hierarchical zonal: per far link ([`Occupancy::hierarchy_links`]: its stored transfer
+/// both ways, and its share of the build's candidates), per entry of the near-field rows
+/// stored rather than shared ([`NearRows::stored_entries`]), per non-empty cell (the
+/// cluster tree, the diffusion operator), per cell of the grid, and what the build holds
+/// whatever the grid. Fitted (relative least squares) to the operator's part of the peaks
+/// of `benches/memory.py --only zonal-hierarchical` on 2026-12-06 — 32 × 32 × 24, 64 × 64 ×
+/// 48 and 192 × 192 × 144 clouds, uniform 24³ and 40³ blocks, `data/cloud.toml`,
+/// `data/fire-scattering.toml` — and Kobayashi's 60³ source in a void (1,772 MiB,
+/// `examples/source_in_void.rs --case ii --method zonal-hierarchical`): within −15 … +11 %
+/// of the operator, −11 … +7 % of the peak. Per non-empty cell alone (5,500 bytes, before),
+/// the 192-class cloud's transport grid, whose thicker cells have 40 % fewer far links
+/// than the 64 × 64 × 48 cloud's, was +39 % (+22 % of the peak).
+const HIERARCHICAL_BYTES_PER_FAR_LINK: u64 = 16;
+const HIERARCHICAL_NEAR_BYTES_PER_STORED_ENTRY: u64 = 6;
+const HIERARCHICAL_BYTES_PER_OCCUPIED_CELL: u64 = 1_400;
 const HIERARCHICAL_BYTES_PER_CELL: u64 = 300;
 const HIERARCHICAL_FIXED_BYTES: u64 = 40 << 20;
 /// Hierarchical zonal: each further channel builds its operator again while the allocator
 /// still holds part of the last one's pages (measured: 5–30 % of the operator per channel,
-/// varying from run to run).
-const HIERARCHICAL_FURTHER_CHANNEL_FRACTION: f64 = 0.1;
+/// varying from run to run; 0.25 fits the three-channel 32 × 32 × 24 cloud of
+/// `benches/memory.py` and `data/fire-scattering.toml` with the operator counted by its far
+/// links, 0.1 did with the operator per non-empty cell, which was larger on small clouds).
+const HIERARCHICAL_FURTHER_CHANNEL_FRACTION: f64 = 0.25;
 /// Discrete ordinates: per cell and bin, the system's source and the iterate (f64, 16 bytes;
 /// fitted 18 on the generated clouds of `benches/memory.py`, whose peaks vary by 10 % from
 /// run to run); the iteration's vectors come on top (Gauss–Seidel's one), and a sky's
@@ -145,8 +150,10 @@ struct Sizes {
     /// The transport grid's cells and non-empty cells (what the solve's state grows with).
     transport_cells: u64,
     transport_occupied: u64,
-    /// Entries of the near-field rows the hierarchy stores, one row per non-empty transport
-    /// cell whose row is not shared (0 for the other methods, which do not count them).
+    /// The hierarchy's links beyond the near field, and the entries of the near-field rows
+    /// it stores (one row per non-empty transport cell whose row is not shared); 0 for the
+    /// other methods, which do not count them.
+    transport_far_links: u64,
     transport_near_entries: u64,
     /// Data cells per side of a transport cell.
     scale: usize,
@@ -161,15 +168,14 @@ impl Sizes {
         let split = transport_split(scene, settings);
         // A split grid has split³ transport cells per data cell.
         let parts = (split * split * split) as u64;
+        let links = (settings.method == SolveMethod::ZonalHierarchical)
+            .then(|| occupancy.hierarchy_links(scale, split));
         Sizes {
             cells: medium.grid().cell_count() as u64,
             transport_cells: transport_cell_count(scene, settings) as u64,
             transport_occupied: occupancy.at(scale) as u64 * parts,
-            transport_near_entries: if settings.method == SolveMethod::ZonalHierarchical {
-                occupancy.hierarchy_near_rows(scale).stored_entries * parts
-            } else {
-                0
-            },
+            transport_far_links: links.map_or(0, |l| l.far as u64),
+            transport_near_entries: links.map_or(0, |l| l.near_entries as u64),
             scale,
             split,
             channels: medium.channels().len() as u64,
@@ -183,9 +189,36 @@ impl Sizes {
 pub struct Occupancy<'a> {
     medium: &'a medium::Medium,
     occupied: Vec<bool>,
-    /// [`hierarchy_near_rows`](Occupancy::hierarchy_near_rows) per transport scale asked
-    /// for: the memory check, its alternatives and the predicted time all ask.
-    near_rows: std::sync::Mutex<Vec<(usize, NearRows)>>,
+    /// What the memory check, its alternatives, the predicted time and `volrad info` all ask,
+    /// counted once per transport grid: [`at`](Occupancy::at) per scale (a scan of every
+    /// data cell; `volrad info --method zonal-hierarchical` on the 384-class cloud made five,
+    /// 3.75–4.57 s in all, against 3.46–3.80 s with one per scale),
+    /// [`hierarchy_near_rows`](Occupancy::hierarchy_near_rows) per scale and
+    /// [`hierarchy_links`](Occupancy::hierarchy_links) per scale and split.
+    counts: Memo<usize, usize>,
+    near_rows: Memo<usize, NearRows>,
+    links: Memo<(usize, usize), HierarchyLinks>,
+}
+
+/// Values computed once per key and kept.
+struct Memo<K, V>(std::sync::Mutex<Vec<(K, V)>>);
+
+impl<K: PartialEq + Copy, V: Copy> Memo<K, V> {
+    fn new() -> Self {
+        Memo(std::sync::Mutex::new(Vec::new()))
+    }
+
+    /// The value kept for `key`, or `make`'s, kept. (`make` may ask other memos, not this
+    /// one: it runs under this one's lock.)
+    fn get_or(&self, key: K, make: impl FnOnce() -> V) -> V {
+        let mut known = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(&(_, value)) = known.iter().find(|(k, _)| *k == key) {
+            return value;
+        }
+        let value = make();
+        known.push((key, value));
+        value
+    }
 }
 
 impl<'a> Occupancy<'a> {
@@ -195,7 +228,9 @@ impl<'a> Occupancy<'a> {
             occupied: (0..medium.grid().cell_count())
                 .map(|i| medium.channels().iter().any(|c| c.sigma_t[i] > 0.0))
                 .collect(),
-            near_rows: std::sync::Mutex::new(Vec::new()),
+            counts: Memo::new(),
+            near_rows: Memo::new(),
+            links: Memo::new(),
         }
     }
 
@@ -211,22 +246,51 @@ impl<'a> Occupancy<'a> {
     /// ([`hierarchy_shared_rows`](Self::hierarchy_shared_rows)) and the entries of those it
     /// stores.
     pub fn hierarchy_near_rows(&self, scale: usize) -> NearRows {
-        let mut known = self.near_rows.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(&(_, rows)) = known.iter().find(|(s, _)| *s == scale) {
-            return rows;
-        }
-        let rows = near_rows_of(self.medium, scale);
-        tracing::debug!(scale, ?rows, "the hierarchy's near field, counted");
-        known.push((scale, rows));
-        rows
+        self.near_rows.get_or(scale, || {
+            let rows = near_rows_of(self.medium, scale);
+            tracing::debug!(scale, ?rows, "the hierarchy's near field, counted");
+            rows
+        })
+    }
+
+    /// The hierarchy's far links and stored near entries on the transport grid at `scale`
+    /// with `split` transport cells per side of a data cell ([`far_links_per_occupied_cell`];
+    /// a split cell is `split` times thinner).
+    pub fn hierarchy_links(&self, scale: usize, split: usize) -> HierarchyLinks {
+        self.links
+            .get_or((scale, split), || self.hierarchy_links_of(scale, split))
+    }
+
+    /// [`hierarchy_links`](Self::hierarchy_links), counted.
+    fn hierarchy_links_of(&self, scale: usize, split: usize) -> HierarchyLinks {
+        let parts = split.pow(3) as f64;
+        let near = self.hierarchy_near_rows(scale);
+        let occupied = self.at(scale) as f64 * parts;
+        let cells = Coarsening::cell_count_of(self.medium.grid(), scale) as f64 * parts;
+        let fill = occupied / cells.max(1.0);
+        let side = near.mean_optical_side / parts.cbrt();
+        let far = occupied * far_links_per_occupied_cell(occupied, fill, side);
+        let near_entries = near.stored_entries as f64 * parts;
+        // `benches/far_links.py` compares these with the build's `hierarchy built` line.
+        tracing::debug!(
+            occupied,
+            fill,
+            mean_optical_side = side,
+            far_links = far,
+            near_entries,
+            "the hierarchy's links, predicted"
+        );
+        HierarchyLinks { far, near_entries }
     }
 
     /// Non-empty cells of the transport grid at `scale` (1: the data grid's).
     pub fn at(&self, scale: usize) -> usize {
-        self.on_transport_grid(scale, |i| self.occupied[i])
-            .iter()
-            .filter(|&&o| o)
-            .count()
+        self.counts.get_or(scale, || {
+            self.on_transport_grid(scale, |i| self.occupied[i])
+                .iter()
+                .filter(|&&o| o)
+                .count()
+        })
     }
 
     /// The cells of the transport grid at `scale` that the discrete-ordinates scattering
@@ -272,6 +336,38 @@ pub struct NearRows {
     pub stored_entries: u64,
     /// The mean optical side `σt h` of the non-empty cells (0 when there are none).
     pub mean_optical_side: f64,
+}
+
+/// What [`Occupancy::hierarchy_links`] predicts of the hierarchical operator.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HierarchyLinks {
+    /// Links beyond the near field (cluster links and leaf links).
+    pub far: f64,
+    /// Entries of the near rows stored one per cell.
+    pub near_entries: f64,
+}
+
+/// Links of the hierarchical operator beyond the near field per non-empty cell (what its
+/// memory and build time grow with, beside the stored near entries), for
+/// `occupied` non-empty cells filling the share `fill` of the grid with a mean optical side
+/// `side` (σt h). They grow with the log of the cells (each level of the cluster tree adds its
+/// interactions) and fall as the cells grow optically thick (the transmittance between
+/// clusters lets the oracle take coarser links): sparse clouds and compact blocks follow
+/// different lines, blended by `fill`. Fitted to the `links_per_level` of
+/// `RUST_LOG=info volrad solve`'s `hierarchy built` line on seed-2 clouds (12–14 % filled)
+/// of 3 × 10³ to 2.7 × 10⁴ non-empty cells at mean sides 0.06 to 1.3 — data grids at
+/// `sigma_t_scale` 0.25, 1 and 4 and the transport grids of 96-, 192- and 384-class clouds —
+/// within 3 %, and to uniform 24³ and 40³ blocks; held out, a split cloud −2 % and
+/// `data/cloud-large.toml` −10 % (`benches/far_links.py`; docs/performance.md, *Time*).
+pub(crate) fn far_links_per_occupied_cell(occupied: f64, fill: f64, side: f64) -> f64 {
+    let levels = occupied.max(2.0).log2();
+    // Sparse clouds at a mean side of 0.24, scaled by how their links thin out with it.
+    let thin = (side.max(1e-3) / 0.24).min(1.0).powf(-0.14);
+    let thick = (side.clamp(0.24, 1.0) / 0.24).powf(-0.62);
+    let sparse = (70.9 * levels - 606.4).max(30.0) * thin * thick;
+    let compact = (30.2 * levels - 165.0).max(30.0);
+    let fill = fill.clamp(0.0, 1.0);
+    (1.0 - fill) * sparse + fill * compact
 }
 
 /// [`Occupancy::hierarchy_near_rows`], counted; of the channel that shares the fewest rows.
@@ -575,8 +671,12 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
         }
         SolveMethod::ZonalHierarchical => {
             let operator = s
-                .transport_occupied
-                .saturating_mul(HIERARCHICAL_BYTES_PER_OCCUPIED_CELL)
+                .transport_far_links
+                .saturating_mul(HIERARCHICAL_BYTES_PER_FAR_LINK)
+                .saturating_add(
+                    s.transport_occupied
+                        .saturating_mul(HIERARCHICAL_BYTES_PER_OCCUPIED_CELL),
+                )
                 .saturating_add(
                     s.transport_near_entries
                         .saturating_mul(HIERARCHICAL_NEAR_BYTES_PER_STORED_ENTRY),
@@ -587,7 +687,7 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                 )
                 .saturating_add(HIERARCHICAL_FIXED_BYTES);
             parts.push(MemoryPart {
-                what: "the hierarchical operator (links and stored near rows per non-empty cell)",
+                what: "the hierarchical operator (its far links and stored near rows)",
                 bytes: operator,
             });
             if s.channels > 1 {

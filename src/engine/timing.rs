@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use scene::{Scene, SolveMethod, SolveSettings};
 
-use super::budget::{transport_scale, transport_split, Occupancy};
+use super::budget::{transport_scale, transport_split, HierarchyLinks, Occupancy};
 
 /// One term of a prediction.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -145,9 +145,9 @@ const ZONAL_APPLY_SECONDS_PER_PAIR: f64 = 8.0e-10;
 /// exact far estimate of a leaf pair) and a stored near-field entry (a column of the ray
 /// stencil), and one application per link of either. The two build costs fitted to the
 /// `hierarchy built` seconds of `RUST_LOG=info volrad solve` on the far-link model's cases
-/// ([`far_links_per_occupied_cell`]; `benches/far_links.py`) with their own counts, within
-/// 14 % on all but the smallest (0.32 s against 0.37–0.51 s); one cost for both, with the same
-/// counts, was −41 … +28 % (a far link costs 2.4 near entries).
+/// ([`super::budget::far_links_per_occupied_cell`]; `benches/far_links.py`) with their own
+/// counts, within 14 % on all but the smallest (0.32 s against 0.37–0.51 s); one cost for
+/// both, with the same counts, was −41 … +28 % (a far link costs 2.4 near entries).
 const HIERARCHICAL_BUILD_SECONDS_PER_FAR_LINK: f64 = 1.9e-7;
 const HIERARCHICAL_BUILD_SECONDS_PER_NEAR_ENTRY: f64 = 8.0e-8;
 const HIERARCHICAL_APPLY_SECONDS_PER_LINK: f64 = 1.6e-9;
@@ -212,7 +212,7 @@ const MEASURED_THREADS: f64 = 2.0;
 /// thread, because what the other cores happen to be doing for the few milliseconds of the
 /// kernel says little of the minutes of a solve: on 2 threads it took 1.4 ms, and 2.6 ms —
 /// one thread's time — whenever another process held the second core; on one thread it
-/// took 2.3–2.5 ms on a quiet machine and 2.0–2.5 ms beside other work. About 40 ms, once
+/// took 2.3–2.5 ms on a quiet machine and 2.0–2.5 ms beside other work. About 90 ms, once
 /// per process; `VOLRAD_MACHINE_FACTOR` sets it instead (1: the coefficients as they are);
 /// 1 where it cannot run.
 pub fn machine_factor() -> f64 {
@@ -251,18 +251,23 @@ pub fn measures_the_machine(method: SolveMethod) -> bool {
 /// Cells per side of [`machine_factor`]'s medium (16³ × 24 bins: about 2.5 ms an
 /// application).
 const CALIBRATION_SIDE: usize = 16;
-/// Applications of [`machine_factor`]'s operator before the timed ones, and timed.
+/// Applications of [`machine_factor`]'s operator before the timed ones, and timed, in each
+/// of [`CALIBRATION_BURSTS`] bursts [`CALIBRATION_PAUSE`] apart: a disturbance that covers
+/// one burst (the host taking the core for 40 ms happens) seldom covers all three.
 const CALIBRATION_WARM_UP: usize = 2;
-const CALIBRATION_APPLICATIONS: usize = 15;
-/// [`machine_factor`]'s seconds per application (the lower third of its times) on a
-/// machine as fast as the coefficients say: fitted so that the solves of docs/performance.md's
-/// table, measured the same hour, are centred (the kernel took 2.3–2.5 ms there, the solves
-/// about 1.4× the coefficients' seconds).
-const CALIBRATION_REFERENCE_SECONDS: f64 = 1.76e-3;
+const CALIBRATION_APPLICATIONS: usize = 5;
+const CALIBRATION_BURSTS: usize = 3;
+const CALIBRATION_PAUSE: std::time::Duration = std::time::Duration::from_millis(15);
+/// [`machine_factor`]'s seconds per application (the fastest of its times) on a machine as
+/// fast as the coefficients say: fitted so that the solves of docs/performance.md's table,
+/// measured the same hour, are centred (the kernel took 2.3–2.5 ms there, the solves about
+/// 1.4× the coefficients' seconds; 1.76e-3 for the lower third of the times, which runs about
+/// 1 % above the fastest).
+const CALIBRATION_REFERENCE_SECONDS: f64 = 1.74e-3;
 /// The factor's bounds ([`machine_factor_from`]).
 const CALIBRATION_BOUNDS: (f64, f64) = (0.25, 4.0);
 
-/// The kernel of [`machine_factor`]: the lower third of the times of its applications, in
+/// The kernel of [`machine_factor`]: the fastest of the times of its applications, in
 /// seconds (`None` if its operator cannot be built).
 pub fn kernel_seconds() -> Option<f64> {
     use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
@@ -280,7 +285,7 @@ pub fn kernel_seconds() -> Option<f64> {
     let op = OrdinatesOperator::new(&medium, 0, bins, OrdinatesOptions::default()).ok()?;
     let x = vec![1.0; op.len()];
     let mut y = vec![0.0; op.len()];
-    let mut seconds = Vec::with_capacity(CALIBRATION_APPLICATIONS);
+    let mut seconds = Vec::with_capacity(CALIBRATION_BURSTS * CALIBRATION_APPLICATIONS);
     rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
@@ -290,10 +295,16 @@ pub fn kernel_seconds() -> Option<f64> {
             for _ in 0..CALIBRATION_WARM_UP {
                 op.apply(&x, &mut y);
             }
-            for _ in 0..CALIBRATION_APPLICATIONS {
-                let start = std::time::Instant::now();
-                op.apply(&x, &mut y);
-                seconds.push(start.elapsed().as_secs_f64());
+            for burst in 0..CALIBRATION_BURSTS {
+                if burst > 0 {
+                    std::thread::sleep(CALIBRATION_PAUSE);
+                    op.apply(&x, &mut y);
+                }
+                for _ in 0..CALIBRATION_APPLICATIONS {
+                    let start = std::time::Instant::now();
+                    op.apply(&x, &mut y);
+                    seconds.push(start.elapsed().as_secs_f64());
+                }
             }
         });
     seconds.sort_by(f64::total_cmp);
@@ -303,9 +314,11 @@ pub fn kernel_seconds() -> Option<f64> {
         slowest = seconds[seconds.len() - 1],
         "the time model's kernel, seconds per application"
     );
-    // The lower third, not the median: a disturbance of part of the window (another process
-    // waking) does not count.
-    Some(seconds[seconds.len() / 3])
+    // The fastest: a disturbance (another process waking, the host taking the core) only
+    // ever slows an application, and one may cover most of a burst: twelve runs in a row of
+    // one burst of 15 gave fastest 2.45–2.58 ms, but one a median of 4.13 ms, whose lower
+    // third made the factor 2.64 where the others were 1.43–1.50.
+    Some(seconds[0])
 }
 
 /// The predicted time of solving `scene` with `settings` on `threads` worker threads;
@@ -455,22 +468,9 @@ pub fn solve_time_at_speed(
             ZONAL_APPLY_SECONDS_PER_PAIR,
         ),
         SolveMethod::ZonalHierarchical => {
-            let near = occupancy.hierarchy_near_rows(scale);
-            let fill = transport_occupied / transport_cells.max(1.0);
-            // A split transport cell is `split` times thinner.
-            let side = near.mean_optical_side / parts_per_cell.cbrt();
-            let far =
-                transport_occupied * far_links_per_occupied_cell(transport_occupied, fill, side);
-            let near_entries = near.stored_entries as f64 * parts_per_cell;
-            // `benches/far_links.py` compares these with the build's `hierarchy built` line.
-            tracing::debug!(
-                occupied = transport_occupied,
-                fill,
-                mean_optical_side = side,
-                far_links = far,
-                near_entries,
-                "the hierarchy's links, predicted"
-            );
+            let HierarchyLinks {
+                far, near_entries, ..
+            } = occupancy.hierarchy_links(scale, transport_split(scene, settings));
             operator(
                 "the hierarchical operator",
                 far + near_entries,
@@ -537,28 +537,6 @@ pub fn solve_time_at_speed(
         threads: threads.max(1),
         machine,
     }
-}
-
-/// Links of the hierarchical operator beyond the near field per non-empty cell, for
-/// `occupied` non-empty cells filling the share `fill` of the grid with a mean optical side
-/// `side` (σt h). They grow with the log of the cells (each level of the cluster tree adds its
-/// interactions) and fall as the cells grow optically thick (the transmittance between
-/// clusters lets the oracle take coarser links): sparse clouds and compact blocks follow
-/// different lines, blended by `fill`. Fitted to the `links_per_level` of
-/// `RUST_LOG=info volrad solve`'s `hierarchy built` line on seed-2 clouds (12–14 % filled)
-/// of 3 × 10³ to 2.7 × 10⁴ non-empty cells at mean sides 0.06 to 1.3 — data grids at
-/// `sigma_t_scale` 0.25, 1 and 4 and the transport grids of 96-, 192- and 384-class clouds —
-/// within 3 %, and to uniform 24³ and 40³ blocks; held out, a split cloud −2 % and
-/// `data/cloud-large.toml` −10 % (`benches/far_links.py`; docs/performance.md, *Time*).
-fn far_links_per_occupied_cell(occupied: f64, fill: f64, side: f64) -> f64 {
-    let levels = occupied.max(2.0).log2();
-    // Sparse clouds at a mean side of 0.24, scaled by how their links thin out with it.
-    let thin = (side.max(1e-3) / 0.24).min(1.0).powf(-0.14);
-    let thick = (side.clamp(0.24, 1.0) / 0.24).powf(-0.62);
-    let sparse = (70.9 * levels - 606.4).max(30.0) * thin * thick;
-    let compact = (30.2 * levels - 165.0).max(30.0);
-    let fill = fill.clamp(0.0, 1.0);
-    (1.0 - fill) * sparse + fill * compact
 }
 
 /// Passes over a vector of unknowns per iteration of a Krylov method beyond its
@@ -852,6 +830,7 @@ pub fn expected_iterations(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::engine::budget::far_links_per_occupied_cell;
 
     #[test]
     fn the_spectral_radius_grows_with_albedo_and_thickness() {
