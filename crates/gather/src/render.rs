@@ -515,12 +515,10 @@ impl<'a> RayIntegrator<'a> {
                     ];
                     let scattered = self.scattering.at_step_pair(&samples, flow);
                     for (s, q) in samples.iter().zip(scattered) {
-                        let sigma = s.sigma_t_from(self.sigma_t);
-                        let emitted = if self.use_emission {
-                            s.corners.sample(|c| self.emission.get(c) as f64)
-                        } else {
-                            0.0
-                        };
+                        let (sigma, emitted) = self.extinction_and_emission(
+                            &s.corners,
+                            Some(s.sigma_t_from(self.sigma_t)),
+                        );
                         let (weight, attenuation) =
                             weight_and_attenuation_with::<FMA>(sigma, length);
                         radiance += transmittance * (emitted + q) * weight;
@@ -592,6 +590,20 @@ impl<'a> RayIntegrator<'a> {
         StepSample::interpolated(x, corners, self.sigma_t, sigma)
     }
 
+    /// σt and emission at the midpoint of a piece of a `trilinear` march (neighbours
+    /// `corners`; σt there when the caller has it), each 0 where the model leaves it out.
+    #[inline(always)]
+    fn extinction_and_emission(&self, corners: &Trilinear, sigma: Option<f64>) -> (f64, f64) {
+        match (self.use_sigma, self.use_emission, sigma) {
+            (true, false, Some(sigma)) => (sigma, 0.0),
+            (true, true, Some(sigma)) => (sigma, corners.sample(|c| self.emission.get(c) as f64)),
+            (true, true, None) => corners.sample2(self.sigma_t, self.emission),
+            (true, false, None) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
+            (false, true, _) => (0.0, corners.sample(|c| self.emission.get(c) as f64)),
+            (false, false, _) => (0.0, 0.0),
+        }
+    }
+
     /// One piece of `length` of a `trilinear` march with its midpoint `x` (neighbours
     /// `corners`; σt there when the caller has it): what it adds for unit transmittance
     /// before it, and its attenuation.
@@ -604,14 +616,7 @@ impl<'a> RayIntegrator<'a> {
         length: f64,
         flow: DVec3,
     ) -> (f64, f64) {
-        let (sigma, mut q) = match (self.use_sigma, self.use_emission, sigma) {
-            (true, false, Some(sigma)) => (sigma, 0.0),
-            (true, true, Some(sigma)) => (sigma, corners.sample(|c| self.emission.get(c) as f64)),
-            (true, true, None) => corners.sample2(self.sigma_t, self.emission),
-            (true, false, None) => (corners.sample(|c| self.sigma_t[c] as f64), 0.0),
-            (false, true, _) => (0.0, corners.sample(|c| self.emission.get(c) as f64)),
-            (false, false, _) => (0.0, 0.0),
-        };
+        let (sigma, mut q) = self.extinction_and_emission(&corners, sigma);
         let (weight, attenuation) = weight_and_attenuation_with::<FMA>(sigma, length);
         if self.use_scattering {
             // With no σt read (emission-only), the sources interpolate their own.
