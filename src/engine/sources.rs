@@ -56,6 +56,11 @@ struct TransportLattice<'a> {
     ///
     /// [`nodal_ratio`]: TransportLattice::nodal_ratio
     keep_cell_means: bool,
+    /// The transport grid is at least twice as coarse as the data grid: [`pair`] reads the
+    /// field once, midway between its two steps.
+    ///
+    /// [`pair`]: TransportLattice::pair
+    pairs_share_a_read: bool,
 }
 
 impl TransportLattice<'_> {
@@ -140,23 +145,29 @@ impl TransportLattice<'_> {
         (r - 0.125 * curvature).max(0.0)
     }
 
+    /// Whether a transport grid of cells `coarse_cell_size` over data cells
+    /// `data_cell_size` is at least twice as coarse ([`pair`](Self::pair)).
+    fn pairs_share_a_read(coarse_cell_size: f64, data_cell_size: f64) -> bool {
+        coarse_cell_size >= 2.0 * data_cell_size
+    }
+
     /// Two consecutive steps of a march in thin medium ([`InScattering::at_step_pair`]):
     /// each step's σs times `ratio`, `Q/σs` at a point ([`at`](Self::at) or
     /// [`at_block`](Self::at_block) with σs = 1). On a transport grid at least twice as
-    /// coarse as the data (`data_cell_size`) the field is read once, midway between the
-    /// steps: the steps are at most a quarter of a transport cell from there, and the
-    /// field is trilinear between transport cells' centres (the 192-class cloud's views
-    /// moved by 0.004 % RMS; docs/performance.md). On finer transport grids, at each step.
+    /// coarse as the data (found once, where the lattice is built) the field is read once,
+    /// midway between the steps: the steps are at most a quarter of a transport cell from
+    /// there, and the field is trilinear between transport cells' centres (the 192-class
+    /// cloud's views moved by 0.004 % RMS; docs/performance.md). On finer transport grids,
+    /// at each step.
     #[inline]
     fn pair(
         &self,
         steps: &[StepSample; 2],
         trilinear: bool,
-        data_cell_size: f64,
         mut ratio: impl FnMut(DVec3) -> f64,
     ) -> [f64; 2] {
         let [a, b] = steps;
-        let (ratio_a, ratio_b) = if self.coarse.cell_size >= 2.0 * data_cell_size {
+        let (ratio_a, ratio_b) = if self.pairs_share_a_read {
             let r = ratio(0.5 * (a.x + b.x));
             (r, r)
         } else {
@@ -231,6 +242,10 @@ impl<'a> CellLattice<'a> {
                 inverse_sigma_s: &scattering.inverse_sigma_s,
                 max_sigma_s: scattering.max_sigma_s,
                 keep_cell_means: true,
+                pairs_share_a_read: TransportLattice::pairs_share_a_read(
+                    grid.cell_size,
+                    grid.cell_size,
+                ),
             }),
             ..lattice
         }
@@ -266,6 +281,10 @@ impl<'a> CellLattice<'a> {
             inverse_sigma_s: &scattering.inverse_sigma_s,
             max_sigma_s: scattering.max_sigma_s,
             keep_cell_means,
+            pairs_share_a_read: TransportLattice::pairs_share_a_read(
+                coarse.cell_size,
+                medium.grid().cell_size,
+            ),
         });
         Ok(CellLattice {
             transport,
@@ -438,12 +457,9 @@ impl InScattering for CellSource<'_> {
             Some(t) => {
                 let mut block = Block::EMPTY;
                 let mut value = |c| self.values[c] as f64;
-                t.pair(
-                    steps,
-                    self.lattice.trilinear,
-                    self.lattice.grid.cell_size,
-                    |x| t.at_block(x, 1.0, &mut block, (0, 0), &mut value),
-                )
+                t.pair(steps, self.lattice.trilinear, |x| {
+                    t.at_block(x, 1.0, &mut block, (0, 0), &mut value)
+                })
             }
             None => each_step(self, steps, w),
         }
@@ -660,12 +676,9 @@ impl InScattering for BinnedSource<'_> {
         };
         LookupCache::with(|cache| {
             let (mut value, block, tag) = self.lookups(cache, w);
-            t.pair(
-                steps,
-                self.lattice.trilinear,
-                self.lattice.grid.cell_size,
-                |x| t.at_block(x, 1.0, block, tag, &mut value),
-            )
+            t.pair(steps, self.lattice.trilinear, |x| {
+                t.at_block(x, 1.0, block, tag, &mut value)
+            })
         })
     }
     fn max_source(&self) -> f64 {
