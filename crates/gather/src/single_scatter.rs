@@ -271,11 +271,25 @@ impl<'a> SingleScatter<'a> {
     ) -> f64 {
         let sigma_s = sigma_t * self.albedo.get(cell) as f64;
         (0..self.pass.fields.len())
-            .map(|l| {
-                let (flow, e) = self.light_at_with::<FMA>(l, x, cell, coords);
-                self.source_of(flow, e, cell, view_flow_dir, sigma_s)
-            })
+            .map(|l| self.source_from_with::<FMA>(l, x, cell, coords, view_flow_dir, sigma_s))
             .sum()
+    }
+
+    /// [`SingleScatter::source_from`] in the cell at `coords`, the `exp` as [`exp`]`::<FMA>`:
+    /// light `l`'s first bounce, [`SingleScatter::light_at_with`] through
+    /// [`SingleScatter::source_of`].
+    #[inline(always)]
+    fn source_from_with<const FMA: bool>(
+        &self,
+        l: usize,
+        x: DVec3,
+        cell: usize,
+        coords: [usize; 3],
+        view_flow_dir: DVec3,
+        sigma_s: f64,
+    ) -> f64 {
+        let (flow, e) = self.light_at_with::<FMA>(l, x, cell, coords);
+        self.source_of(flow, e, cell, view_flow_dir, sigma_s)
     }
 
     /// [`InScattering::at_step`] compiled with FMA (the light's `exp` inlined).
@@ -310,9 +324,9 @@ impl<'a> SingleScatter<'a> {
         for (l, lattice) in self.depth.lattices().enumerate() {
             let Some(lattice) = lattice else {
                 for (k, (s, sigma_s)) in [(a, sigma_s_a), (b, sigma_s_b)].into_iter().enumerate() {
-                    let cell = s.corners.cell();
-                    let (flow, e) = self.light_at_with::<FMA>(l, s.x, cell, s.corners.coords());
-                    q[k] += self.source_of(flow, e, cell, view_flow_dir, sigma_s);
+                    let (cell, coords) = (s.corners.cell(), s.corners.coords());
+                    q[k] +=
+                        self.source_from_with::<FMA>(l, s.x, cell, coords, view_flow_dir, sigma_s);
                 }
                 continue;
             };
@@ -344,16 +358,11 @@ impl<'a> SingleScatter<'a> {
         self.pair_with::<true>(steps, view_flow_dir)
     }
 
-    /// Light `l`'s flow direction and irradiance (times `T_L` with shadows) at `x`. A
-    /// `trilinear` render takes `T_L` from the light's depth lattice where it has one, as the
-    /// `nearest` segments do: the lattice is continuous across cell faces (the exit-face model
-    /// is not, where σt changes steeply from cell to cell) and the more accurate of the two.
-    #[inline]
-    fn light_at(&self, l: usize, x: DVec3, cell: usize) -> (DVec3, f64) {
-        self.light_at_with::<false>(l, x, cell, self.pass.grid.coords(cell))
-    }
-
-    /// [`SingleScatter::light_at`] in the cell at `coords`, the `exp` as [`exp`]`::<FMA>`.
+    /// Light `l`'s flow direction and irradiance (times `T_L` with shadows) at `x` in the
+    /// cell at `coords`, the `exp` as [`exp`]`::<FMA>`. A `trilinear` render takes `T_L` from
+    /// the light's depth lattice where it has one, as the `nearest` segments do: the lattice
+    /// is continuous across cell faces (the exit-face model is not, where σt changes steeply
+    /// from cell to cell) and the more accurate of the two.
     #[inline(always)]
     fn light_at_with<const FMA: bool>(
         &self,
@@ -377,8 +386,8 @@ impl<'a> SingleScatter<'a> {
     /// Light `l`'s contribution to the source at `x` for view flow `w`.
     #[inline]
     fn source_from(&self, l: usize, x: DVec3, cell: usize, w: DVec3, sigma_s: f64) -> f64 {
-        let (flow, e) = self.light_at(l, x, cell);
-        self.source_of(flow, e, cell, w, sigma_s)
+        let coords = self.pass.grid.coords(cell);
+        self.source_from_with::<false>(l, x, cell, coords, w, sigma_s)
     }
 
     /// The source from light flowing along `flow` with irradiance `e` (shadowed) at a point of
