@@ -24,5 +24,6 @@ pub fn run(cli: Cli) -> Result<()> {
             crate::bench_albedo::run(&args, cli.quiet, cli.max_memory)
         }
         Some(Command::Validate(args)) => crate::commands::validate(&args, cli.quiet),
+        Some(Command::Compare(args)) => crate::commands::compare(&args),
     }
 }

@@ -61,6 +61,28 @@ pub enum Command {
     /// Every method on the sample scenes against a path-traced reference: a Markdown report
     /// with errors, times, memory and side-by-side images.
     Validate(ValidateArgs),
+    /// How far one render is from another: relative RMS, mean and largest difference of two
+    /// PFM images over the pixels above a share of the first one's peak.
+    Compare(CompareArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// The image compared against (PFM), e.g. the render of the build before a change.
+    pub before: PathBuf,
+    /// The image compared with it (PFM), of the same size.
+    pub after: PathBuf,
+    /// Compare the pixels whose value in BEFORE (the mean of its channels) is above this share
+    /// of BEFORE's peak, in (0, 1).
+    #[arg(long, default_value_t = 0.01, value_parser = share_of_peak)]
+    pub above: f64,
+}
+
+fn share_of_peak(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x > 0.0 && x < 1.0 => Ok(x),
+        _ => Err(format!("`{s}` is not a share of the peak in (0, 1)")),
+    }
 }
 
 #[derive(Debug, Args)]

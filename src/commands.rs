@@ -11,7 +11,7 @@ use montecarlo::path_trace::Surroundings;
 use scene::{CameraSpec, Scene};
 
 pub use crate::cli::SolveOverrides;
-use crate::cli::{ExportArgs, InfoArgs, RenderArgs, SolveArgs};
+use crate::cli::{CompareArgs, ExportArgs, InfoArgs, RenderArgs, SolveArgs};
 use crate::engine::pipeline::{render_view, render_view_through, solve_scene, view_medium};
 use crate::engine::solution::Solution;
 use crate::engine::SolveHooks;
@@ -536,6 +536,72 @@ pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
     }
     println!("wrote {}", options.out.join("report.md").display());
     Ok(())
+}
+
+/// `volrad compare BEFORE AFTER`: how far AFTER is from BEFORE over the pixels whose grey
+/// value (the mean of the channels) in BEFORE is above `--above` times BEFORE's peak — the
+/// relative RMS difference and mean difference ([`montecarlo::compare::compare_images`]) and the
+/// largest difference as a share of the peak ([`montecarlo::compare::largest_difference`]).
+/// What docs/performance.md quotes when a change to the renderer moves the images by so much.
+pub fn compare(args: &CompareArgs) -> Result<()> {
+    // The error names the file (its source, an io::Error, only once).
+    let read = |p: &Path| {
+        gather::read_pfm(p)
+            .map(grey)
+            .map_err(|e| anyhow::anyhow!("{e}"))
+    };
+    let (before, after) = (read(&args.before)?, read(&args.after)?);
+    if (before.width, before.height) != (after.width, after.height) {
+        bail!(
+            "sizes differ: {} is {}×{}, {} is {}×{}",
+            args.before.display(),
+            before.width,
+            before.height,
+            args.after.display(),
+            after.width,
+            after.height
+        );
+    }
+    let context = || {
+        format!(
+            "comparing {} with {}",
+            args.after.display(),
+            args.before.display()
+        )
+    };
+    let c = montecarlo::compare::compare_images(&after, None, &before, None, args.above, 1)
+        .map_err(anyhow::Error::msg)
+        .with_context(context)?;
+    let largest = montecarlo::compare::largest_difference(&after, &before, args.above)
+        .map_err(anyhow::Error::msg)
+        .with_context(context)?;
+    println!(
+        "{} pixels above {} of the peak: RMS {:.3} %, mean {:+.3} %, largest {:.3} % of the peak",
+        c.pixels,
+        args.above,
+        100.0 * c.relative_rms_raw,
+        100.0 * c.relative_mean_difference,
+        100.0 * largest
+    );
+    Ok(())
+}
+
+/// The mean of `image`'s channels at each pixel, as a one-channel image.
+fn grey(image: gather::Image) -> gather::Image {
+    if image.channels == 1 {
+        return image;
+    }
+    let n = image.channels as usize;
+    let pixels = image
+        .pixels
+        .chunks_exact(n)
+        .map(|p| (p.iter().map(|&v| v as f64).sum::<f64>() / n as f64) as f32)
+        .collect();
+    gather::Image {
+        channels: 1,
+        pixels,
+        ..image
+    }
 }
 
 pub fn load_scene(path: &Path) -> Result<Scene> {

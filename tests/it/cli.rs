@@ -823,3 +823,89 @@ fn serve_checks_its_scene_files_before_starting() {
         assert!(!err.contains("http://"), "started anyway: {err}");
     }
 }
+
+/// A `w`×`h` RGB image of pixel values `f(x, y)` (the same in each channel, but the red one
+/// doubled and the blue one 0, so that the grey value is `f`), written as PFM at `path`.
+fn write_pfm(path: &Path, w: u32, h: u32, f: impl Fn(u32, u32) -> f32) {
+    let mut pixels = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let v = f(x, y);
+            pixels.extend([2.0 * v, v, 0.0]);
+        }
+    }
+    gather::Image::new(w, h, 3, pixels)
+        .unwrap()
+        .save(path, 1.0)
+        .unwrap();
+}
+
+/// The number after `label` in `volrad compare`'s line (`RMS 2.000 %`).
+fn figure(line: &str, label: &str) -> f64 {
+    let rest = &line[line.find(label).unwrap_or_else(|| panic!("{line}")) + label.len()..];
+    rest.split_whitespace().next().unwrap().parse().unwrap()
+}
+
+/// `volrad compare`: an image 2 % brighter than another everywhere is 2 % RMS and mean from
+/// it, its largest difference 2 % of the peak; the dim pixels below `--above` are left out.
+#[test]
+fn compare_measures_how_far_one_image_is_from_another() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a.pfm"), dir.path().join("b.pfm"));
+    let before = |x: u32, y: u32| 1.0 + (x * 3 + y) as f32;
+    write_pfm(&a, 6, 4, before);
+    write_pfm(&b, 6, 4, |x, y| 1.02 * before(x, y));
+    let out = volrad(&["compare", s(&a), s(&b)]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let line = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        line.starts_with("24 pixels above 0.01 of the peak"),
+        "{line}"
+    );
+    assert!((figure(&line, "RMS") - 2.0).abs() < 1e-3, "{line}");
+    assert!((figure(&line, "mean") - 2.0).abs() < 1e-3, "{line}");
+    assert!((figure(&line, "largest") - 2.0).abs() < 1e-3, "{line}");
+    // The peak is 19: above half of it, the 13 pixels of 10 and more (3x + y ≥ 9).
+    let out = volrad(&["compare", s(&a), s(&b), "--above", "0.5"]);
+    let line = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        line.starts_with("13 pixels above 0.5 of the peak"),
+        "{line}"
+    );
+    // The same image is 0 from itself.
+    let out = volrad(&["compare", s(&a), s(&a)]);
+    let line = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        figure(&line, "RMS") == 0.0 && figure(&line, "mean") == 0.0,
+        "{line}"
+    );
+}
+
+/// `volrad compare` refuses, with an error and no figures, images of different sizes, a
+/// missing or unreadable file (named) and a share of the peak outside (0, 1).
+#[test]
+fn compare_refuses_mismatched_or_missing_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a.pfm"), dir.path().join("b.pfm"));
+    write_pfm(&a, 6, 4, |x, _| 1.0 + x as f32);
+    write_pfm(&b, 4, 6, |x, _| 1.0 + x as f32);
+    let missing = dir.path().join("missing.pfm");
+    let junk = dir.path().join("junk.pfm");
+    std::fs::write(&junk, "P6\n2 2\n255\n").unwrap();
+    for (args, mentions) in [
+        (vec![s(&a), s(&b)], "sizes differ"),
+        (vec![s(&a), s(&missing)], "missing.pfm"),
+        (vec![s(&junk), s(&a)], "junk.pfm"),
+        (vec![s(&a), s(&a), "--above", "1"], "share of the peak"),
+        (vec![s(&a), s(&a), "--above", "0"], "share of the peak"),
+    ] {
+        let out = volrad(&[&["compare"], &args[..]].concat());
+        assert!(!out.status.success(), "{args:?}");
+        let err = stderr(&out);
+        assert!(err.contains(mentions), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(out.stdout.is_empty(), "{args:?}");
+    }
+    let err = stderr(&volrad(&["compare", s(&a), s(&b)]));
+    assert!(err.contains("6×4") && err.contains("4×6"), "{err}");
+}

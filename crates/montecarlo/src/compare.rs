@@ -1,5 +1,6 @@
 //! Comparing a noisy render with a noisy reference image, taking both noises out: the one
-//! image comparison of volrad (tests, examples, `volrad validate`, docs/validation.md).
+//! image comparison of volrad (tests, examples, `volrad validate`, `volrad compare`,
+//! docs/validation.md).
 //!
 //! [`compare`] works on [`NoisyImage`] channels; [`compare_images`] adapts `gather::Image`s to
 //! it (channel 0 with its optional standard-error image, blocks that do not fill the image
@@ -181,6 +182,33 @@ pub fn compare_images(
     compare(&x, &r, threshold).ok_or_else(not_above)
 }
 
+/// The largest `|x − r|` between channel 0 of `image` (`x`) and of `reference` (`r`) over the
+/// pixels where the reference exceeds `threshold` times its maximum (those [`compare_images`]
+/// compares with `block` 1), as a share of that maximum. Errs, saying why, when sizes differ
+/// or no pixel is above the threshold.
+pub fn largest_difference(image: &Image, reference: &Image, threshold: f64) -> Result<f64, String> {
+    if (image.width, image.height) != (reference.width, reference.height) {
+        return Err(format!(
+            "image is {}×{}, reference {}×{}",
+            image.width, image.height, reference.width, reference.height
+        ));
+    }
+    let (x, r) = (channel0_cropped(image, 1), channel0_cropped(reference, 1));
+    let max = r.pixels.iter().copied().fold(0.0f32, f32::max) as f64;
+    let largest = r
+        .pixels
+        .iter()
+        .zip(&x.pixels)
+        .map(|(&rv, &xv)| (rv as f64, xv as f64))
+        .filter(|&(rv, _)| rv > threshold * max)
+        .map(|(rv, xv)| (xv - rv).abs())
+        .reduce(f64::max);
+    match largest {
+        Some(d) if max > 0.0 => Ok(d / max),
+        _ => Err("the reference has no pixels above the threshold".into()),
+    }
+}
+
 /// Means of `factor × factor` blocks of channel 0 of `image` (edges that do not fill a block
 /// dropped), as a one-channel image; `factor` 1 is channel 0 itself.
 pub fn downscale_channel0(image: &Image, factor: u32) -> Result<Image, String> {
@@ -279,6 +307,18 @@ mod tests {
         let c = compare_images(&x, None, &r, None, 0.01, 1).unwrap();
         assert!((c.relative_rms_error - 0.1).abs() < 1e-6);
         assert!((c.relative_mean_difference - 0.1).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_largest_difference_is_a_share_of_the_peak_over_the_pixels_above_the_threshold() {
+        let r = img(4, 1, |x, _| [0.001, 1.0, 2.0, 4.0][x as usize]);
+        // 0.5 off in the dim pixel (below 1 % of the peak), 0.2 in the brightest.
+        let x = img(4, 1, |x, _| [0.501, 1.1, 2.0, 4.2][x as usize]);
+        let largest = largest_difference(&x, &r, 0.01).unwrap();
+        assert!((largest - 0.2 / 4.0).abs() < 1e-6, "{largest}");
+        assert_eq!(largest_difference(&r, &r, 0.01), Ok(0.0));
+        assert!(largest_difference(&img(2, 2, |_, _| 1.0), &r, 0.01).is_err());
+        assert!(largest_difference(&r, &img(4, 1, |_, _| 0.0), 0.01).is_err());
     }
 
     #[test]
