@@ -487,26 +487,27 @@ impl<'a> RayIntegrator<'a> {
                 };
                 continue;
             }
-            // Where this step and the next lie in thin medium (σt bounded near them), one
-            // step of twice the length about their common end (the bound keeps it one piece).
-            let pair_end = self
-                .index
-                .extinction
-                .as_ref()
-                .filter(|_| k + 1 < steps)
-                .and_then(|bound| {
-                    let t = t_in + (k + 1) as f64 * dt;
+            // Where steps `j − 1` and `j` lie in thin medium (σt bounded near them), one step
+            // of twice the length about their common end, `(t, x)` (the bound keeps it one
+            // piece).
+            let thin_pair_ending = |j: usize| {
+                self.index.extinction.as_ref().and_then(|bound| {
+                    let t = t_in + j as f64 * dt;
                     let x = ray.at(t);
                     (bound.at(x) * 2.0 * dt <= MAX_PIECE_DEPTH).then_some((t, x))
-                });
+                })
+            };
+            let pair_end = if k + 1 < steps {
+                thin_pair_ending(k + 1)
+            } else {
+                None
+            };
             // A second thin pair right after the first: the two pieces are taken together, so
             // that the sources may share what is the same at both (a directional light's
             // `exp`, the solved field's lookups: `InScattering::at_step_pair`).
             let quad = self.use_sigma && self.use_scattering && k + 3 < steps;
-            if let (Some((_, x1)), Some(bound), true) = (pair_end, &self.index.extinction, quad) {
-                let t2 = t_in + (k + 3) as f64 * dt;
-                let x2 = ray.at(t2);
-                if bound.at(x2) * 2.0 * dt <= MAX_PIECE_DEPTH {
+            if let (Some((_, x1)), true) = (pair_end, quad) {
+                if let Some((t2, x2)) = thin_pair_ending(k + 3) {
                     k += 4;
                     let length = 2.0 * dt;
                     let samples = [
