@@ -62,15 +62,15 @@ pub enum Command {
     /// with errors, times, memory and side-by-side images.
     Validate(ValidateArgs),
     /// How far one render is from another: relative RMS, mean and largest difference of two
-    /// PFM images over the pixels above a share of the first one's peak.
+    /// PFM or EXR images over the pixels above a share of the first one's peak.
     Compare(CompareArgs),
 }
 
 #[derive(Debug, Args)]
 pub struct CompareArgs {
-    /// The image compared against (PFM), e.g. the render of the build before a change.
+    /// The image compared against (PFM or EXR), e.g. the render of the build before a change.
     pub before: PathBuf,
-    /// The image compared with it (PFM), of the same size.
+    /// The image compared with it (PFM or EXR), of the same size.
     pub after: PathBuf,
     /// Compare the pixels whose value in BEFORE (the mean of its channels) is above this share
     /// of BEFORE's peak, in (0, 1).

@@ -542,29 +542,20 @@ pub fn validate(args: &crate::cli::ValidateArgs, quiet: bool) -> Result<()> {
 /// value (the mean of the channels) in BEFORE is above `--above` times BEFORE's peak — the
 /// relative RMS difference and mean difference ([`montecarlo::compare::compare_images`]) and the
 /// largest difference as a share of the peak ([`montecarlo::compare::largest_difference`]).
-/// What docs/performance.md quotes when a change to the renderer moves the images by so much.
+/// Either image may be PFM or EXR ([`gather::image_io::read_image`]). What docs/performance.md quotes
+/// when a change to the renderer moves the images by so much.
 pub fn compare(args: &CompareArgs) -> Result<()> {
     // The error names the file (its source, an io::Error, only once).
     let read = |p: &Path| {
-        gather::read_pfm(p)
+        gather::image_io::read_image(p)
             .map(grey)
             .map_err(|e| anyhow::anyhow!("{e}"))
     };
     let (before, after) = (read(&args.before)?, read(&args.after)?);
-    if (before.width, before.height) != (after.width, after.height) {
-        bail!(
-            "sizes differ: {} is {}×{}, {} is {}×{}",
-            args.before.display(),
-            before.width,
-            before.height,
-            args.after.display(),
-            after.width,
-            after.height
-        );
-    }
+    // The comparison checks the sizes; the context names the files.
     let context = || {
         format!(
-            "comparing {} with {}",
+            "comparing {} (image) with {} (reference)",
             args.after.display(),
             args.before.display()
         )

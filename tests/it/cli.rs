@@ -825,7 +825,8 @@ fn serve_checks_its_scene_files_before_starting() {
 }
 
 /// A `w`×`h` RGB image of pixel values `f(x, y)` (the same in each channel, but the red one
-/// doubled and the blue one 0, so that the grey value is `f`), written as PFM at `path`.
+/// doubled and the blue one 0, so that the grey value is `f`), written at `path` (PFM or EXR
+/// by its extension).
 fn write_pfm(path: &Path, w: u32, h: u32, f: impl Fn(u32, u32) -> f32) {
     let mut pixels = Vec::new();
     for y in 0..h {
@@ -872,6 +873,12 @@ fn compare_measures_how_far_one_image_is_from_another() {
         line.starts_with("13 pixels above 0.5 of the peak"),
         "{line}"
     );
+    // An EXR is read as well (the renderer writes both).
+    let c = dir.path().join("b.exr");
+    write_pfm(&c, 6, 4, |x, y| 1.02 * before(x, y));
+    let out = volrad(&["compare", s(&a), s(&c)]);
+    let line = String::from_utf8(out.stdout).unwrap();
+    assert!((figure(&line, "RMS") - 2.0).abs() < 1e-3, "{line}");
     // The same image is 0 from itself.
     let out = volrad(&["compare", s(&a), s(&a)]);
     let line = String::from_utf8(out.stdout).unwrap();
@@ -908,4 +915,5 @@ fn compare_refuses_mismatched_or_missing_images() {
     }
     let err = stderr(&volrad(&["compare", s(&a), s(&b)]));
     assert!(err.contains("6×4") && err.contains("4×6"), "{err}");
+    assert!(err.contains("a.pfm") && err.contains("b.pfm"), "{err}");
 }

@@ -151,7 +151,7 @@ pub fn compare_images(
     let size = |i: &Image| (i.width, i.height);
     if size(image) != size(reference) {
         return Err(format!(
-            "image is {}×{}, reference {}×{}",
+            "sizes differ: image is {}×{}, reference {}×{}",
             image.width, image.height, reference.width, reference.height
         ));
     }
@@ -189,7 +189,7 @@ pub fn compare_images(
 pub fn largest_difference(image: &Image, reference: &Image, threshold: f64) -> Result<f64, String> {
     if (image.width, image.height) != (reference.width, reference.height) {
         return Err(format!(
-            "image is {}×{}, reference {}×{}",
+            "sizes differ: image is {}×{}, reference {}×{}",
             image.width, image.height, reference.width, reference.height
         ));
     }
