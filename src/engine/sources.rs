@@ -145,12 +145,6 @@ impl TransportLattice<'_> {
         (r - 0.125 * curvature).max(0.0)
     }
 
-    /// Whether a transport grid of cells `coarse_cell_size` over data cells
-    /// `data_cell_size` is at least twice as coarse ([`pair`](Self::pair)).
-    fn pairs_share_a_read(coarse_cell_size: f64, data_cell_size: f64) -> bool {
-        coarse_cell_size >= 2.0 * data_cell_size
-    }
-
     /// Two consecutive steps of a march in thin medium ([`InScattering::at_step_pair`]):
     /// each step's σs times `ratio`, `Q/σs` at a point ([`at`](Self::at) or
     /// [`at_block`](Self::at_block) with σs = 1). On a transport grid at least twice as
@@ -242,10 +236,8 @@ impl<'a> CellLattice<'a> {
                 inverse_sigma_s: &scattering.inverse_sigma_s,
                 max_sigma_s: scattering.max_sigma_s,
                 keep_cell_means: true,
-                pairs_share_a_read: TransportLattice::pairs_share_a_read(
-                    grid.cell_size,
-                    grid.cell_size,
-                ),
+                // The data grid itself: no coarser than the data.
+                pairs_share_a_read: false,
             }),
             ..lattice
         }
@@ -281,10 +273,7 @@ impl<'a> CellLattice<'a> {
             inverse_sigma_s: &scattering.inverse_sigma_s,
             max_sigma_s: scattering.max_sigma_s,
             keep_cell_means,
-            pairs_share_a_read: TransportLattice::pairs_share_a_read(
-                coarse.cell_size,
-                medium.grid().cell_size,
-            ),
+            pairs_share_a_read: coarse.cell_size >= 2.0 * medium.grid().cell_size,
         });
         Ok(CellLattice {
             transport,
