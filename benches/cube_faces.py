@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """
-3D (unit-cube) version of benches/flatland_faces.py: does a step-characteristics
+A unit-cube slab sweep: does a step-characteristics
 discrete-ordinates sweep with UNIFORM face fluxes over-transmit a thick,
 nearly conservative slab because of the lateral faces, and how much of that
 error do LINEAR face fluxes (mean + first Legendre moment along each of the
