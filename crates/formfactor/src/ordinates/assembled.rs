@@ -49,8 +49,9 @@ impl AssembledOrdinates {
         let matrix = op.phase_matrix();
         let omega = op.bins().solid_angles();
         let mut tri = TriMat::new((n * m, n * m));
-        // Each cell's outflow through its downstream x, y and z faces, and its response.
-        let mut out = vec![[0.0f64; 3]; n];
+        // Each cell's outflow through its downstream x, y and z faces (each face's moments),
+        // and its response.
+        let mut out = vec![[[0.0f64; 3]; 3]; n];
         let mut response = vec![0.0f64; n];
         // One bin's source densities: a unit one in the source cell (a linear source's
         // slopes reach its neighbours).
@@ -106,7 +107,7 @@ impl AssembledOrdinates {
                     for &j in &ys {
                         for &i in &xs {
                             let c = grid.index(i, j, k);
-                            let mut inflow = [0.0; 3];
+                            let mut inflow = [[0.0; 3]; 3];
                             if let Some(u) = up(i, piece.forward[0], si) {
                                 inflow[0] = out[grid.index(u, j, k)][0];
                             }
@@ -132,7 +133,7 @@ impl AssembledOrdinates {
                                     tri.add_triplet(c * m + l, src * m + jb, v);
                                 }
                             }
-                            out[c] = [0.0; 3];
+                            out[c] = [[0.0; 3]; 3];
                             response[c] = 0.0;
                         }
                     }

@@ -12,6 +12,7 @@
 
 pub mod assembled;
 pub mod bins;
+mod faces;
 pub mod phase_matrix;
 pub mod sweep;
 
@@ -20,6 +21,7 @@ pub use bins::{
     auto_bin_count, DirectionBins, AUTO_BINS_MAX_CELL_BINS, AUTO_BINS_MODERATE_UP_TO,
     AUTO_BIN_STEPS, VALID_BINS,
 };
+pub use faces::gauss_legendre_unit;
 pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
     default_forward_truncation_degrees, forward_peak_fraction, forward_truncation_fraction,

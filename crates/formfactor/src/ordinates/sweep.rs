@@ -34,6 +34,9 @@ use rayon::prelude::*;
 use solver::operator::TransportOperator;
 
 use super::bins::{DirectionBins, FaceRect};
+use super::faces::{
+    moment_node_of, moment_node_tau, FaceMoments, FaceStep, MomentTerms, MOMENT_NODES,
+};
 use super::phase_matrix::{bin_averaged_phase, default_quadrature, PhaseMatrix};
 use super::OrdinatesError;
 
@@ -82,7 +85,7 @@ pub struct OrdinatesOptions {
     pub forward_truncation_degrees: f64,
     /// Couple each cell's faces (step characteristics): the flux entering through one face
     /// leaves through each downstream face in the share the piece's chords from that face
-    /// give, `T_ab(σt h)`, tabulated per piece ([`Coupling`]), instead of Max's shares
+    /// give, `T_ab(σt h)`, tabulated per piece ([`FaceMoments`]), instead of Max's shares
     /// `f_b` whatever face it came in by. A beam then keeps its direction across cells (at
     /// 45° a square passes all of it from one face to the other: no spreading at all) where
     /// Max's shares spread it sideways at every cell, a numerical diffusion of order `σt h`
@@ -103,6 +106,15 @@ pub struct OrdinatesOptions {
     /// (`data/cloud.toml`'s solve 13.0 → 17.5 s). Emission is swept flat
     /// ([`OrdinatesOperator::transport_emission`]).
     pub linear_source: bool,
+    /// Carry each face's flux with its first moments along the face's two tangential
+    /// coordinates, not uniform over the face (needs the face coupling; cells swept as
+    /// sub-cells and periodic layers more than one cell wide sweep uniform faces). A piece
+    /// crossing a side face then re-enters the next cell with the profile it left with:
+    /// uniform faces spread it over the face, a numerical diffusion across the layers of
+    /// order `σt h` that let a slab of τ = 64 in 64 layers (albedo 0.99) transmit 2.2×
+    /// DISORT's light ([`faces`](super::faces); docs/validation.md). A cell with medium's
+    /// step goes from 9 to 81 multiply-adds per piece.
+    pub linear_faces: bool,
 }
 
 /// The fewest bins whose phase matrix makes up its lost mean cosine by scattering less into
@@ -129,6 +141,7 @@ impl Default for OrdinatesOptions {
             forward_truncation_degrees: 0.0,
             face_coupling: true,
             linear_source: true,
+            linear_faces: true,
         }
     }
 }
@@ -204,9 +217,10 @@ pub struct Piece {
     /// area `|ω_a|`) along the piece's directions, and `⟨ℓ⟩`, `⟨ℓ²⟩` for thin cells.
     /// `None`: `e^{−τ0/s}`, the mean chord's transmission (by Jensen's inequality too small).
     transmission: Option<([f64; SOURCE_TABLE_LEN], [f64; 2])>,
-    /// Face-coupled transport tables ([`OrdinatesOptions::face_coupling`]), in the piece's
-    /// canonical axes (shared by its images).
-    coupling: Arc<Coupling>,
+    /// Face-coupled transport tables ([`OrdinatesOptions::face_coupling`]; their means'
+    /// part for uniform faces, all of them for [`OrdinatesOptions::linear_faces`]), in the
+    /// piece's canonical axes (shared by its images); `None` with Max's shares.
+    faces: Option<Arc<FaceMoments>>,
     /// The piece's axes in decreasing share (`fractions`): a piece's cell terms are stored
     /// with its axes in this order, so that pieces that are one another's images under the
     /// cube's symmetries (axis permutations and reflections) share them.
@@ -223,7 +237,7 @@ impl Piece {
 }
 
 /// Source-escape table: `τ0` from 10^-2 to 10^2, 10 points per decade (log-linear).
-const SOURCE_TABLE_LEN: usize = 41;
+pub(crate) const SOURCE_TABLE_LEN: usize = 41;
 const SOURCE_TABLE_MIN_LOG10: f64 = -2.0;
 const SOURCE_TABLE_PER_DECADE: f64 = 10.0;
 
@@ -280,13 +294,14 @@ impl Piece {
     /// table_coordinate(tau0)`), in its canonical axes: face-coupled, or Max's shares.
     fn canonical_terms(&self, tau0: f64, x: f64, h: f64, face_coupling: bool) -> CellTerms {
         let ax = self.canonical_axes;
-        if face_coupling {
-            let (transmit, inflow_mean, e, q) = self.coupling.at(tau0, x);
+        if let (true, Some(faces)) = (face_coupling, &self.faces) {
+            // The means' part of the face tables.
+            let t = faces.at(tau0, x);
             CellTerms {
-                transmit,
-                inflow_mean,
-                source_out: e.map(|v| h * v),
-                source_mean: h * q,
+                transmit: std::array::from_fn(|kl| t.transmit[27 * (kl / 3) + 3 * (kl % 3)]),
+                inflow_mean: std::array::from_fn(|k| t.inflow_track[3 * k]),
+                source_out: std::array::from_fn(|l| h * t.exit[3 * l]),
+                source_mean: h * t.source_track,
             }
         } else {
             let (t, esc, src_esc, track) = self.cell_terms_at(tau0, x);
@@ -303,9 +318,13 @@ impl Piece {
     /// The piece's linear-source coefficients for a (sub-)cell of side `h` and optical side
     /// `tau0` (`x = table_coordinate(tau0)`), in its canonical axes (face coupling only).
     fn slope_terms(&self, tau0: f64, x: f64, h: f64) -> SlopeTerms {
-        let (g, q) = self.coupling.slope_at(tau0, x);
+        let faces = self
+            .faces
+            .as_ref()
+            .expect("a linear source is swept with the face coupling's tables");
+        let (g, q) = faces.slope_at(tau0, x);
         SlopeTerms {
-            out: g.map(|v| h * v),
+            out: std::array::from_fn(|cl| h * g[9 * (cl / 3) + 3 * (cl % 3)]),
             mean: q.map(|v| h * v),
         }
     }
@@ -340,7 +359,7 @@ impl Piece {
 
 /// The optical side `τ0 = σt h` of node `i` of the pieces' tables (the inverse of
 /// [`table_coordinate`] at whole coordinates).
-fn table_node(i: usize) -> f64 {
+pub(crate) fn table_node(i: usize) -> f64 {
     10f64.powf(SOURCE_TABLE_MIN_LOG10 + i as f64 / SOURCE_TABLE_PER_DECADE)
 }
 
@@ -383,256 +402,6 @@ fn source_table_of(dirs: &[(DVec3, f64)]) -> ([f64; SOURCE_TABLE_LEN], [f64; 2])
         *q = 1.0 - escape;
     }
     (table, [d1, d2])
-}
-
-/// Face-coupled transport tables of one piece, in its canonical axes ([`Piece::canonical_axes`];
-/// one table serves the piece's images under the cube's symmetries), at the source table's nodes
-/// `τ0 = σt h` ([`OrdinatesOptions::face_coupling`]). Faces are named by axis: the upstream
-/// face of axis `a` (where the piece's flux enters) and the downstream face of `b` (where it
-/// leaves).
-#[derive(Clone, Debug, PartialEq)]
-pub(crate) struct Coupling {
-    /// `T_ab` (index `3a + b`): of unit flux entering through face `a` (spread uniformly over
-    /// it, its directions weighted by `|ω_a|`), the part leaving unattenuated through `b`.
-    transmit: [[f64; 9]; SOURCE_TABLE_LEN],
-    /// `M_a = (1 − Σ_b T_ab) / τ0`: the mean track (units of h) of that unit flux in the cell.
-    inflow_track: [[f64; 3]; SOURCE_TABLE_LEN],
-    /// `E_b`: the share of a source uniform in the cell that leaves through face `b`.
-    exit: [[f64; 3]; SOURCE_TABLE_LEN],
-    /// `q = (1 − Σ_b E_b) / τ0`: the mean track of the source (units of h).
-    source_track: [f64; SOURCE_TABLE_LEN],
-    /// `G_cb` (index `3c + b`): the part of a source `x_c` (the cell's coordinate along `c`
-    /// from −1 at the upstream face to 1 at the downstream one, less its sampled mean, so
-    /// that it sums to nothing over the cell) that leaves through face `b`
-    /// ([`OrdinatesOptions::linear_source`]). Its mean track is `−Σ_b G_cb / τ0`.
-    slope_exit: [[f64; 9]; SOURCE_TABLE_LEN],
-    /// Thin cells (`τ0` below the table): `T ≈ T0 − τ0 T1`, `M ≈ M0 − τ0 M1`,
-    /// `E ≈ E0 − τ0 E1`, `q ≈ q0 − τ0 q1`.
-    thin_transmit: [[f64; 9]; 2],
-    thin_inflow: [[f64; 3]; 2],
-    thin_exit: [[f64; 3]; 2],
-    thin_source: [f64; 2],
-    /// `G ≈ G0 − τ0 G1` (`Σ_b G0_cb = 0`).
-    thin_slope_exit: [[f64; 9]; 2],
-}
-
-/// Midpoints per side of a face for [`coupling_of`]'s entry and exit points.
-const COUPLING_FACE_POINTS: usize = 16;
-
-/// [`Coupling`] for the directions `dirs` (with weights) of one piece. Entry: chords from
-/// midpoints of each upstream face. Source: every point of the unit cube is `y − t ω` for
-/// one exit point `y` on a downstream face and `0 ≤ t < ℓ(y)` (the chord back to the
-/// upstream faces), with volume element `|ω_b| dA dt`, so the depth integrals are closed
-/// forms (a midpoint rule in depth would miss a thick cell's thin escaping layer).
-fn coupling_of(dirs: &[(DVec3, f64)]) -> Coupling {
-    let total_w: f64 = dirs.iter().map(|d| d.1).sum();
-    let mut c = Coupling::zeroed();
-    let nodes: [f64; SOURCE_TABLE_LEN] = std::array::from_fn(table_node);
-    // Each sample is added to the tables as it is met (no list of samples: a few hundred kB
-    // made on rayon's threads stayed committed by the allocator); the entry rows are
-    // normalised per face at the end.
-    let mut face_w = [0.0; 3];
-    // The sampled mean of each coordinate `x_c = 2 y_c − 1` over the cell (volume element
-    // `|ω_b| dA dt` along the chords back from the exit points), taken off the linear source
-    // so that it emits nothing in all, as the exact integral does.
-    let mut coordinate_mean = [0.0; 3];
-    let mut volume = 0.0;
-    for_face_points(dirs, COUPLING_FACE_POINTS, |face, w, wt, y| {
-        let (p, l) = exit_chord(face, w, y);
-        let weight = wt / total_w * w[face];
-        volume += weight * l;
-        for (k, mean) in coordinate_mean.iter_mut().enumerate() {
-            *mean += weight * ((2.0 * p[k] - 1.0) * l - w[k] * l * l);
-        }
-    });
-    let coordinate_mean = coordinate_mean.map(|v| v / volume);
-    for_face_points(dirs, COUPLING_FACE_POINTS, |face, w, wt, y| {
-        let weight = wt / total_w * w[face];
-        // Coordinates along the travel direction: 0 at the upstream face. Entering at face
-        // `face` (coordinate 0 there), travelling `w`, the distance to each downstream face:
-        let to_face = [0, 1, 2].map(|ax| {
-            let start = if ax == face { 0.0 } else { y[ax] };
-            if w[ax] == 0.0 {
-                f64::INFINITY
-            } else {
-                (1.0 - start) / w[ax]
-            }
-        });
-        let l = to_face.into_iter().fold(f64::INFINITY, f64::min);
-        // A point whose chord ends on an edge (the bins' rational directions meet the
-        // midpoints exactly) leaves through both faces equally, so that images of one piece
-        // get the same shares whatever the rounding.
-        let ends = |ax: usize| to_face[ax] <= l * (1.0 + 1e-9);
-        let shared = (0..3).filter(|&ax| ends(ax)).count() as f64;
-        face_w[face] += weight;
-        c.thin_inflow[0][face] += weight * l;
-        c.thin_inflow[1][face] += weight * l * l / 2.0;
-        for (i, &tau0) in nodes.iter().enumerate() {
-            c.inflow_track[i][face] += weight * -(-tau0 * l).exp_m1() / tau0;
-        }
-        for out in (0..3).filter(|&ax| ends(ax)) {
-            let w = weight / shared;
-            c.thin_transmit[0][3 * face + out] += w;
-            c.thin_transmit[1][3 * face + out] += w * l;
-            for (i, &tau0) in nodes.iter().enumerate() {
-                c.transmit[i][3 * face + out] += w * (-tau0 * l).exp();
-            }
-        }
-        // Leaving at face `face` (coordinate 1 there), back along −w:
-        let (p, l) = exit_chord(face, w, y);
-        // The linear source `x_k − x̄_k = α − β t` at distance `t` back from the exit point.
-        for k in 0..3 {
-            let (alpha, beta) = (2.0 * p[k] - 1.0 - coordinate_mean[k], 2.0 * w[k]);
-            let i = 3 * k + face;
-            c.thin_slope_exit[0][i] += weight * (alpha * l - beta * l * l / 2.0);
-            c.thin_slope_exit[1][i] += weight * (alpha * l * l / 2.0 - beta * l * l * l / 3.0);
-            for (row, &tau0) in c.slope_exit.iter_mut().zip(&nodes) {
-                let tl = tau0 * l;
-                let g1 = -(-tl).exp_m1() / tau0;
-                // ∫_0^l t e^{−τ0 t} dt, by its series where the closed form cancels.
-                let g2 = if tl < 1e-3 {
-                    l * l * (0.5 - tl / 3.0 + tl * tl / 8.0)
-                } else {
-                    (1.0 - (-tl).exp() * (1.0 + tl)) / (tau0 * tau0)
-                };
-                row[i] += weight * (alpha * g1 - beta * g2);
-            }
-        }
-        c.thin_exit[0][face] += weight * l;
-        c.thin_exit[1][face] += weight * l * l / 2.0;
-        c.thin_source[0] += weight * l * l / 2.0;
-        c.thin_source[1] += weight * l * l * l / 6.0;
-        for (i, &tau0) in nodes.iter().enumerate() {
-            let tl = tau0 * l;
-            c.exit[i][face] += weight * -(-tl).exp_m1() / tau0;
-            c.source_track[i] += weight * (tl + (-tl).exp_m1()) / (tau0 * tau0);
-        }
-    });
-    // Per unit inflow through each face.
-    for a in 0..3 {
-        if face_w[a] > 0.0 {
-            let scale = 1.0 / face_w[a];
-            for row in c.transmit.iter_mut().chain(c.thin_transmit.iter_mut()) {
-                for v in &mut row[3 * a..3 * a + 3] {
-                    *v *= scale;
-                }
-            }
-            for row in c.inflow_track.iter_mut().chain(c.thin_inflow.iter_mut()) {
-                row[a] *= scale;
-            }
-        }
-    }
-    c
-}
-
-/// The exit point on face `face` of the chord through face point `y` (its own coordinate
-/// set to 1) and the chord's length back along `−w` to the upstream faces.
-fn exit_chord(face: usize, w: [f64; 3], y: [f64; 3]) -> ([f64; 3], f64) {
-    let mut p = y;
-    p[face] = 1.0;
-    let l = (0..3)
-        .filter(|&ax| w[ax] != 0.0)
-        .map(|ax| p[ax] / w[ax])
-        .fold(f64::INFINITY, f64::min);
-    (p, l)
-}
-
-impl Coupling {
-    fn zeroed() -> Coupling {
-        Coupling {
-            transmit: [[0.0; 9]; SOURCE_TABLE_LEN],
-            inflow_track: [[0.0; 3]; SOURCE_TABLE_LEN],
-            exit: [[0.0; 3]; SOURCE_TABLE_LEN],
-            source_track: [0.0; SOURCE_TABLE_LEN],
-            slope_exit: [[0.0; 9]; SOURCE_TABLE_LEN],
-            thin_transmit: [[0.0; 9]; 2],
-            thin_inflow: [[0.0; 3]; 2],
-            thin_exit: [[0.0; 3]; 2],
-            thin_source: [0.0; 2],
-            thin_slope_exit: [[0.0; 9]; 2],
-        }
-    }
-
-    /// `(G, q_c)` at `tau0` (`x = table_coordinate(tau0)`): the linear sources' exits
-    /// (index `3c + b`) and mean tracks, `τ0 q_c = −Σ_b G_cb` so that a slope neither adds
-    /// nor removes power.
-    fn slope_at(&self, tau0: f64, x: f64) -> ([f64; 9], [f64; 3]) {
-        let last = SOURCE_TABLE_LEN - 1;
-        if x <= 0.0 {
-            let [g0, g1] = &self.thin_slope_exit;
-            let g = std::array::from_fn(|k| g0[k] - tau0 * g1[k]);
-            // Σ_b G0_cb = 0, so −Σ_b G_cb / τ0 = Σ_b G1_cb.
-            let q = std::array::from_fn(|c| g1[3 * c] + g1[3 * c + 1] + g1[3 * c + 2]);
-            return (g, q);
-        }
-        let g: [f64; 9] = if x >= last as f64 {
-            let r = table_node(last) / tau0;
-            self.slope_exit[last].map(|v| v * r)
-        } else {
-            let i = x as usize;
-            let f = x - i as f64;
-            std::array::from_fn(|k| {
-                (1.0 - f) * self.slope_exit[i][k] + f * self.slope_exit[i + 1][k]
-            })
-        };
-        let q = std::array::from_fn(|c| -(g[3 * c] + g[3 * c + 1] + g[3 * c + 2]) / tau0);
-        (g, q)
-    }
-
-    /// `(T, M, E, q)` at `tau0` (`x = table_coordinate(tau0)`), made exactly conservative:
-    /// each entry face's `Σ_b T_ab = 1 − τ0 M_a` and `Σ_b E_b = 1 − τ0 q` (the tracks are
-    /// interpolated, which keeps them accurate relative to themselves in thin cells, and the
-    /// transmitted shares scaled to what is left).
-    fn at(&self, tau0: f64, x: f64) -> ([f64; 9], [f64; 3], [f64; 3], f64) {
-        let last = SOURCE_TABLE_LEN - 1;
-        let (mut t, m, mut e, q);
-        if x <= 0.0 {
-            let ([t0, t1], [m0, m1], [e0, e1], [q0, q1]) = (
-                &self.thin_transmit,
-                &self.thin_inflow,
-                &self.thin_exit,
-                self.thin_source,
-            );
-            t = std::array::from_fn(|k| t0[k] - tau0 * t1[k]);
-            m = std::array::from_fn(|k| m0[k] - tau0 * m1[k]);
-            e = std::array::from_fn(|k| e0[k] - tau0 * e1[k]);
-            q = q0 - tau0 * q1;
-        } else if x >= last as f64 {
-            // Thick cell: only the edges' short chords and the faces' thin layers let
-            // anything through, in proportion to 1/τ0.
-            let tau_last = table_node(last);
-            let r = tau_last / tau0;
-            t = self.transmit[last].map(|v| v * r);
-            e = self.exit[last].map(|v| v * r);
-            m = std::array::from_fn(|a| (1.0 - t[3 * a] - t[3 * a + 1] - t[3 * a + 2]) / tau0);
-            q = (1.0 - e[0] - e[1] - e[2]) / tau0;
-        } else {
-            let i = x as usize;
-            let f = x - i as f64;
-            let mix = |a: f64, b: f64| (1.0 - f) * a + f * b;
-            t = std::array::from_fn(|k| mix(self.transmit[i][k], self.transmit[i + 1][k]));
-            m = std::array::from_fn(|k| mix(self.inflow_track[i][k], self.inflow_track[i + 1][k]));
-            e = std::array::from_fn(|k| mix(self.exit[i][k], self.exit[i + 1][k]));
-            q = mix(self.source_track[i], self.source_track[i + 1]);
-        }
-        for a in 0..3 {
-            let sum = t[3 * a] + t[3 * a + 1] + t[3 * a + 2];
-            if sum > 0.0 {
-                let scale = (1.0 - tau0 * m[a]).max(0.0) / sum;
-                for b in 0..3 {
-                    t[3 * a + b] *= scale;
-                }
-            }
-        }
-        let sum = e[0] + e[1] + e[2];
-        if sum > 0.0 {
-            let scale = (1.0 - tau0 * q).max(0.0) / sum;
-            for v in &mut e {
-                *v *= scale;
-            }
-        }
-        (t, m, e, q)
-    }
 }
 
 /// Visits `points²` midpoints of each face of the unit cube that the directions `dirs` cross,
@@ -690,7 +459,11 @@ fn transmission_table_of(dirs: &[(DVec3, f64)]) -> ([f64; SOURCE_TABLE_LEN], [f6
 /// Sub-squares per side for the pieces' mean direction components.
 const PIECE_QUADRATURE: usize = 24;
 
-pub(crate) fn pieces_of(bins: &DirectionBins, exact_transmission: bool) -> Vec<Piece> {
+pub(crate) fn pieces_of(
+    bins: &DirectionBins,
+    exact_transmission: bool,
+    face_coupling: bool,
+) -> Vec<Piece> {
     let split = |lo: f64, hi: f64| -> Vec<[f64; 2]> {
         if lo < 0.0 && hi > 0.0 {
             vec![[lo, 0.0], [0.0, hi]]
@@ -707,8 +480,7 @@ pub(crate) fn pieces_of(bins: &DirectionBins, exact_transmission: bool) -> Vec<P
             }
         }
     }
-    // Each piece's coupling is set below, once per set of images.
-    let unset = Arc::new(Coupling::zeroed());
+    // Each piece's face tables are set below, once per set of images.
     let made = rects
         .into_par_iter()
         .map(|(bin, piece)| {
@@ -759,7 +531,7 @@ pub(crate) fn pieces_of(bins: &DirectionBins, exact_transmission: bool) -> Vec<P
                     source_table,
                     exit_moments,
                     transmission,
-                    coupling: Arc::clone(&unset),
+                    faces: None,
                     canonical_axes,
                 },
             )
@@ -787,14 +559,14 @@ pub(crate) fn pieces_of(bins: &DirectionBins, exact_transmission: bool) -> Vec<P
                 })
         })
         .collect();
-    let couplings: Vec<Arc<Coupling>> = groups
+    let tables: Vec<Option<Arc<FaceMoments>>> = groups
         .par_iter()
-        .map(|&g| Arc::new(coupling_of(&made[g].0)))
+        .map(|&g| face_coupling.then(|| Arc::new(FaceMoments::of(&made[g].0))))
         .collect();
     made.into_iter()
         .zip(group_of)
         .map(|((_, piece), g)| Piece {
-            coupling: Arc::clone(&couplings[g]),
+            faces: tables[g].clone(),
             ..piece
         })
         .collect()
@@ -836,9 +608,15 @@ impl SweepEnergy {
     /// Ends a piece's sweep through (sub-)cells of side `h`: when tallying, the z outflow of
     /// the last layer (`last_layer`) escapes; then the tally goes from per-`(Ω h²)` units to
     /// power.
-    fn finish_sweep(mut self, piece: &Piece, h: f64, last_layer: &[f64], tally: bool) -> Self {
+    fn finish_sweep<F: FaceFlux>(
+        mut self,
+        piece: &Piece,
+        h: f64,
+        last_layer: &[F],
+        tally: bool,
+    ) -> Self {
         if tally {
-            self.escaped[piece.side(2)] += last_layer.iter().sum::<f64>();
+            self.escaped[piece.side(2)] += last_layer.iter().map(|f| f.flux()).sum::<f64>();
         }
         let unit = piece.solid_angle * h * h;
         self.emitted *= unit;
@@ -848,6 +626,38 @@ impl SweepEnergy {
         }
         self
     }
+}
+
+/// A face's flux as a sweep carries it: the flux alone (uniform faces) or with its slopes
+/// across the face ([`OrdinatesOptions::linear_faces`], `[mean, slope, slope]`).
+trait FaceFlux: Copy {
+    const NONE: Self;
+    /// The power through the face (its mean, per `Ω h²`).
+    fn flux(self) -> f64;
+}
+
+impl FaceFlux for f64 {
+    const NONE: f64 = 0.0;
+    #[inline(always)]
+    fn flux(self) -> f64 {
+        self
+    }
+}
+
+impl FaceFlux for [f64; 3] {
+    const NONE: [f64; 3] = [0.0; 3];
+    #[inline(always)]
+    fn flux(self) -> f64 {
+        self[0]
+    }
+}
+
+/// What one cell's step gave: its outflows by grid axis, its mean radiance and the source
+/// density it emitted.
+struct CellStep<F> {
+    out: [F; 3],
+    mean: f64,
+    density: f64,
 }
 
 /// Energy balance of a solution: external source power vs absorbed + escaped.
@@ -881,6 +691,10 @@ struct LayerBuffers {
     out_y: Vec<f64>,
     /// x outflow of each cell of the layer (periodic layers iterated to convergence only).
     out_x: Vec<f64>,
+    /// With linear faces ([`OrdinatesOptions::linear_faces`]), the moments of the z and y
+    /// outflows (as `out` and `out_y`, by the piece's slots' tangents); empty otherwise.
+    faces_z: Vec<[f64; 3]>,
+    faces_y: Vec<[f64; 3]>,
     /// z-inflow into the current layer (periodic layers iterated to convergence only).
     inz: Vec<f64>,
 }
@@ -904,28 +718,28 @@ struct Scratch {
 /// or table look-ups. Faces are named by slot: a cell's inflow through the upstream face of
 /// slot `k`, its outflow through the downstream face of slot `l`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct CellTerms {
+pub(super) struct CellTerms {
     /// `T_kl` (index `3k + l`): the share of the inflow through `k` leaving through `l`.
-    transmit: [f64; 9],
+    pub(super) transmit: [f64; 9],
     /// Mean radiance per unit inflow through `k`: its mean track, `(1 − Σ_l T_kl) / (σt h)`.
-    inflow_mean: [f64; 3],
+    pub(super) inflow_mean: [f64; 3],
     /// Outflow through `l` per unit source density: `h E_l`.
-    source_out: [f64; 3],
+    pub(super) source_out: [f64; 3],
     /// Cell-average radiance per unit source density: `h q`.
-    source_mean: f64,
+    pub(super) source_mean: f64,
 }
 
 /// A piece's per-cell coefficients for a source's slopes ([`OrdinatesOptions::linear_source`]),
 /// in its canonical slots like [`CellTerms`]; kept apart so that the flat source's sweep
 /// reads no more than before.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct SlopeTerms {
+pub(super) struct SlopeTerms {
     /// Outflow through `l` per unit slope of the source density along slot `c` (index
     /// `3c + l`; the source `sd + Σ_c s_c x_c`, `x_c` from −1 upstream to 1 downstream):
     /// `h G_cl`.
-    out: [f64; 9],
+    pub(super) out: [f64; 9],
     /// Cell-average radiance per unit slope along slot `c`: `h q_c`.
-    mean: [f64; 3],
+    pub(super) mean: [f64; 3],
 }
 
 /// What a cell's own source sends out of it: the outflow through each downstream face (by
@@ -1272,6 +1086,12 @@ pub struct OrdinatesOperator {
     piece_class: Vec<usize>,
     /// Class-major coefficients, `classes × levels` ([`OrdinatesOperator::cell_level`]).
     terms: Vec<CellTerms>,
+    /// Class-major linear-face moment coefficients, `classes × MOMENT_NODES`
+    /// ([`OrdinatesOptions::linear_faces`] where it applies; empty otherwise).
+    moment_terms: Vec<MomentTerms>,
+    /// Per level, its moment node ([`moment_node_of`]) and `1 / (σt* h)` (0 for none); empty
+    /// without linear faces.
+    level_moments: Vec<(u32, f64)>,
     /// Per cell, its level: the index of its σt* among the medium's distinct values.
     cell_level: Vec<u32>,
     /// Per cell, `σs / (σt* h)` with a linear source ([`sweep_scale`](Self::sweep_scale));
@@ -1382,7 +1202,13 @@ impl OrdinatesOperator {
         let scatter: Vec<f64> = (0..m * m)
             .map(|idx| (1.0 - f) * matrix.values()[idx] * omega[idx % m])
             .collect();
-        let pieces = pieces_of(&bins, options.exact_transmission);
+        // Linear faces where the sweep carries them: whole cells, vacuum sides or a
+        // one-cell-wide periodic column.
+        let faces = options.linear_faces
+            && options.face_coupling
+            && r == 1
+            && !(options.periodic_xy && (grid.dims[0] > 1 || grid.dims[1] > 1));
+        let pieces = pieces_of(&bins, options.exact_transmission, options.face_coupling);
         let mut bin_pieces = vec![Vec::new(); m];
         for (p, piece) in pieces.iter().enumerate() {
             bin_pieces[piece.bin].push(p);
@@ -1420,6 +1246,8 @@ impl OrdinatesOperator {
                     out_y: vec![0.0; layer],
                     out_x: vec![0.0; if options.periodic_xy { layer } else { 0 }],
                     inz: vec![0.0; layer],
+                    faces_z: vec![[0.0; 3]; if faces { layer } else { 0 }],
+                    faces_y: vec![[0.0; 3]; if faces { layer } else { 0 }],
                 })
                 .collect(),
         };
@@ -1448,6 +1276,23 @@ impl OrdinatesOperator {
         let terms: Vec<CellTerms> = per_class_and_level(classes, &|piece, tau0, x| {
             piece.canonical_terms(tau0, x, h, options.face_coupling)
         });
+        let (moment_terms, level_moments) = if faces {
+            let nodes: Vec<f64> = (0..MOMENT_NODES).map(moment_node_tau).collect();
+            let moments = per_class_and_level((&representatives, &pieces, &nodes), &|p, t, _| {
+                let faces = p
+                    .faces
+                    .as_ref()
+                    .expect("pieces have face tables with linear faces");
+                MomentTerms::of(faces, t, h)
+            });
+            let per_level = level_tau
+                .iter()
+                .map(|&t| (moment_node_of(t), if t > 0.0 { 1.0 / t } else { 0.0 }))
+                .collect();
+            (moments, per_level)
+        } else {
+            (Vec::new(), Vec::new())
+        };
         // The linear source's state: the slopes' coefficients, the scattering product's
         // scale to the source function, and which neighbours each cell's slopes read.
         let linear = options.linear_source && options.face_coupling;
@@ -1480,6 +1325,8 @@ impl OrdinatesOperator {
             group_pieces,
             piece_class,
             terms,
+            moment_terms,
+            level_moments,
             source_function_scale,
             slope_terms,
             source_neighbours,
@@ -1503,28 +1350,71 @@ impl OrdinatesOperator {
         &self.matrix
     }
 
-    /// Piece `p`'s outflows through cell `c`'s downstream faces (piece axes) and its mean
-    /// radiance there, for `inflow` through its upstream faces and source density `sd`: the
-    /// sweep's step, for the assembled operator.
+    /// Piece `p`'s outflows through cell `c`'s downstream faces (by grid axis; each face's
+    /// moments, [`OrdinatesOptions::linear_faces`], or its flux alone in moment 0 with uniform
+    /// faces) and its mean radiance there, for `inflow` through its upstream faces and source
+    /// density `sd`: the sweep's step, for the assembled operator.
     pub(crate) fn cell_response(
         &self,
         p: usize,
         c: usize,
         ijk: [usize; 3],
-        inflow: [f64; 3],
+        inflow: [[f64; 3]; 3],
         density: &[f64],
-    ) -> ([f64; 3], f64) {
+    ) -> ([[f64; 3]; 3], f64) {
         let levels = self.level_tau.len();
         let k = self.piece_class[p] * levels + self.cell_level[c] as usize;
         let piece = &self.pieces[p];
         let axes = piece.canonical_axes;
+        if self.linear_faces() {
+            let linear = self.linear_source();
+            let step = self.face_step(self.piece_class[p], self.cell_level[c] as usize, linear);
+            let (sd, slopes) = if linear {
+                let (sd, s) = self.source_slopes(density, c, ijk, piece.forward);
+                (sd, axes.map(|a| s[a]))
+            } else {
+                (density[c], [0.0; 3])
+            };
+            let (source_out, source_mean) = step.source(sd, slopes);
+            let (o, mean) = step.step(&axes.map(|a| inflow[a]), &source_out, source_mean);
+            let mut by_axis = [[0.0; 3]; 3];
+            for (slot, &axis) in axes.iter().enumerate() {
+                by_axis[axis] = o[slot];
+            }
+            return (by_axis, mean);
+        }
         let terms = (&self.terms[k], self.slope_terms.get(k));
         let src = self.cell_source(terms, density, c, ijk, piece, axes);
         let ct = terms.0;
+        let flux = inflow.map(|f| f[0]);
         (
-            ct.outflow(inflow, &src, axes),
-            ct.mean_radiance(inflow, &src, axes),
+            ct.outflow(flux, &src, axes).map(|f| [f, 0.0, 0.0]),
+            ct.mean_radiance(flux, &src, axes),
         )
+    }
+
+    /// Cell coefficients of piece class `class` at level `level` with linear faces (the
+    /// source's slopes' only where `linear`).
+    #[inline(always)]
+    fn face_step(&self, class: usize, level: usize, linear: bool) -> FaceStep<'_> {
+        let k = class * self.level_tau.len() + level;
+        let (node, inverse_tau) = self.level_moments[level];
+        FaceStep {
+            ct: &self.terms[k],
+            st: if linear {
+                self.slope_terms.get(k)
+            } else {
+                None
+            },
+            mt: &self.moment_terms[class * MOMENT_NODES + node as usize],
+            inverse_tau,
+        }
+    }
+
+    /// Whether the sweep carries linear face fluxes ([`OrdinatesOptions::linear_faces`] where
+    /// it applies: whole cells, vacuum sides or a one-cell-wide periodic column).
+    pub fn linear_faces(&self) -> bool {
+        !self.moment_terms.is_empty()
     }
 
     /// Whether the sweep's sources are linear in each cell
@@ -1602,9 +1492,14 @@ impl OrdinatesOperator {
         (s.density.len() + s.piece_out.len()) * 8
             + s.layers
                 .iter()
-                .map(|l| (l.out.len() + l.out_y.len() + l.out_x.len() + l.inz.len()) * 8)
+                .map(|l| {
+                    (l.out.len() + l.out_y.len() + l.out_x.len() + l.inz.len()) * 8
+                        + (l.faces_z.len() + l.faces_y.len()) * 24
+                })
                 .sum::<usize>()
             + self.terms.len() * std::mem::size_of::<CellTerms>()
+            + self.moment_terms.len() * std::mem::size_of::<MomentTerms>()
+            + self.level_moments.len() * 16
             + self.slope_terms.len() * std::mem::size_of::<SlopeTerms>()
             + self.source_neighbours.len()
             + self.source_function_scale.len() * 8
@@ -2096,6 +1991,19 @@ impl OrdinatesOperator {
         if self.options.transport_refinement > 1 {
             return self.sweep_piece_refined(p, density, first_bin, out, buf, sweep);
         }
+        if self.linear_faces() {
+            return match AXIS_ORDERS
+                .iter()
+                .position(|&o| o == self.pieces[p].canonical_axes)
+            {
+                Some(0) => self.sweep_piece_faces::<0>(p, density, first_bin, out, buf, sweep),
+                Some(1) => self.sweep_piece_faces::<1>(p, density, first_bin, out, buf, sweep),
+                Some(2) => self.sweep_piece_faces::<2>(p, density, first_bin, out, buf, sweep),
+                Some(3) => self.sweep_piece_faces::<3>(p, density, first_bin, out, buf, sweep),
+                Some(4) => self.sweep_piece_faces::<4>(p, density, first_bin, out, buf, sweep),
+                _ => self.sweep_piece_faces::<5>(p, density, first_bin, out, buf, sweep),
+            };
+        }
         // One compiled sweep per order of the piece's axes, so that the cell step's
         // permutations are constants.
         match AXIS_ORDERS
@@ -2215,57 +2123,193 @@ impl OrdinatesOperator {
                     }
                 }
             } else {
-                // Downwind pass. `buf.out` holds the previous layer's z outflows until a cell
-                // is updated: the z inflow is read just before it is overwritten; the
-                // upwind y row and the upwind x cell are already the current layer's.
-                for ty in 0..ny {
-                    let row = nx * at(ty, ny, fwy);
-                    let up_row = (ty > 0).then(|| nx * at(ty - 1, ny, fwy));
-                    let mut up_x = 0.0;
-                    for tx in 0..nx {
-                        let i = at(tx, nx, fwx);
-                        let lc = row + i;
-                        let in_y = up_row.map_or(0.0, |r| buf.out_y[r + lc - row]);
-                        let mut inflow = [up_x, in_y, buf.out[lc]];
-                        let ct = &terms[level[lc] as usize];
-                        let ijk = [i, at(ty, ny, fwy), k];
-                        let src = self.cell_source(
-                            (ct, slopes.get(level[lc] as usize)),
-                            density,
-                            base + lc,
-                            ijk,
-                            piece,
-                            axes,
-                        );
-                        let o = if periodic {
-                            ct.outflow_looped(&mut inflow, &src, axes, loops)
-                        } else {
-                            ct.outflow(inflow, &src, axes)
-                        };
-                        buf.out[lc] = o[2];
-                        buf.out_y[lc] = o[1];
-                        up_x = o[0];
-                        let mean = ct.mean_radiance(inflow, &src, axes);
-                        out[lc] = weight * mean;
-                        if tally {
-                            energy.tally_cell(
-                                mean,
-                                self.level_tau[level[lc] as usize],
-                                src.density,
-                                h,
-                            );
-                            if !periodic && tx == nx - 1 {
-                                energy.escaped[piece.side(0)] += o[0];
-                            }
-                            if !periodic && ty == ny - 1 {
-                                energy.escaped[piece.side(1)] += o[1];
-                            }
-                        }
+                let step = |lc: usize, ijk: [usize; 3], mut inflow: [f64; 3]| {
+                    let ct = &terms[level[lc] as usize];
+                    let src = self.cell_source(
+                        (ct, slopes.get(level[lc] as usize)),
+                        density,
+                        base + lc,
+                        ijk,
+                        piece,
+                        axes,
+                    );
+                    let out = if periodic {
+                        ct.outflow_looped(&mut inflow, &src, axes, loops)
+                    } else {
+                        ct.outflow(inflow, &src, axes)
+                    };
+                    let mean = ct.mean_radiance(inflow, &src, axes);
+                    CellStep {
+                        out,
+                        mean,
+                        density: src.density,
+                    }
+                };
+                let faces = (&mut buf.out[..], &mut buf.out_y[..]);
+                self.downwind_layer(piece, (k, level), faces, out, (tally, &mut energy), step);
+            }
+        }
+        energy.finish_sweep(piece, h, &buf.out, tally)
+    }
+
+    /// One layer (`k`, its cells' `level`s) of a piece's downwind pass through a grid with
+    /// vacuum sides or one-cell-wide periodic ones: `step(cell in the layer, ijk, inflows by
+    /// grid axis)` is the cell's step. `faces` holds the z outflows of the previous layer
+    /// until a cell is updated (the z inflow is read just before it is overwritten) and the
+    /// y outflows of the row before; the upwind x cell's is carried along the row. Writes
+    /// `weight · I_avg` into the layer's `out` and, when tallying, the power.
+    #[inline(always)]
+    fn downwind_layer<F: FaceFlux>(
+        &self,
+        piece: &Piece,
+        (k, level): (usize, &[u32]),
+        (faces_z, faces_y): (&mut [F], &mut [F]),
+        out: &mut [f64],
+        (tally, energy): (bool, &mut SweepEnergy),
+        mut step: impl FnMut(usize, [usize; 3], [F; 3]) -> CellStep<F>,
+    ) {
+        let [nx, ny, _] = self.grid.dims;
+        let [fwx, fwy, _] = piece.forward;
+        let periodic = self.options.periodic_xy;
+        for ty in 0..ny {
+            let j = at(ty, ny, fwy);
+            let row = nx * j;
+            let up_row = (ty > 0).then(|| nx * at(ty - 1, ny, fwy));
+            let mut up_x = F::NONE;
+            for tx in 0..nx {
+                let i = at(tx, nx, fwx);
+                let lc = row + i;
+                let in_y = up_row.map_or(F::NONE, |r| faces_y[r + i]);
+                let cell = step(lc, [i, j, k], [up_x, in_y, faces_z[lc]]);
+                faces_z[lc] = cell.out[2];
+                faces_y[lc] = cell.out[1];
+                up_x = cell.out[0];
+                out[lc] = piece.weight * cell.mean;
+                if tally {
+                    let tau0 = self.level_tau[level[lc] as usize];
+                    energy.tally_cell(cell.mean, tau0, cell.density, self.grid.cell_size);
+                    if !periodic && tx == nx - 1 {
+                        energy.escaped[piece.side(0)] += cell.out[0].flux();
+                    }
+                    if !periodic && ty == ny - 1 {
+                        energy.escaped[piece.side(1)] += cell.out[1].flux();
                     }
                 }
             }
         }
-        energy.finish_sweep(piece, h, &buf.out, tally)
+    }
+
+    /// [`sweep_piece_faces_body`](Self::sweep_piece_faces_body), with AVX2 where the CPU has
+    /// it: the moments' 81 products per cell and piece four at a time. Multiplications and
+    /// additions stay apart (no fused multiply-add), so the results are the portable build's
+    /// bit for bit.
+    fn sweep_piece_faces<const ORDER: usize>(
+        &self,
+        p: usize,
+        density: &[f64],
+        first_bin: usize,
+        out: &mut [f64],
+        buf: &mut LayerBuffers,
+        sweep: Sweep,
+    ) -> SweepEnergy {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            return unsafe {
+                self.sweep_piece_faces_avx2::<ORDER>(p, density, first_bin, out, buf, sweep)
+            };
+        }
+        self.sweep_piece_faces_body::<ORDER>(p, density, first_bin, out, buf, sweep)
+    }
+
+    /// [`sweep_piece_faces_body`](Self::sweep_piece_faces_body) compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn sweep_piece_faces_avx2<const ORDER: usize>(
+        &self,
+        p: usize,
+        density: &[f64],
+        first_bin: usize,
+        out: &mut [f64],
+        buf: &mut LayerBuffers,
+        sweep: Sweep,
+    ) -> SweepEnergy {
+        self.sweep_piece_faces_body::<ORDER>(p, density, first_bin, out, buf, sweep)
+    }
+
+    /// [`sweep_piece`](Self::sweep_piece) with linear faces
+    /// ([`OrdinatesOptions::linear_faces`]) for a piece whose canonical axes are
+    /// `AXIS_ORDERS[ORDER]`: vacuum sides, or a one-cell-wide periodic column.
+    #[inline(always)]
+    fn sweep_piece_faces_body<const ORDER: usize>(
+        &self,
+        p: usize,
+        density: &[f64],
+        first_bin: usize,
+        out: &mut [f64],
+        buf: &mut LayerBuffers,
+        sweep: Sweep,
+    ) -> SweepEnergy {
+        let (piece, density, _, _) = self.piece_inputs(p, density, first_bin);
+        let class = self.piece_class[p];
+        let linear = sweep.linear && self.linear_source();
+        let tally = sweep.tally;
+        let [nx, ny, nz] = self.grid.dims;
+        let h = self.grid.cell_size;
+        let axes = AXIS_ORDERS[ORDER];
+        let periodic = self.options.periodic_xy;
+        // A one-cell-wide periodic axis feeds a cell's outflow through it back into it.
+        let loops = [periodic && nx == 1, periodic && ny == 1, false];
+        let mut looped = [0usize; 2];
+        let mut count = 0;
+        for (k, &axis) in axes.iter().enumerate() {
+            if loops[axis] {
+                looped[count] = k;
+                count += 1;
+            }
+        }
+        let looped = &looped[..count];
+        let layer = nx * ny;
+        let mut energy = SweepEnergy::default();
+        buf.faces_z[..layer].fill([0.0; 3]);
+        for tz in 0..nz {
+            let k = at(tz, nz, piece.forward[2]);
+            let base = layer * k;
+            let level = &self.cell_level[base..base + layer];
+            let out = &mut out[base..base + layer];
+            let step = |lc: usize, ijk: [usize; 3], by_axis: [[f64; 3]; 3]| {
+                let mut inflow = axes.map(|a| by_axis[a]);
+                let step = self.face_step(class, level[lc] as usize, linear);
+                let (density, o, mean) = if step.inverse_tau == 0.0 && looped.is_empty() {
+                    // No medium (most of a cloud's box): its source (emission only) is
+                    // uniform, the source function column holding S there.
+                    let sd = density[base + lc];
+                    let (o, mean) = step.vacuum_step(&inflow, sd);
+                    (sd, o, mean)
+                } else {
+                    let (sd, slopes) = if linear {
+                        let (sd, s) = self.source_slopes(density, base + lc, ijk, piece.forward);
+                        (sd, axes.map(|a| s[a]))
+                    } else {
+                        (density[base + lc], [0.0; 3])
+                    };
+                    let (source_out, source_mean) = step.source(sd, slopes);
+                    if !looped.is_empty() {
+                        step.close_loops(&mut inflow, &source_out, looped);
+                    }
+                    let (o, mean) = step.step(&inflow, &source_out, source_mean);
+                    (sd, o, mean)
+                };
+                let mut out = [[0.0; 3]; 3];
+                for (slot, &axis) in axes.iter().enumerate() {
+                    out[axis] = o[slot];
+                }
+                CellStep { out, mean, density }
+            };
+            let faces = (&mut buf.faces_z[..], &mut buf.faces_y[..]);
+            self.downwind_layer(piece, (k, level), faces, out, (tally, &mut energy), step);
+        }
+        energy.finish_sweep(piece, h, &buf.faces_z[..layer], tally)
     }
 
     /// Cell `c`'s source for a piece with axes `axes`: the bin's density there (`density` is
@@ -2714,7 +2758,7 @@ mod tests {
     fn images_of_a_piece_share_one_class() {
         for n in [4, 8] {
             let bins = DirectionBins::cube(n).unwrap();
-            let pieces = pieces_of(&bins, false);
+            let pieces = pieces_of(&bins, false, true);
             let expected = (n / 2) * (n / 2 + 1) / 2;
             for face_coupling in [true, false] {
                 let (_, reps) = piece_classes(&pieces, face_coupling);

@@ -5,7 +5,9 @@
 //! disort_slabs.
 
 use formfactor::ordinates::bins::interpolate_bins;
-use formfactor::ordinates::{DirectionBins, OrdinatesOperator, OrdinatesOptions};
+use formfactor::ordinates::{
+    gauss_legendre_unit, DirectionBins, OrdinatesOperator, OrdinatesOptions,
+};
 use formfactor::{ExactOptions, FormFactorMatrix};
 use glam::DVec3;
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
@@ -358,7 +360,7 @@ pub fn zonal_radiance(
 /// summed over both faces, `t` the optical depth from the layer to the face, `Δ = τ/nz`. The
 /// folded zonal coupling's row sums estimate it.
 pub fn slab_extinction(tau: f64, nz: usize) -> Vec<f64> {
-    let (nodes, weights) = gauss_legendre_unit(200);
+    let (nodes, weights): (Vec<f64>, Vec<f64>) = gauss_legendre_unit(200).into_iter().unzip();
     let e3 = |t: f64| -> f64 {
         nodes
             .iter()
@@ -382,7 +384,7 @@ pub fn slab_extinction(tau: f64, nz: usize) -> Vec<f64> {
 pub fn zonal_fluxes(slab: &ZonalSlab, tau: f64, mu0: f64) -> (f64, f64) {
     let nz = slab.solution.len();
     // Escape through one face by Gauss–Legendre in μ (64 nodes on (0, 1)).
-    let (nodes, weights) = gauss_legendre_unit(64);
+    let (nodes, weights): (Vec<f64>, Vec<f64>) = gauss_legendre_unit(64).into_iter().unzip();
     let flux = |up: bool| -> f64 {
         nodes
             .iter()
@@ -396,31 +398,4 @@ pub fn zonal_fluxes(slab: &ZonalSlab, tau: f64, mu0: f64) -> (f64, f64) {
             .sum::<f64>()
     };
     (flux(true) / mu0, flux(false) / mu0)
-}
-
-/// Gauss–Legendre nodes and weights on (0, 1).
-fn gauss_legendre_unit(n: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut nodes = Vec::with_capacity(n);
-    let mut weights = Vec::with_capacity(n);
-    for i in 0..n {
-        let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
-        let mut dp = 0.0;
-        for _ in 0..100 {
-            let (mut p0, mut p1) = (1.0, x);
-            for k in 2..=n {
-                let p2 = ((2 * k - 1) as f64 * x * p1 - (k - 1) as f64 * p0) / k as f64;
-                p0 = p1;
-                p1 = p2;
-            }
-            dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
-            let dx = p1 / dp;
-            x -= dx;
-            if dx.abs() < 1e-15 {
-                break;
-            }
-        }
-        nodes.push(0.5 * (1.0 + x));
-        weights.push(1.0 / ((1.0 - x * x) * dp * dp));
-    }
-    (nodes, weights)
 }
