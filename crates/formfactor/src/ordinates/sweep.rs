@@ -1367,21 +1367,10 @@ impl OrdinatesOperator {
         let piece = &self.pieces[p];
         let axes = piece.canonical_axes;
         if self.linear_faces() {
-            let linear = self.linear_source();
-            let step = self.face_step(self.piece_class[p], self.cell_level[c] as usize, linear);
-            let (sd, slopes) = if linear {
-                let (sd, s) = self.source_slopes(density, c, ijk, piece.forward);
-                (sd, axes.map(|a| s[a]))
-            } else {
-                (density[c], [0.0; 3])
-            };
-            let (source_out, source_mean) = step.source(sd, slopes);
-            let (o, mean) = step.step(&axes.map(|a| inflow[a]), &source_out, source_mean);
-            let mut by_axis = [[0.0; 3]; 3];
-            for (slot, &axis) in axes.iter().enumerate() {
-                by_axis[axis] = o[slot];
-            }
-            return (by_axis, mean);
+            let cell = (c, ijk, self.cell_level[c] as usize);
+            let modes = (self.pieces[p].canonical_axes, self.linear_source(), &[][..]);
+            let step = self.face_cell(p, cell, inflow, density, modes);
+            return (step.out, step.mean);
         }
         let terms = (&self.terms[k], self.slope_terms.get(k));
         let src = self.cell_source(terms, density, c, ijk, piece, axes);
@@ -1408,6 +1397,54 @@ impl OrdinatesOperator {
             },
             mt: &self.moment_terms[class * MOMENT_NODES + node as usize],
             inverse_tau,
+        }
+    }
+
+    /// Piece `p`'s step with linear faces through `cell` (its index, `ijk` and level) for
+    /// `inflow` moments by grid axis and the bin's `density` column (the source function
+    /// where `linear`), `axes` the piece's canonical axes (a constant in the compiled sweeps),
+    /// closing the one-cell periodic `looped` slots: the sweep's and the
+    /// assembled operator's one cell step.
+    #[inline(always)]
+    fn face_cell(
+        &self,
+        p: usize,
+        (c, ijk, level): (usize, [usize; 3], usize),
+        inflow: [[f64; 3]; 3],
+        density: &[f64],
+        (axes, linear, looped): ([usize; 3], bool, &[usize]),
+    ) -> CellStep<[f64; 3]> {
+        let piece = &self.pieces[p];
+        let mut inflow = axes.map(|a| inflow[a]);
+        let step = self.face_step(self.piece_class[p], level, linear);
+        let (sd, o, mean) = if step.inverse_tau == 0.0 && looped.is_empty() {
+            // No medium (most of a cloud's box): its source (emission only) is uniform, the
+            // source function column holding S there.
+            let sd = density[c];
+            let (o, mean) = step.vacuum_step(&inflow, sd);
+            (sd, o, mean)
+        } else {
+            let (sd, slopes) = if linear {
+                let (sd, s) = self.source_slopes(density, c, ijk, piece.forward);
+                (sd, axes.map(|a| s[a]))
+            } else {
+                (density[c], [0.0; 3])
+            };
+            let (source_out, source_mean) = step.source(sd, slopes);
+            if !looped.is_empty() {
+                step.close_loops(&mut inflow, &source_out, looped);
+            }
+            let (o, mean) = step.step(&inflow, &source_out, source_mean);
+            (sd, o, mean)
+        };
+        let mut out = [[0.0; 3]; 3];
+        for (slot, &axis) in axes.iter().enumerate() {
+            out[axis] = o[slot];
+        }
+        CellStep {
+            out,
+            mean,
+            density: sd,
         }
     }
 
@@ -2251,7 +2288,6 @@ impl OrdinatesOperator {
         sweep: Sweep,
     ) -> SweepEnergy {
         let (piece, density, _, _) = self.piece_inputs(p, density, first_bin);
-        let class = self.piece_class[p];
         let linear = sweep.linear && self.linear_source();
         let tally = sweep.tally;
         let [nx, ny, nz] = self.grid.dims;
@@ -2278,33 +2314,8 @@ impl OrdinatesOperator {
             let level = &self.cell_level[base..base + layer];
             let out = &mut out[base..base + layer];
             let step = |lc: usize, ijk: [usize; 3], by_axis: [[f64; 3]; 3]| {
-                let mut inflow = axes.map(|a| by_axis[a]);
-                let step = self.face_step(class, level[lc] as usize, linear);
-                let (density, o, mean) = if step.inverse_tau == 0.0 && looped.is_empty() {
-                    // No medium (most of a cloud's box): its source (emission only) is
-                    // uniform, the source function column holding S there.
-                    let sd = density[base + lc];
-                    let (o, mean) = step.vacuum_step(&inflow, sd);
-                    (sd, o, mean)
-                } else {
-                    let (sd, slopes) = if linear {
-                        let (sd, s) = self.source_slopes(density, base + lc, ijk, piece.forward);
-                        (sd, axes.map(|a| s[a]))
-                    } else {
-                        (density[base + lc], [0.0; 3])
-                    };
-                    let (source_out, source_mean) = step.source(sd, slopes);
-                    if !looped.is_empty() {
-                        step.close_loops(&mut inflow, &source_out, looped);
-                    }
-                    let (o, mean) = step.step(&inflow, &source_out, source_mean);
-                    (sd, o, mean)
-                };
-                let mut out = [[0.0; 3]; 3];
-                for (slot, &axis) in axes.iter().enumerate() {
-                    out[axis] = o[slot];
-                }
-                CellStep { out, mean, density }
+                let cell = (base + lc, ijk, level[lc] as usize);
+                self.face_cell(p, cell, by_axis, density, (axes, linear, looped))
             };
             let faces = (&mut buf.faces_z[..], &mut buf.faces_y[..]);
             self.downwind_layer(piece, (k, level), faces, out, (tally, &mut energy), step);
