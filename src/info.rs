@@ -110,18 +110,18 @@ pub struct OrdinatesInfo {
 /// the cloud24 orbit and the DISORT slab tables).
 fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64, split: usize) -> String {
     let angular = if g <= 0.3 {
-        "about 2 % (DISORT slabs, τ ≤ 4; the isotropic cloud24, 8 views: 1.3 %, +0.5 … +0.8 % \
+        "about 2 % (DISORT slabs, τ ≤ 4; the isotropic cloud24, 8 views: 1.0 %, +0.1 … +0.4 % \
          in the mean)"
             .to_string()
     } else if g <= 0.7 {
         if bins >= 216 {
             "about 3 % per view, image mean within about 1 % (cloud24, g = 0.6, 8 views, 216 bins: \
-             1.3 %, −0.1 … +1.2 %)"
+             1.1 %, −0.2 … +0.8 %)"
                 .to_string()
         } else {
             format!(
-                "about 3 % per view, image mean up to +2.7 % (cloud24, g = 0.6, 8 views, 96 bins: \
-                 2.8 %, +0.1 … +2.7 %; {bins} bins here): set [solve] bins = 216 for a mean \
+                "about 3 % per view, image mean up to +2.4 % (cloud24, g = 0.6, 8 views, 96 bins: \
+                 2.6 %, +0.1 … +2.4 %; {bins} bins here): set [solve] bins = 216 for a mean \
                  within about 1 % (about 2.5× the solve)"
             )
         }

@@ -21,6 +21,8 @@
 //!   `OrdinatesOptions::face_coupling` off);
 //! - `DISORT_FLAT=1`: the scattered source uniform in each cell (without
 //!   `OrdinatesOptions::linear_source`);
+//! - `DISORT_NODIFFUSION=1`: the phase matrix matched to `g*` only, without making up the
+//!   bins' diffusion loss (`OrdinatesOptions::match_diffusion` off);
 //! - `DISORT_DETAIL=1`: every radiance.
 //!
 //! The transmitted radiances and T of cases whose DISORT `T_diffuse` is below 1e-6 (τ = 64 at
@@ -133,10 +135,11 @@ fn main() {
                 match_asymmetry,
                 face_coupling: std::env::var("DISORT_MAX_SHARES").is_err(),
                 linear_source: std::env::var("DISORT_FLAT").is_err(),
+                match_diffusion: std::env::var("DISORT_NODIFFUSION").is_err(),
                 ..Default::default()
             };
             println!(
-                "\n## discrete ordinates, {label} bins, {nz} layers{}{}{}{}{}",
+                "\n## discrete ordinates, {label} bins, {nz} layers{}{}{}{}{}{}",
                 if base.face_coupling {
                     ""
                 } else {
@@ -151,6 +154,11 @@ fn main() {
                     ""
                 } else {
                     ", match_asymmetry off"
+                },
+                if base.match_diffusion {
+                    ""
+                } else {
+                    ", match_diffusion off"
                 },
                 pq.map_or(String::new(), |k| format!(", phase quadrature {k}")),
                 cone.as_ref()

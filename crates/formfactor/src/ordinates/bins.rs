@@ -130,6 +130,7 @@ pub struct DirectionBins {
     rects: Vec<FaceRect>,
     solid_angles: Vec<f64>,
     centres: Vec<DVec3>,
+    diffusion_loss: f64,
 }
 
 /// Sub-squares per side used to compute bin centres.
@@ -161,23 +162,29 @@ impl DirectionBins {
                 }
             }
         }
-        let solid_angles = rects.iter().map(FaceRect::solid_angle).collect();
+        let solid_angles: Vec<f64> = rects.iter().map(FaceRect::solid_angle).collect();
         let mut q = Vec::new();
-        let centres = rects
+        // ∫_bin ω dω per bin: its direction is the centre, its length what the bin keeps of
+        // the second moment.
+        let first_moments: Vec<DVec3> = rects
             .iter()
             .map(|r| {
                 q.clear();
                 r.quadrature(CENTRE_QUADRATURE, &mut q);
-                q.iter()
-                    .fold(DVec3::ZERO, |acc, &(d, w)| acc + d * w)
-                    .normalize()
+                q.iter().fold(DVec3::ZERO, |acc, &(d, w)| acc + d * w)
             })
             .collect();
+        let kept: f64 = first_moments
+            .iter()
+            .zip(&solid_angles)
+            .map(|(m, omega)| m.length_squared() / omega)
+            .sum();
         Ok(DirectionBins {
             n,
             rects,
             solid_angles,
-            centres,
+            centres: first_moments.iter().map(|m| m.normalize()).collect(),
+            diffusion_loss: 1.0 - kept / (4.0 * std::f64::consts::PI),
         })
     }
 
@@ -208,6 +215,17 @@ impl DirectionBins {
     /// Bin centres: the normalised solid-angle-weighted mean direction `∫_bin ω dω / |…|`.
     pub fn centres(&self) -> &[DVec3] {
         &self.centres
+    }
+
+    /// The fraction of the diffusion coefficient that radiance constant over each bin loses:
+    /// `1 − Σ_l |m_l|² / (4π Ω_l)` with `m_l = ∫_bin ω dω`. The current such a field carries
+    /// for a gradient of the fluence is `Σ_l m_l m_lᵀ / Ω_l` times it, against `∫ ω ωᵀ dω =
+    /// 4π/3 I` for the continuous field (by symmetry of the cube's bins the tensor is a
+    /// multiple of `I`): 2.4 % for Max's 96 bins, 1.1 % for 216, 0.6 % for 384.
+    /// [`OrdinatesOptions::match_diffusion`](super::OrdinatesOptions::match_diffusion) makes
+    /// it up.
+    pub fn diffusion_loss(&self) -> f64 {
+        self.diffusion_loss
     }
 
     /// The face rectangle of bin `l`.

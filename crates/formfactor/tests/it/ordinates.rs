@@ -72,6 +72,53 @@ fn solid_angles_sum_to_four_pi() {
     assert!((rectangle_solid_angle(-1.0, 1.0, -1.0, 1.0, 1.0) - 4.0 * PI / 6.0).abs() < 1e-14);
 }
 
+/// `DirectionBins::diffusion_loss` against an independent integration: a fine (θ, φ) grid
+/// over the sphere, each direction given to its bin by `bin_of`, summing each bin's solid
+/// angle and `∫ ω_i dω`; what a field constant per bin keeps of `∫ ω_i ω_i dω = 4π/3` must be
+/// `1 − ε` along each axis (the cube's bins lose the same along x, y and z), and `ε` falls
+/// as the bins shrink.
+#[test]
+fn the_bins_diffusion_loss_is_what_bin_constant_radiance_keeps() {
+    let (nt, np) = (1200, 2400);
+    let mut previous = 1.0;
+    for n in [1, 4, 6, 8] {
+        let bins = DirectionBins::cube(n).unwrap();
+        let mut omega = vec![0.0; bins.len()];
+        let mut first = vec![DVec3::ZERO; bins.len()];
+        for i in 0..nt {
+            let theta = PI * (i as f64 + 0.5) / nt as f64;
+            let d_omega = theta.sin() * (PI / nt as f64) * (2.0 * PI / np as f64);
+            for j in 0..np {
+                let phi = 2.0 * PI * (j as f64 + 0.5) / np as f64;
+                let w = DVec3::new(
+                    theta.sin() * phi.cos(),
+                    theta.sin() * phi.sin(),
+                    theta.cos(),
+                );
+                let l = bins.bin_of(w);
+                omega[l] += d_omega;
+                first[l] += w * d_omega;
+            }
+        }
+        let kept = |axis: usize| -> f64 {
+            (0..bins.len())
+                .map(|l| first[l][axis] * first[l][axis] / omega[l])
+                .sum::<f64>()
+                / (4.0 * PI / 3.0)
+        };
+        let loss = bins.diffusion_loss();
+        for axis in 0..3 {
+            assert!(
+                (1.0 - kept(axis) - loss).abs() < 2e-4,
+                "n = {n}, axis {axis}: {} vs {loss}",
+                1.0 - kept(axis)
+            );
+        }
+        assert!(loss > 0.0 && loss < previous, "n = {n}: {loss}");
+        previous = loss;
+    }
+}
+
 #[test]
 fn refuses_bad_face_divisions() {
     assert_eq!(
