@@ -218,16 +218,6 @@ impl PhaseMatrix {
             .map(|l| self.get(l, j) * omega[l] * c[l].dot(c[j]))
             .sum()
     }
-
-    /// Discrete mean cosine with the exact within-bin first moment:
-    /// `Σ_l P_lj Ω_l (ω̄_l·ω̄_j)` with `ω̄ = (1/Ω)∫_bin ω dω` (unnormalised means), which is what
-    /// the `P` of a continuous function reproduces when `P` is exact.
-    pub fn mean_cosine_of_means(&self, bins: &DirectionBins, means: &[DVec3], j: usize) -> f64 {
-        let omega = bins.solid_angles();
-        (0..self.m)
-            .map(|l| self.get(l, j) * omega[l] * means[l].dot(means[j]))
-            .sum()
-    }
 }
 
 /// Bin averages `p̄_l(d) = (1/Ω_l) ∫_{bin l} p(ω·d) dω` for light flowing along unit `d`,
@@ -253,18 +243,6 @@ pub fn bin_averaged_phase(
     let total: f64 = p.iter().zip(bins.solid_angles()).map(|(a, b)| a * b).sum();
     p.iter_mut().for_each(|v| *v /= total);
     p
-}
-
-/// Unnormalised mean directions `(1/Ω_l)∫_bin ω dω` by `k × k` quadrature.
-pub fn bin_mean_directions(bins: &DirectionBins, k: usize) -> Vec<DVec3> {
-    let mut q = Vec::new();
-    (0..bins.len())
-        .map(|l| {
-            q.clear();
-            bins.rect(l).quadrature(k, &mut q);
-            q.iter().fold(DVec3::ZERO, |a, &(w, s)| a + w * s) / bins.solid_angles()[l]
-        })
-        .collect()
 }
 
 /// Accuracy of a phase matrix against its continuous phase function.

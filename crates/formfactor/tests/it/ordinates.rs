@@ -107,6 +107,7 @@ fn the_bins_diffusion_loss_is_what_bin_constant_radiance_keeps() {
                 / (4.0 * PI / 3.0)
         };
         let loss = bins.diffusion_loss();
+        eprintln!("{} bins: diffusion loss {:.2} %", bins.len(), 100.0 * loss);
         for axis in 0..3 {
             assert!(
                 (1.0 - kept(axis) - loss).abs() < 2e-4,
