@@ -81,7 +81,7 @@ fn solve(c: &Case) {
     let run = c.op.sweep_until_change(&e, TOLERANCE, 1000);
     let (iterations, change) = (run.iterations, run.final_change);
     let secs = t0.elapsed().as_secs_f64();
-    let balance = c.op.energy_balance(&run.solution, &c.external);
+    let balance = c.op.energy_balance(&run.solution, &c.external, None);
     let (grid, channel) = (c.medium.grid(), &c.medium.channels()[0]);
     let n = grid.cell_count();
     let m = c.op.bins().len();

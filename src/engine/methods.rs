@@ -708,16 +708,20 @@ pub fn solve_ordinates(
     // (with an emitter pass, the emission's first collision S_e in place of e, and the
     // channel's emission is left out of the transport).
     let mut external = op.first_bounce_density_from_pass(light_pass)?;
+    // The beams' first scattering is swept with its own profile in each cell, not the
+    // neighbours' differences (thick cells along an oblique beam).
+    let beams = op.beam_profiles_from_pass(light_pass)?;
     let mut source = vec![0.0; op.len()];
     match emitters {
         Some(pass) => {
             op.add_collision_density(pass.fluence(), pass.current(), &mut external)?;
-            op.transport(&external, &mut source);
+            op.transport_first_bounce(&external, &beams, &mut source);
         }
         None => {
-            op.transport_external(&external, &mut source);
+            op.transport_external(&external, Some(&beams), &mut source);
         }
     }
+    drop(beams);
     let environment = environment.filter(|e| !e.is_dark());
     // A ground's last round gathers the final bounce toward every bin already (what the
     // ground sees): the render's higher orders are that, not a second gather.

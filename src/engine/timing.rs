@@ -722,7 +722,7 @@ fn probe_iterations(
     } else {
         let pass = medium::light_pass::LightPass::compute(coarse, c, &scene.lights).ok()?;
         let density = op.first_bounce_density_from_pass(&pass).ok()?;
-        op.transport_external(&density, &mut external);
+        op.transport_external(&density, None, &mut external);
     }
     let options = solver::SolveOptions {
         method,

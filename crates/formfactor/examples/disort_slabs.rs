@@ -23,6 +23,8 @@
 //!   `OrdinatesOptions::linear_source`);
 //! - `DISORT_NODIFFUSION=1`: the phase matrix matched to `g*` only, without making up the
 //!   bins' diffusion loss (`OrdinatesOptions::match_diffusion` off);
+//! - `DISORT_NEIGHBOUR_SLOPES=1`: the beam's first scattering swept with the neighbours'
+//!   differences for slopes, not its own profile (`OrdinatesOptions::beam_profiles` off);
 //! - `DISORT_DETAIL=1`: every radiance.
 //!
 //! The transmitted radiances and T of cases whose DISORT `T_diffuse` is below 1e-6 (τ = 64 at
@@ -136,10 +138,11 @@ fn main() {
                 face_coupling: std::env::var("DISORT_MAX_SHARES").is_err(),
                 linear_source: std::env::var("DISORT_FLAT").is_err(),
                 match_diffusion: std::env::var("DISORT_NODIFFUSION").is_err(),
+                beam_profiles: std::env::var("DISORT_NEIGHBOUR_SLOPES").is_err(),
                 ..Default::default()
             };
             println!(
-                "\n## discrete ordinates, {label} bins, {nz} layers{}{}{}{}{}{}",
+                "\n## discrete ordinates, {label} bins, {nz} layers{}{}{}{}{}{}{}",
                 if base.face_coupling {
                     ""
                 } else {
@@ -159,6 +162,11 @@ fn main() {
                     ""
                 } else {
                     ", match_diffusion off"
+                },
+                if base.beam_profiles {
+                    ""
+                } else {
+                    ", beam_profiles off"
                 },
                 pq.map_or(String::new(), |k| format!(", phase quadrature {k}")),
                 cone.as_ref()

@@ -106,7 +106,7 @@ fn solve(medium: &Medium, op: &OrdinatesOperator) {
     let run = op.sweep_until_change(&e, 1e-5, 1000);
     let iterations = run.iterations;
     let secs = t0.elapsed().as_secs_f64();
-    let balance = op.energy_balance(&run.solution, &external);
+    let balance = op.energy_balance(&run.solution, &external, None);
     let (n, m) = (grid.cell_count(), op.bins().len());
     let state = 4 * n * m * 8 + op.scratch_bytes();
     println!(

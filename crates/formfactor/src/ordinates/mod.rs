@@ -24,9 +24,9 @@ pub use bins::{
 pub use faces::gauss_legendre_unit;
 pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
-    default_forward_truncation_degrees, forward_peak_fraction, forward_truncation_fraction,
-    scattering_product_cells, EnergyBalance, OrdinatesOperator, OrdinatesOptions, SweepEnergy,
-    SweepSolve, MAX_TRANSPORT_REFINEMENT,
+    default_forward_truncation_degrees, exponential_half_change, forward_peak_fraction,
+    forward_truncation_fraction, scattering_product_cells, BeamLight, BeamProfiles, EnergyBalance,
+    OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve, MAX_TRANSPORT_REFINEMENT,
 };
 
 /// What was wrong with an ordinates set-up.

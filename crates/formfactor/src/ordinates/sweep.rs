@@ -23,7 +23,8 @@
 //!
 //! The scattered source is linear in each cell ([`OrdinatesOptions::linear_source`], with
 //! the face coupling): the sweeps read the source function `J = S / σt*` of the bin and
-//! rebuild each cell's slopes from its neighbours'; a slope's exits through each face are
+//! rebuild each cell's slopes from its neighbours' (the lights' first scattering from the
+//! beam's own profile in the cell, [`BeamProfiles`]); a slope's exits through each face are
 //! tabulated with the coupling and emit nothing in all.
 
 use std::sync::{Arc, Mutex};
@@ -39,6 +40,9 @@ use super::faces::{
 };
 use super::phase_matrix::{bin_averaged_phase, default_quadrature, PhaseMatrix};
 use super::OrdinatesError;
+
+mod beams;
+pub use beams::{exponential_half_change, BeamLight, BeamProfiles};
 
 /// Largest transport refinement (sub-cells per cell side of the sweep; a scene's
 /// `[solve] transport_refinement`).
@@ -126,6 +130,12 @@ pub struct OrdinatesOptions {
     /// `(1 − ω g_d) = (1 − ε)(1 − ω g)` hold at `ω = 1`, where diffusion carries light far;
     /// (docs/validation.md, *The bins' diffusion coefficient*).
     pub match_diffusion: bool,
+    /// With `linear_source`, sweep the lights' first scattering with the slopes of the
+    /// beam's own profile in each cell (`e^{−τ}`, its first moment exact), not the
+    /// neighbours' differences ([`BeamProfiles`]; off, the profiles are empty). Thick cells
+    /// along an oblique beam put the first scattering too deep with the differences: at
+    /// τ = 64 on layers of optical depth 1, μ0 = 0.4, a slab transmitted 5 points too much.
+    pub beam_profiles: bool,
 }
 
 /// The fewest bins whose phase matrix makes up its lost mean cosine by scattering less into
@@ -154,6 +164,7 @@ impl Default for OrdinatesOptions {
             linear_source: true,
             linear_faces: true,
             match_diffusion: true,
+            beam_profiles: true,
         }
     }
 }
@@ -674,7 +685,7 @@ trait LayerCells<F> {
 
 /// Uniform faces' cells of one layer: the layer's first cell `base`, its cells' `level`s,
 /// the bin's `density` column, the class's coefficients per level (cell and slope terms),
-/// the piece's canonical `axes` and its one-cell periodic `loops`.
+/// the piece's canonical `axes`, its one-cell periodic `loops` and the lights' own slopes.
 struct UniformCells<'a> {
     op: &'a OrdinatesOperator,
     piece: &'a Piece,
@@ -684,6 +695,7 @@ struct UniformCells<'a> {
     coefficients: (&'a [CellTerms], &'a [SlopeTerms]),
     axes: [usize; 3],
     loops: [bool; 3],
+    beams: Option<&'a BeamProfiles>,
 }
 
 impl LayerCells<f64> for UniformCells<'_> {
@@ -696,10 +708,9 @@ impl LayerCells<f64> for UniformCells<'_> {
         let src = op.cell_source(
             (ct, slopes.get(level)),
             self.density,
-            self.base + lc,
-            ijk,
-            self.piece,
-            axes,
+            (self.base + lc, ijk),
+            (self.piece, axes),
+            self.beams,
         );
         let out = if op.options.periodic_xy {
             ct.outflow_looped(&mut inflow, &src, axes, self.loops)
@@ -723,8 +734,12 @@ struct FaceCells<'a> {
     base: usize,
     level: &'a [u32],
     density: &'a [f64],
-    modes: ([usize; 3], bool, &'a [usize]),
+    modes: FaceModes<'a>,
 }
+
+/// A linear faces' step's `(canonical axes, linear source, looped slots, the lights' own
+/// slopes)`.
+type FaceModes<'a> = ([usize; 3], bool, &'a [usize], Option<&'a BeamProfiles>);
 
 impl LayerCells<[f64; 3]> for FaceCells<'_> {
     #[inline(always)]
@@ -1035,11 +1050,13 @@ fn source_neighbour_mask(dims: [usize; 3], periodic: bool, sigma_t: &[f64]) -> V
 
 /// What one piece's sweep does besides transporting.
 #[derive(Clone, Copy, Debug)]
-struct Sweep {
+struct Sweep<'a> {
     /// Tally power ([`SweepEnergy`]).
     tally: bool,
     /// Give each cell's source its slopes (with [`OrdinatesOptions::linear_source`]).
     linear: bool,
+    /// The lights' first scattering's own slopes ([`BeamProfiles`]; with `linear`).
+    beams: Option<&'a BeamProfiles>,
 }
 
 /// The six orders of three axes ([`Piece::canonical_axes`]).
@@ -1456,12 +1473,17 @@ impl OrdinatesOperator {
         let axes = piece.canonical_axes;
         if self.linear_faces() {
             let cell = (c, ijk, self.cell_level[c] as usize);
-            let modes = (self.pieces[p].canonical_axes, self.linear_source(), &[][..]);
+            let modes = (
+                self.pieces[p].canonical_axes,
+                self.linear_source(),
+                &[][..],
+                None,
+            );
             let step = self.face_cell(p, cell, inflow, density, modes);
             return (step.out, step.mean);
         }
         let terms = (&self.terms[k], self.slope_terms.get(k));
-        let src = self.cell_source(terms, density, c, ijk, piece, axes);
+        let src = self.cell_source(terms, density, (c, ijk), (piece, axes), None);
         let ct = terms.0;
         let flux = inflow.map(|f| f[0]);
         (
@@ -1500,7 +1522,7 @@ impl OrdinatesOperator {
         (c, ijk, level): (usize, [usize; 3], usize),
         inflow: [[f64; 3]; 3],
         density: &[f64],
-        (axes, linear, looped): ([usize; 3], bool, &[usize]),
+        (axes, linear, looped, beams): FaceModes<'_>,
     ) -> CellStep<[f64; 3]> {
         let piece = &self.pieces[p];
         let mut inflow = axes.map(|a| inflow[a]);
@@ -1513,7 +1535,7 @@ impl OrdinatesOperator {
             (sd, o, mean)
         } else {
             let (sd, slopes) = if linear {
-                let (sd, s) = self.source_slopes(density, c, ijk, piece.forward);
+                let (sd, s) = self.source_slopes(density, c, ijk, piece, beams);
                 (sd, axes.map(|a| s[a]))
             } else {
                 (density[c], [0.0; 3])
@@ -1962,7 +1984,20 @@ impl OrdinatesOperator {
     /// [`OrdinatesOptions::linear_source`] its slopes are the source function's. Emission goes
     /// through [`transport_emission`](Self::transport_emission).
     pub fn transport(&self, density: &[f64], out: &mut [f64]) -> SweepEnergy {
-        self.transport_density(density, out, true)
+        self.transport_density(density, out, true, None)
+    }
+
+    /// [`transport`](Self::transport) of a density that holds the first scattering of the
+    /// lights `beams` profiles (with anything else, such as a first-collision density): their
+    /// part of each cell's slopes is the beam's own profile, not the neighbours' differences
+    /// ([`BeamProfiles`]).
+    pub fn transport_first_bounce(
+        &self,
+        density: &[f64],
+        beams: &BeamProfiles,
+        out: &mut [f64],
+    ) -> SweepEnergy {
+        self.transport_density(density, out, true, Some(beams))
     }
 
     /// [`transport`](Self::transport) for an emission density (`e[c·M + l]`): swept uniform in
@@ -1970,10 +2005,16 @@ impl OrdinatesOperator {
     /// follow σt (a glow given per length is smooth in itself, not over σt) and its slopes
     /// from the source function would be wrong where σt varies.
     pub fn transport_emission(&self, density: &[f64], out: &mut [f64]) -> SweepEnergy {
-        self.transport_density(density, out, false)
+        self.transport_density(density, out, false, None)
     }
 
-    fn transport_density(&self, density: &[f64], out: &mut [f64], linear: bool) -> SweepEnergy {
+    fn transport_density(
+        &self,
+        density: &[f64],
+        out: &mut [f64],
+        linear: bool,
+        beams: Option<&BeamProfiles>,
+    ) -> SweepEnergy {
         let n = self.grid.cell_count();
         let m = self.bins.len();
         assert!(
@@ -1981,7 +2022,9 @@ impl OrdinatesOperator {
             "transport: vectors must have cells × bins entries"
         );
         // Each group's bin-major copy for the sweeps.
-        self.transport_tallied(out, linear, false, |bins, dst| {
+        // Empty profiles (a flat source, the option off, no directional light) change nothing.
+        let beams = beams.filter(|b| b.lights() > 0);
+        self.transport_tallied(out, (linear, beams), false, |bins, dst| {
             self.cells_to_bins(density, bins.clone(), dst);
             if linear && self.linear_source() {
                 self.densities_to_source_function(dst, bins.len());
@@ -1993,7 +2036,7 @@ impl OrdinatesOperator {
     fn transport_tallied(
         &self,
         out: &mut [f64],
-        linear: bool,
+        (linear, beams): (bool, Option<&BeamProfiles>),
         add: bool,
         fill: impl Fn(std::ops::Range<usize>, &mut [f64]),
     ) -> SweepEnergy {
@@ -2001,6 +2044,7 @@ impl OrdinatesOperator {
         let sweep = Sweep {
             tally: true,
             linear,
+            beams,
         };
         self.transport_all(out, &mut guard, sweep, add, fill)
     }
@@ -2010,11 +2054,18 @@ impl OrdinatesOperator {
     /// with any first-collision density of emitters added) and the channel's own emission:
     /// `out = T(scattered) + T_e(emission)`, the emission swept as
     /// [`transport_emission`](Self::transport_emission) does, straight from the per-cell
-    /// values (no density vector of its own).
-    pub fn transport_external(&self, scattered: &[f64], out: &mut [f64]) -> SweepEnergy {
-        let mut energy = self.transport(scattered, out);
+    /// values (no density vector of its own). With `beams` (the lights' profiles,
+    /// [`beam_profiles_from_pass`](Self::beam_profiles_from_pass)) the first scattering's
+    /// slopes are the beams' own ([`transport_first_bounce`](Self::transport_first_bounce)).
+    pub fn transport_external(
+        &self,
+        scattered: &[f64],
+        beams: Option<&BeamProfiles>,
+        out: &mut [f64],
+    ) -> SweepEnergy {
+        let mut energy = self.transport_density(scattered, out, true, beams);
         if self.emission.iter().any(|&e| e != 0.0) {
-            let emitted = self.transport_tallied(out, false, true, |bins, dst| {
+            let emitted = self.transport_tallied(out, (false, None), true, |bins, dst| {
                 let stride = self.stride;
                 dst[..bins.len() * stride]
                     .par_chunks_mut(stride)
@@ -2035,7 +2086,7 @@ impl OrdinatesOperator {
         &self,
         out: &mut [f64],
         s: &mut Scratch,
-        sweep: Sweep,
+        sweep: Sweep<'_>,
         add: bool,
         fill: impl Fn(std::ops::Range<usize>, &mut [f64]),
     ) -> SweepEnergy {
@@ -2111,7 +2162,7 @@ impl OrdinatesOperator {
         first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
-        sweep: Sweep,
+        sweep: Sweep<'_>,
     ) -> SweepEnergy {
         if self.options.transport_refinement > 1 {
             return self.sweep_piece_refined(p, density, first_bin, out, buf, sweep);
@@ -2153,7 +2204,7 @@ impl OrdinatesOperator {
         first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
-        sweep: Sweep,
+        sweep: Sweep<'_>,
     ) -> SweepEnergy {
         let (piece, density, terms, slopes) = self.piece_inputs(p, density, first_bin);
         let slopes = if sweep.linear { slopes } else { &[] };
@@ -2205,7 +2256,13 @@ impl OrdinatesOperator {
                     let inflow = inflow_of(&buf.out_x, &buf.out_y, &buf.inz, tx, ty);
                     let ct = &terms[level[lc] as usize];
                     let slope = slopes.get(level[lc] as usize);
-                    let src = self.cell_source((ct, slope), density, base + lc, ijk, piece, axes);
+                    let src = self.cell_source(
+                        (ct, slope),
+                        density,
+                        (base + lc, ijk),
+                        (piece, axes),
+                        sweep.beams,
+                    );
                     (lc, inflow, ct, src)
                 };
                 buf.inz.copy_from_slice(&buf.out);
@@ -2257,6 +2314,7 @@ impl OrdinatesOperator {
                     coefficients: (terms, slopes),
                     axes,
                     loops,
+                    beams: sweep.beams,
                 };
                 let faces = (&mut buf.out[..], &mut buf.out_y[..]);
                 let energy = (tally, &mut energy);
@@ -2324,7 +2382,7 @@ impl OrdinatesOperator {
         first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
-        sweep: Sweep,
+        sweep: Sweep<'_>,
     ) -> SweepEnergy {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
@@ -2346,7 +2404,7 @@ impl OrdinatesOperator {
         first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
-        sweep: Sweep,
+        sweep: Sweep<'_>,
     ) -> SweepEnergy {
         self.sweep_piece_faces_body::<ORDER>(p, density, first_bin, out, buf, sweep)
     }
@@ -2362,7 +2420,7 @@ impl OrdinatesOperator {
         first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
-        sweep: Sweep,
+        sweep: Sweep<'_>,
     ) -> SweepEnergy {
         let (piece, density, _, _) = self.piece_inputs(p, density, first_bin);
         let linear = sweep.linear && self.linear_source();
@@ -2396,7 +2454,7 @@ impl OrdinatesOperator {
                 base,
                 level,
                 density,
-                modes: (axes, linear, looped),
+                modes: (axes, linear, looped, sweep.beams),
             };
             let faces = (&mut buf.faces_z[..], &mut buf.faces_y[..]);
             self.downwind_layer(
@@ -2418,14 +2476,13 @@ impl OrdinatesOperator {
         &self,
         (ct, st): (&CellTerms, Option<&SlopeTerms>),
         density: &[f64],
-        c: usize,
-        ijk: [usize; 3],
-        piece: &Piece,
-        axes: [usize; 3],
+        (c, ijk): (usize, [usize; 3]),
+        (piece, axes): (&Piece, [usize; 3]),
+        beams: Option<&BeamProfiles>,
     ) -> CellSource {
         match st {
             Some(st) => {
-                let (sd, slope) = self.source_slopes(density, c, ijk, piece.forward);
+                let (sd, slope) = self.source_slopes(density, c, ijk, piece, beams);
                 ct.linear_source(st, sd, slope, axes)
             }
             None => ct.uniform_source(density[c]),
@@ -2464,28 +2521,53 @@ impl OrdinatesOperator {
     }
 
     /// Cell `c`'s source density and its slopes per grid axis, as half the change across the
-    /// cell (the value on the downstream face less the mean), signed for a piece travelling
-    /// `forward`, from a bin's column of the source function `J = S / σt*`
-    /// ([`densities_to_source_function`](Self::densities_to_source_function)): central
-    /// differences between the neighbours, one-sided where one is outside the grid or much
-    /// thinner ([`source_neighbour_mask`]), none for an empty cell. The source function (the
-    /// in-scattered radiance times the albedo) is what varies smoothly across cells; `S`
-    /// jumps with σt* from cell to cell, and slopes of `S` brightened a cloud by 2 %.
-    /// Periodic sides wrap; a one-cell-wide axis has no slope.
+    /// cell (the value on the downstream face less the mean), signed for `piece`'s direction,
+    /// from a bin's column of the source function `J = S / σt*`
+    /// ([`densities_to_source_function`](Self::densities_to_source_function)): the
+    /// neighbours' [`central_differences`](Self::central_differences), with `beams` the
+    /// lights' first scattering's own profile in place of its differences
+    /// ([`BeamProfiles`]). The source function (the in-scattered radiance times the albedo)
+    /// is what varies smoothly across cells; `S` jumps with σt* from cell to cell, and slopes
+    /// of `S` brightened a cloud by 2 %.
     #[inline(always)]
     fn source_slopes(
         &self,
         source_function: &[f64],
         c: usize,
         ijk: [usize; 3],
-        forward: [bool; 3],
+        piece: &Piece,
+        beams: Option<&BeamProfiles>,
     ) -> (f64, [f64; 3]) {
-        let has = self.source_neighbours[c];
-        let [nx, ny, nz] = self.grid.dims;
         let tau_c = self.level_tau[self.cell_level[c] as usize];
         let own = source_function[c];
         // `J τ0` (no division in the sweep's innermost step); a cell without medium keeps S.
         let density = if tau_c > 0.0 { tau_c * own } else { own };
+        let [sx, sy, sz] = self.central_differences(source_function, c, ijk);
+        let forward = piece.forward;
+        let sign = |f: bool| if f { tau_c } else { -tau_c };
+        let mut slopes = [
+            sign(forward[0]) * sx,
+            sign(forward[1]) * sy,
+            sign(forward[2]) * sz,
+        ];
+        if let Some(beams) = beams {
+            if tau_c > 0.0 {
+                let unit = forward.map(|f| if f { 1.0 } else { -1.0 });
+                beams.add_to(c, piece.bin, unit, &mut slopes);
+            }
+        }
+        (density, slopes)
+    }
+
+    /// Half the change across cell `c` along each grid axis (upper less lower) of a column
+    /// of the source function, from central differences between the neighbours, one-sided
+    /// where one is outside the grid or much thinner ([`source_neighbour_mask`]), none for an
+    /// empty cell. Periodic sides wrap; a one-cell-wide axis has no slope.
+    #[inline(always)]
+    fn central_differences(&self, source_function: &[f64], c: usize, ijk: [usize; 3]) -> [f64; 3] {
+        let has = self.source_neighbours[c];
+        let [nx, ny, nz] = self.grid.dims;
+        let own = source_function[c];
         // Weights of (lower, own, upper) by which neighbours are there (bits 2a, 2a + 1):
         // no branches, and the three axes written out so that their loads overlap.
         const WEIGHTS: [[f64; 3]; 4] = [
@@ -2501,16 +2583,11 @@ impl OrdinatesOperator {
         let [yl, yh] = neighbour_cells(dims, c, ijk, 1);
         let [zl, zh] = neighbour_cells(dims, c, ijk, 2);
         let [ax, ay, az] = [0, 1, 2].map(|a| WEIGHTS[((has >> (2 * a)) & 3) as usize]);
-        let sx = ax[0] * source_function[xl] + ax[1] * own + ax[2] * source_function[xh];
-        let sy = ay[0] * source_function[yl] + ay[1] * own + ay[2] * source_function[yh];
-        let sz = az[0] * source_function[zl] + az[1] * own + az[2] * source_function[zh];
-        let sign = |f: bool| if f { tau_c } else { -tau_c };
-        let slopes = [
-            sign(forward[0]) * sx,
-            sign(forward[1]) * sy,
-            sign(forward[2]) * sz,
-        ];
-        (density, slopes)
+        [
+            ax[0] * source_function[xl] + ax[1] * own + ax[2] * source_function[xh],
+            ay[0] * source_function[yl] + ay[1] * own + ay[2] * source_function[yh],
+            az[0] * source_function[zl] + az[1] * own + az[2] * source_function[zh],
+        ]
     }
 
     /// [`sweep_piece`](Self::sweep_piece) through `r³` sub-cells per cell
@@ -2523,11 +2600,11 @@ impl OrdinatesOperator {
         first_bin: usize,
         out: &mut [f64],
         buf: &mut LayerBuffers,
-        sweep: Sweep,
+        sweep: Sweep<'_>,
     ) -> SweepEnergy {
         let (piece, density, terms, slopes) = self.piece_inputs(p, density, first_bin);
         let slopes = if sweep.linear { slopes } else { &[] };
-        let tally = sweep.tally;
+        let (tally, beams) = (sweep.tally, sweep.beams);
         let r = self.options.transport_refinement;
         let [nx, ny, nz] = self.grid.dims;
         let [fnx, fny, fnz] = [nx * r, ny * r, nz * r];
@@ -2559,7 +2636,7 @@ impl OrdinatesOperator {
                         // The coarse cell's linear source on this sub-cell: its value at the
                         // sub-cell's centre, and the slopes over the sub-cell's width.
                         let (mean, slope) =
-                            self.source_slopes(density, c, [fi / r, fj / r, cz], piece.forward);
+                            self.source_slopes(density, c, [fi / r, fj / r, cz], piece, beams);
                         let sub = [fi % r, fj % r, fk % r];
                         let sign = piece.forward.map(|f| if f { 1.0 } else { -1.0 });
                         let sd = mean
@@ -2602,7 +2679,15 @@ impl OrdinatesOperator {
 
     /// Energy balance of a solution `I` of `I = T(external) + K I`: transports
     /// `external + scatter(I)` once and tallies the escape; absorption from `I` itself.
-    pub fn energy_balance(&self, solution: &[f64], external: &[f64]) -> EnergyBalance {
+    /// `beams`: the profiles `external` was transported with
+    /// ([`transport_first_bounce`](Self::transport_first_bounce)), so that the escape is the
+    /// solve's own.
+    pub fn energy_balance(
+        &self,
+        solution: &[f64],
+        external: &[f64],
+        beams: Option<&BeamProfiles>,
+    ) -> EnergyBalance {
         let n = self.grid.cell_count();
         let m = self.bins.len();
         let mut density = vec![0.0; n * m];
@@ -2611,7 +2696,7 @@ impl OrdinatesOperator {
             *d += e;
         }
         let mut out = vec![0.0; n * m];
-        let sweep = self.transport(&density, &mut out);
+        let sweep = self.transport_density(&density, &mut out, true, beams);
         let v = self.grid.cell_volume();
         let omega = self.bins.solid_angles();
         let source: f64 = external
@@ -2756,6 +2841,7 @@ impl TransportOperator for OrdinatesOperator {
         let sweep = Sweep {
             tally: false,
             linear: true,
+            beams: None,
         };
         self.transport_all(y, s, sweep, false, |bins, dst| {
             self.scatter_into(&self.scatter, x, dst, Layout::BinMajor, bins)
@@ -2812,6 +2898,7 @@ impl TransportOperator for OrdinatesOperator {
                     let sweep = Sweep {
                         tally: false,
                         linear: true,
+                        beams: None,
                     };
                     self.sweep_piece(pieces.start + i, density_ref, bins.start, po, buf, sweep);
                 });

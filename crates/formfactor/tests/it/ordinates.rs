@@ -494,7 +494,7 @@ fn full_solve_balances_first_bounce_and_emission() {
     let mut e = vec![0.0; op.len()];
     op.transport(&external, &mut e);
     let (x, iters) = jacobi(&op, &e, 1e-9);
-    let b = op.energy_balance(&x, &external);
+    let b = op.energy_balance(&x, &external, None);
     // Source power = emission V 4π + σs V irradiance.
     let expect: f64 = (0..grid.cell_count())
         .map(|c| emission[c] * 4.0 * PI + op.sigma_s()[c] * irradiance[c])
@@ -834,7 +834,7 @@ fn truncated_forward_peak_keeps_energy_and_the_solution() {
         let mut e = vec![0.0; op.len()];
         op.transport(&external, &mut e);
         let (x, iters) = jacobi(&op, &e, 1e-9);
-        let b = op.energy_balance(&x, &external);
+        let b = op.energy_balance(&x, &external, None);
         assert!(
             b.relative_imbalance() < 1e-4,
             "{degrees}°: {b:?} after {iters} iterations"
@@ -960,5 +960,63 @@ fn auto_bins_follow_the_forward_peak_within_the_state_cap() {
                 "g {g}, {cells} cells: {b}"
             );
         }
+    }
+}
+
+/// The beams' profiles a light pass gives (the optical depth's change across each cell from
+/// its corner depths) are the analytic ones where the pass is exact (light along a grid
+/// axis, a homogeneous medium: `κ = ±σt h` along the light's axis, 0 across it), and they
+/// change the first scattering's transport: the lit layer's source is steeper than its
+/// neighbours' one-sided difference says.
+#[test]
+fn beam_profiles_from_a_light_pass_are_the_beams_own() {
+    let grid = Grid::new([3, 4, 5], 1.0).unwrap();
+    let sigma = 1.5;
+    let ch = ChannelMedium {
+        sigma_t: vec![sigma as f32; grid.cell_count()],
+        albedo: CellValues::Uniform(0.8),
+        emission: CellValues::Uniform(0.0),
+    };
+    let op = operator(grid, &ch, 0.5, 2, false);
+    for (direction, axis) in [(DVec3::NEG_Z, 2), (DVec3::X, 0)] {
+        let light = [Light::Directional {
+            direction,
+            irradiance: 1.0,
+        }];
+        let pass =
+            LightPass::compute(&medium(grid, &ch, PhaseFunction::Isotropic), 0, &light).unwrap();
+        let external = op.first_bounce_density_from_pass(&pass).unwrap();
+        let irradiance: Vec<f64> = pass.fields[0]
+            .cell_irradiance
+            .iter()
+            .map(|&v| v as f64)
+            .collect();
+        // Upper face less lower face: the depth grows the way the light travels.
+        let mut change = [0.0; 3];
+        change[axis] = sigma * direction[axis];
+        let analytic = op
+            .beam_profiles(&[(direction, &irradiance, &vec![change; grid.cell_count()])])
+            .unwrap();
+        let from_pass = op.beam_profiles_from_pass(&pass).unwrap();
+        assert_eq!(from_pass.lights(), 1);
+        let mut by_pass = vec![0.0; op.len()];
+        let mut by_analytic = vec![0.0; op.len()];
+        let mut by_neighbours = vec![0.0; op.len()];
+        op.transport_first_bounce(&external, &from_pass, &mut by_pass);
+        op.transport_first_bounce(&external, &analytic, &mut by_analytic);
+        op.transport(&external, &mut by_neighbours);
+        let scale = by_analytic.iter().fold(0.0f64, |a, &b| a.max(b.abs()));
+        let worst = |x: &[f64], y: &[f64]| {
+            x.iter()
+                .zip(y)
+                .fold(0.0f64, |a, (p, q)| a.max((p - q).abs()))
+                / scale
+        };
+        let (pass_gap, neighbours_gap) = (
+            worst(&by_pass, &by_analytic),
+            worst(&by_neighbours, &by_analytic),
+        );
+        assert!(pass_gap < 1e-5, "{direction}: {pass_gap}");
+        assert!(neighbours_gap > 1e-2, "{direction}: {neighbours_gap}");
     }
 }

@@ -72,9 +72,14 @@ pub fn solve_slab_with(
         .collect();
     let dir = DVec3::new((1.0 - mu0 * mu0).sqrt(), 0.0, -mu0);
     let external = op.external_density(None, &[(dir, &irradiance)]).unwrap();
+    // The beam's optical depth falls by σh/μ0 from each layer's lower face to its upper.
+    let depth_change = vec![[0.0, 0.0, -a]; nz];
+    let beams = op
+        .beam_profiles(&[(dir, &irradiance, &depth_change)])
+        .unwrap();
     let len = op.len();
     let mut e = vec![0.0; len];
-    op.transport(&external, &mut e);
+    op.transport_first_bounce(&external, &beams, &mut e);
     // I = E + K I by GMRES: source iteration needs tens of thousands of sweeps for the thick,
     // conservative slabs (spectral radius 1 − O(1/τ²)).
     let options = SolveOptions {
@@ -89,7 +94,7 @@ pub fn solve_slab_with(
         "slab tau {tau} a {albedo} g {g} mu0 {mu0}: {} after {} iterations, residual {:.1e}",
         report.stop_reason, report.iterations, report.final_residual
     );
-    let balance = op.energy_balance(&x, &external);
+    let balance = op.energy_balance(&x, &external, Some(&beams));
     SlabResult {
         r: balance.escaped[5] / mu0,
         t_diffuse: balance.escaped[4] / mu0,
