@@ -2024,6 +2024,10 @@ impl OrdinatesOperator {
         // Each group's bin-major copy for the sweeps.
         // Empty profiles (a flat source, the option off, no directional light) change nothing.
         let beams = beams.filter(|b| b.lights() > 0);
+        assert!(
+            beams.is_none_or(|b| b.fits(n, m)),
+            "transport: beam profiles made by another operator"
+        );
         self.transport_tallied(out, (linear, beams), false, |bins, dst| {
             self.cells_to_bins(density, bins.clone(), dst);
             if linear && self.linear_source() {

@@ -243,8 +243,8 @@ fn linear_faces_stop_a_thick_slab_leaking() {
 /// τ = 16 and −9.7 % at τ = 64 (96 bins), −5.7 % at τ = 64 (216 bins); albedo 0.99, μ0 = 1,
 /// 64 layers. The phase matrix matched to `g* + ε (1 − g*)`
 /// ([`OrdinatesOptions::match_diffusion`]) makes the diffusion coefficient up: +0.4 %, +2.8 %
-/// and 0.0 %. At τ = 64 with 96 bins the match over-corrects a little (+2.4 % even at 256
-/// layers; not yet explained). R moves by less than 0.5 %.
+/// and 0.0 %. At τ = 64 with 96 bins the match over-corrects a little (about +2.3 % even at
+/// 256 layers; not yet explained). R moves by less than 0.5 %.
 ///
 /// [`DirectionBins::diffusion_loss`]: formfactor::ordinates::DirectionBins::diffusion_loss
 #[test]

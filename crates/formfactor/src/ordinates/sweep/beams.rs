@@ -44,10 +44,9 @@ impl BeamProfiles {
         self.correction.len().checked_div(self.cells).unwrap_or(0)
     }
 
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        self.phase.len() * std::mem::size_of::<f64>()
-            + self.correction.len() * std::mem::size_of::<[f32; 3]>()
+    /// Whether the profiles are of an operator with `cells` cells and `bins` bins.
+    pub(super) fn fits(&self, cells: usize, bins: usize) -> bool {
+        self.cells == cells && self.bins == bins
     }
 
     /// Adds cell `c`'s change for `bin` to `slopes` (signed per axis by `sign`, ±1 for a
