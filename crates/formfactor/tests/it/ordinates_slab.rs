@@ -9,8 +9,8 @@ mod slab;
 use formfactor::ordinates::OrdinatesOptions;
 use glam::DVec3;
 use slab::{
-    case_parameters, case_radiances, disort_cases, disort_slab_cases, reflected_radiance,
-    solve_slab, solve_slab_with, transmitted_radiance,
+    case_parameters, case_radiances, disort_cases, disort_slab_cases, first_order_reflectance,
+    reflected_radiance, solve_slab, solve_slab_with, transmitted_radiance,
 };
 
 /// Flux reflectance and diffuse transmittance within 2 % of DISORT for every τ = 1 case.
@@ -288,7 +288,7 @@ fn matching_the_bins_diffusion_lets_thick_slabs_through() {
 /// 0.40, and a thick slab transmits in proportion to that depth plus the extrapolation
 /// length: τ = 64, albedo 0.99, 96 bins, 64 layers, T +8.9 % at μ0 = 0.4 against +3.4 % at
 /// μ0 = 1. With the beam's profile both are +2.8 % (what is left is the bins' diffusion
-/// match, the same at every μ0) and R is within 0.7 %.
+/// match, the same at every μ0) and R is within 0.8 %.
 #[test]
 fn an_oblique_beam_scatters_first_at_its_own_depth() {
     let errors = |mu0: f64, beam_profiles: bool| {
@@ -317,6 +317,38 @@ fn an_oblique_beam_scatters_first_at_its_own_depth() {
     );
     for r in [oblique_r, normal_r] {
         assert!(r.abs() < 0.01, "R {r}");
+    }
+}
+
+/// The beam's first scattering alone, against single scattering's reflectance of a
+/// semi-infinite isotropic medium, `R1 = (ω/2)(1 − μ0 ln(1 + 1/μ0))`: τ = 64 in 64 layers
+/// (σt h = 1), 216 bins. With the beam's own profile in each cell the sweep's escape is
+/// −0.3 % (μ0 = 1) and −2.6 % (μ0 = 0.4), what the linear fit of an exponential source gives
+/// (it keeps the mean depth, not the curvature near the surface); with the neighbours'
+/// slopes −4.2 % and −16.0 %. (At 256 layers both are +0.6 … +1.1 %, the bins' own error.)
+#[test]
+fn the_first_scattering_escapes_as_single_scattering_does() {
+    let albedo = 0.5;
+    for (mu0, bound) in [(1.0f64, 0.01), (0.4, 0.03)] {
+        let exact = 0.5 * albedo * (1.0 - mu0 * (1.0 + 1.0 / mu0).ln());
+        let error = |beam_profiles: bool| {
+            let options = OrdinatesOptions {
+                beam_profiles,
+                ..Default::default()
+            };
+            first_order_reflectance((64.0, albedo, 0.0, mu0), 64, 6, options) / exact - 1.0
+        };
+        let (own, neighbours) = (error(true), error(false));
+        eprintln!(
+            "μ0 {mu0}: R1 {:+.2} % (neighbours' slopes {:+.2} %)",
+            100.0 * own,
+            100.0 * neighbours
+        );
+        assert!(own.abs() < bound, "μ0 {mu0}: {own}");
+        assert!(
+            neighbours < -0.035,
+            "μ0 {mu0}: the neighbours' error is gone: {neighbours}"
+        );
     }
 }
 

@@ -6,7 +6,7 @@
 
 use formfactor::ordinates::bins::interpolate_bins;
 use formfactor::ordinates::{
-    gauss_legendre_unit, DirectionBins, OrdinatesOperator, OrdinatesOptions,
+    gauss_legendre_unit, BeamProfiles, DirectionBins, OrdinatesOperator, OrdinatesOptions,
 };
 use formfactor::{ExactOptions, FormFactorMatrix};
 use glam::DVec3;
@@ -24,21 +24,15 @@ pub struct SlabResult {
     pub gathered: Vec<f64>,
 }
 
-/// Solves a slab of optical depth `tau` with `nz` layers in one periodic column, beam of flux
-/// 1 (on a plane perpendicular to it) at `cos θ0 = mu0` onto the top (+z) face.
-pub fn solve_slab(tau: f64, albedo: f64, g: f64, mu0: f64, nz: usize, n: usize) -> SlabResult {
-    solve_slab_with(tau, albedo, g, mu0, nz, n, OrdinatesOptions::default())
-}
-
-pub fn solve_slab_with(
-    tau: f64,
-    albedo: f64,
-    g: f64,
-    mu0: f64,
+/// The operator of a slab of optical depth `tau` (albedo, Henyey–Greenstein g, beam at
+/// `cos θ0 = mu0` onto the top face) in `nz` layers of one periodic column and `6 n²` bins,
+/// the beam's first-scattering density and its profiles in the layers.
+pub fn slab_operator(
+    (tau, albedo, g, mu0): (f64, f64, f64, f64),
     nz: usize,
     n: usize,
     base: OrdinatesOptions,
-) -> SlabResult {
+) -> (OrdinatesOperator, Vec<f64>, BeamProfiles) {
     let grid = Grid::new([1, 1, nz], 1.0).unwrap();
     let sigma = tau / nz as f64;
     let channel = ChannelMedium {
@@ -77,6 +71,39 @@ pub fn solve_slab_with(
     let beams = op
         .beam_profiles(&[(dir, &irradiance, &depth_change)])
         .unwrap();
+    (op, external, beams)
+}
+
+/// The flux reflectance of the beam's first scattering alone (one transport of it, the
+/// power escaping through the top over the power incident).
+pub fn first_order_reflectance(
+    case: (f64, f64, f64, f64),
+    nz: usize,
+    n: usize,
+    options: OrdinatesOptions,
+) -> f64 {
+    let (op, external, beams) = slab_operator(case, nz, n, options);
+    let mut out = vec![0.0; op.len()];
+    let energy = op.transport_first_bounce(&external, &beams, &mut out);
+    energy.escaped[5] / case.3
+}
+
+/// Solves a slab of optical depth `tau` with `nz` layers in one periodic column, beam of flux
+/// 1 (on a plane perpendicular to it) at `cos θ0 = mu0` onto the top (+z) face.
+pub fn solve_slab(tau: f64, albedo: f64, g: f64, mu0: f64, nz: usize, n: usize) -> SlabResult {
+    solve_slab_with(tau, albedo, g, mu0, nz, n, OrdinatesOptions::default())
+}
+
+pub fn solve_slab_with(
+    tau: f64,
+    albedo: f64,
+    g: f64,
+    mu0: f64,
+    nz: usize,
+    n: usize,
+    base: OrdinatesOptions,
+) -> SlabResult {
+    let (op, external, beams) = slab_operator((tau, albedo, g, mu0), nz, n, base);
     let len = op.len();
     let mut e = vec![0.0; len];
     op.transport_first_bounce(&external, &beams, &mut e);
