@@ -1870,24 +1870,30 @@ impl OrdinatesOperator {
         self.density_from_pass(pass, None)
     }
 
+    /// That `pass` is of this operator's grid and each of its fields holds a cell irradiance
+    /// per cell (the pass's fields are public: their lengths are not guaranteed).
+    fn check_pass(&self, pass: &LightPass) -> Result<(), OrdinatesError> {
+        let n = self.grid.cell_count();
+        if pass.grid != self.grid {
+            return Err(OrdinatesError::ForeignLightPass);
+        }
+        match pass.fields.iter().find(|f| f.cell_irradiance.len() != n) {
+            Some(f) => Err(OrdinatesError::Length {
+                what: "cell irradiance",
+                got: f.cell_irradiance.len(),
+                expected: n,
+            }),
+            None => Ok(()),
+        }
+    }
+
     fn density_from_pass(
         &self,
         pass: &LightPass,
         emission: Option<&[f64]>,
     ) -> Result<Vec<f64>, OrdinatesError> {
-        let n = self.grid.cell_count();
         let m = self.bins.len();
-        if pass.grid != self.grid {
-            return Err(OrdinatesError::ForeignLightPass);
-        }
-        // (The pass's fields are public: their lengths are not guaranteed.)
-        if let Some(f) = pass.fields.iter().find(|f| f.cell_irradiance.len() != n) {
-            return Err(OrdinatesError::Length {
-                what: "cell irradiance",
-                got: f.cell_irradiance.len(),
-                expected: n,
-            });
-        }
+        self.check_pass(pass)?;
         let mut directional = Vec::new();
         let mut irr_store = Vec::new();
         for f in &pass.fields {
@@ -2555,10 +2561,9 @@ impl OrdinatesOperator {
             sign(forward[2]) * sz,
         ];
         if let Some(beams) = beams {
-            if tau_c > 0.0 {
-                let unit = forward.map(|f| if f { 1.0 } else { -1.0 });
-                beams.add_to(c, piece.bin, unit, &mut slopes);
-            }
+            // (Zero in cells without medium.)
+            let unit = forward.map(|f| if f { 1.0 } else { -1.0 });
+            beams.add_to(c, piece.bin, unit, &mut slopes);
         }
         (density, slopes)
     }

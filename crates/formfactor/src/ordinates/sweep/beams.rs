@@ -86,9 +86,14 @@ pub fn exponential_half_change(kappa: f64) -> f64 {
 /// cell irradiance and the optical depth's change across each cell per axis.
 pub type BeamLight<'a> = (DVec3, &'a [f64], &'a [[f64; 3]]);
 
-/// One directional light for [`OrdinatesOperator::profiles_of`]: its direction of travel and
-/// per cell its irradiance and the optical depth's change across the cell per axis.
-type LightOf<'a> = (DVec3, Box<dyn Fn(usize) -> (f64, [f64; 3]) + Sync + 'a>);
+/// One directional light for [`OrdinatesOperator::profiles_of`], read per cell where a pass
+/// keeps it in its own form: its direction of travel, irradiance and the optical depth's
+/// change across the cell per axis.
+struct LightOf<'a> {
+    direction: DVec3,
+    irradiance: Box<dyn Fn(usize) -> f64 + Sync + 'a>,
+    depth_change: Box<dyn Fn(usize) -> [f64; 3] + Sync + 'a>,
+}
 
 impl OrdinatesOperator {
     /// The profiles of directional `lights` (direction of travel, cell irradiance `E T_L`
@@ -112,7 +117,11 @@ impl OrdinatesOperator {
         }
         let lights: Vec<LightOf> = lights
             .iter()
-            .map(|&(dir, e, k)| -> LightOf { (dir, Box::new(move |c| (e[c], k[c]))) })
+            .map(|&(direction, e, k)| LightOf {
+                direction,
+                irradiance: Box::new(move |c| e[c]),
+                depth_change: Box::new(move |c| k[c]),
+            })
             .collect();
         Ok(self.profiles_of(&lights))
     }
@@ -125,12 +134,8 @@ impl OrdinatesOperator {
         &self,
         pass: &LightPass,
     ) -> Result<BeamProfiles, OrdinatesError> {
-        if pass.grid != self.grid {
-            return Err(OrdinatesError::ForeignLightPass);
-        }
+        self.check_pass(pass)?;
         let grid = self.grid;
-        let [nx, ny, _] = grid.dims;
-        let n = grid.cell_count();
         let mut lights: Vec<LightOf> = Vec::new();
         for f in &pass.fields {
             let Light::Directional { direction, .. } = f.light else {
@@ -145,15 +150,8 @@ impl OrdinatesOperator {
                 });
             }
             let irradiance = f.cell_irradiance.as_slice();
-            if irradiance.len() != n {
-                return Err(OrdinatesError::Length {
-                    what: "cell irradiance",
-                    got: irradiance.len(),
-                    expected: n,
-                });
-            }
-            let of_cell = move |c: usize| {
-                let [i, j, k] = [c % nx, (c / nx) % ny, c / (nx * ny)];
+            let depth_change = move |c: usize| {
+                let [i, j, k] = grid.coords(c);
                 let at = |di: usize, dj: usize, dk: usize| {
                     depth[grid.corner_index(i + di, j + dj, k + dk)] as f64
                 };
@@ -165,9 +163,13 @@ impl OrdinatesOperator {
                         d[2] += at(u, v, 1) - at(u, v, 0);
                     }
                 }
-                (irradiance[c] as f64, d.map(|x| 0.25 * x))
+                d.map(|x| 0.25 * x)
             };
-            lights.push((direction, Box::new(of_cell)));
+            lights.push(LightOf {
+                direction,
+                irradiance: Box::new(move |c| irradiance[c] as f64),
+                depth_change: Box::new(depth_change),
+            });
         }
         Ok(self.profiles_of(&lights))
     }
@@ -179,14 +181,13 @@ impl OrdinatesOperator {
         }
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        let [nx, ny, _] = self.grid.dims;
         let mut phase = Vec::with_capacity(lights.len() * m);
         let mut correction = vec![[0.0f32; 3]; lights.len() * n];
-        for ((dir, of_cell), out) in lights.iter().zip(correction.chunks_exact_mut(n)) {
+        for (light, out) in lights.iter().zip(correction.chunks_exact_mut(n)) {
             phase.extend(bin_averaged_phase(
                 &self.bins,
                 &self.phase,
-                *dir,
+                light.direction,
                 self.options.first_bounce_quadrature,
             ));
             // The light's source function at unit phase, as the sweep's column holds it.
@@ -194,7 +195,7 @@ impl OrdinatesOperator {
                 .into_par_iter()
                 .map(|c| {
                     let tau = self.level_tau[self.cell_level[c] as usize];
-                    self.sigma_s[c] * of_cell(c).0 * per_optical_side(tau)
+                    self.sigma_s[c] * (light.irradiance)(c) * per_optical_side(tau)
                 })
                 .collect();
             out.par_iter_mut().enumerate().for_each(|(c, d)| {
@@ -203,9 +204,9 @@ impl OrdinatesOperator {
                 if tau <= 0.0 || own == 0.0 {
                     return;
                 }
-                let ijk = [c % nx, (c / nx) % ny, c / (nx * ny)];
-                let differences = self.central_differences(&source_function, c, ijk);
-                let change = of_cell(c).1;
+                let differences =
+                    self.central_differences(&source_function, c, self.grid.coords(c));
+                let change = (light.depth_change)(c);
                 for a in 0..3 {
                     let exact = own * exponential_half_change(change[a]);
                     d[a] = (tau * (exact - differences[a])) as f32;
