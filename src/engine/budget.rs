@@ -486,28 +486,12 @@ pub fn smallest_scale_within(grid: &Grid, cells: usize) -> usize {
 /// to 4, discrete ordinates with the source linear in each cell: 3.1 % per view, −1.7 … +1.1 %
 /// in the image mean; split in 2³: 2.0 %, −0.6 … +1.5 %; at σt × 1, cells up to 1: 1.2 %;
 /// with a flat source 6.0 %, −4.0 … +3.5 % and 2.9 %, −1.4 … +2.4 %; the zonal methods keep
-/// a flat source).
+/// a flat source). The same for every phase function: a strong forward peak once split
+/// from 0.5 (the cloud24 orbit at g = 0.85, cells up to 0.82: 4.3 % whole, 2.8 % split),
+/// but with the sweep's linear face fluxes, the bins' diffusion matched and the beams' own
+/// profiles whole cells are as good (2.9 % / +0.2 … +1.8 % whole, 2.9 % / +0.4 … +1.8 %
+/// split, at a seventh of the solve; docs/validation.md).
 pub const AUTO_SPLIT_CELL_OPTICAL_DEPTH: f64 = 1.0;
-
-/// The same for discrete ordinates with a forward peak past
-/// [`AUTO_BINS_MODERATE_UP_TO`](formfactor::ordinates::AUTO_BINS_MODERATE_UP_TO) (the class
-/// `bins = "auto"` gives 384 bins): the step scheme's sideways spreading, which a forward
-/// peak carries further, is most of what is left there (the cloud24 orbit at g = 0.85, 99 %
-/// of the cells up to 0.82: 4.3 % per view whole, 2.8 % split in 2³ with the source linear
-/// in each cell; 4.5 % and 3.1 % flat; docs/validation.md).
-pub const AUTO_SPLIT_FORWARD_CELL_OPTICAL_DEPTH: f64 = 0.5;
-
-/// The optical depth above which `transport_refinement = "auto"` splits a cell, for a solve
-/// of a medium with mean cosine `g` by `method`.
-pub fn auto_split_cell_optical_depth(method: SolveMethod, g: f64) -> f64 {
-    if method == SolveMethod::DiscreteOrdinates
-        && g > formfactor::ordinates::AUTO_BINS_MODERATE_UP_TO
-    {
-        AUTO_SPLIT_FORWARD_CELL_OPTICAL_DEPTH
-    } else {
-        AUTO_SPLIT_CELL_OPTICAL_DEPTH
-    }
-}
 
 /// The optical depth `σt h` of the thick cells of `medium`: the 99th percentile over its
 /// non-empty cells, the largest over channels (a few denser cells do not set the grid).
@@ -530,7 +514,7 @@ pub fn thick_cell_optical_depth(medium: &medium::Medium) -> f64 {
 
 /// Transport cells per side of a data cell for the methods with a transport grid (1 for the
 /// others): the scene's `transport_refinement`, or for `auto` the fewest that bring the
-/// thick cells ([`thick_cell_optical_depth`]) to [`auto_split_cell_optical_depth`], as far as
+/// thick cells ([`thick_cell_optical_depth`]) to [`AUTO_SPLIT_CELL_OPTICAL_DEPTH`], as far as
 /// the split grid stays within [`AUTO_TRANSPORT_CELLS`] (a grid past it is coarsened, not
 /// split) and a scale above 1 is not asked for.
 pub fn transport_split(scene: &Scene, settings: &SolveSettings) -> usize {
@@ -550,9 +534,7 @@ pub fn transport_split(scene: &Scene, settings: &SolveSettings) -> usize {
                 return 1;
             }
             let tau = thick_cell_optical_depth(&scene.medium);
-            let limit =
-                auto_split_cell_optical_depth(settings.method, scene.medium.phase().mean_cosine());
-            let wanted = (tau / limit).ceil().max(1.0) as usize;
+            let wanted = (tau / AUTO_SPLIT_CELL_OPTICAL_DEPTH).ceil().max(1.0) as usize;
             (1..=wanted.min(MAX_TRANSPORT_SPLIT))
                 .rev()
                 .find(|&r| cells.saturating_mul(r * r * r) <= AUTO_TRANSPORT_CELLS)
