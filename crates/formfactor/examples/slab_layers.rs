@@ -19,8 +19,6 @@
 mod slab;
 
 use formfactor::ordinates::OrdinatesOptions;
-use solver::operator::TransportOperator;
-use solver::{Method, SolveControl, SolveOptions};
 
 fn setting<T: std::str::FromStr>(key: &str, default: T) -> T
 where
@@ -38,22 +36,10 @@ struct Layers {
     r: f64,
 }
 
-fn solve(case: (f64, f64, f64, f64), nz: usize, n: usize) -> Layers {
-    let (op, external, beams) = slab::slab_operator(case, nz, n, OrdinatesOptions::default());
-    let mut e = vec![0.0; op.len()];
-    op.transport_first_bounce(&external, &beams, &mut e);
-    let options = SolveOptions {
-        method: Method::Gmres { restart: 200 },
-        tolerance: 1e-10,
-        max_iterations: 20_000,
-        record_history: false,
-    };
-    let (x, report) = solver::solve(&op, &e, None, &options, &SolveControl::new()).unwrap();
-    assert!(report.converged, "{nz} layers: {}", report.stop_reason);
-    let balance = op.energy_balance(&x, &external, Some(&beams));
+fn solve((tau, albedo, g, mu0): (f64, f64, f64, f64), nz: usize, n: usize) -> Layers {
+    let res = slab::solve_slab_with(tau, albedo, g, mu0, nz, n, OrdinatesOptions::default());
+    let (op, x) = (&res.op, &res.radiance);
     let m = op.bins().len();
-    let mut gathered = vec![0.0; op.len()];
-    op.gather_density(&x, &mut gathered);
     let (up, omega): (Vec<f64>, &[f64]) = (
         op.bins()
             .centres()
@@ -66,7 +52,7 @@ fn solve(case: (f64, f64, f64, f64), nz: usize, n: usize) -> Layers {
     let source = (0..nz)
         .map(|k| {
             let c = cell(k);
-            gathered[c * m..(c + 1) * m].iter().sum::<f64>() / m as f64
+            res.gathered[c * m..(c + 1) * m].iter().sum::<f64>() / m as f64
         })
         .collect();
     let moment = |k: usize, w: &dyn Fn(usize) -> f64| {
@@ -77,7 +63,7 @@ fn solve(case: (f64, f64, f64, f64), nz: usize, n: usize) -> Layers {
         source,
         fluence: (0..nz).map(|k| moment(k, &|_| 1.0)).collect(),
         net_up: (0..nz).map(|k| moment(k, &|l| up[l])).collect(),
-        r: balance.escaped[5] / case.3,
+        r: res.r,
     }
 }
 

@@ -22,6 +22,8 @@ pub struct SlabResult {
     /// ([`OrdinatesOperator::gather_density`] of the solution).
     pub op: OrdinatesOperator,
     pub gathered: Vec<f64>,
+    /// The solved radiance (cell-major, `x[c·M + l]`), every order of scattering.
+    pub radiance: Vec<f64>,
 }
 
 /// The operator of a slab of optical depth `tau` (albedo, Henyey–Greenstein g, beam at
@@ -132,6 +134,7 @@ pub fn solve_slab_with(
             gathered
         },
         op,
+        radiance: x,
     }
 }
 
