@@ -126,15 +126,15 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64, split: usize) ->
             )
         }
     } else if bins >= 384 && split > 1 {
-        "about 3 % per view, image mean within 2 %, too bright (cloud24, g = 0.85, 384 bins, \
-         cells split in 2³, 8 views: 2.9 %, +0.4 … +1.8 %, the same whole; the bins' angular \
+        "about 3 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, cells split \
+         in 2³, 8 views: 2.9 %, too bright by +0.4 … +1.8 %, the same whole; the bins' angular \
          error, falling as the bins narrow: 294 bins +0.4 … +2.3 %, 216 bins +0.8 … +3.2 %)"
             .to_string()
     } else if bins >= 384 {
-        "about 3 % per view, image mean within 2 %, too bright (cloud24, g = 0.85, 384 bins, \
-         8 views: 2.9 %, +0.2 … +1.8 %, the same split in 2³ at 7× the solve; the 192-class \
-         cloud: 3.5 %, −1.7 %): the bins' angular error, falling as the bins narrow (294 bins \
-         +0.4 … +2.3 %, 216 bins +0.8 … +3.2 %)"
+        "about 3 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, 8 views: \
+         2.9 %, too bright by +0.2 … +1.8 %, the same split in 2³ at 7× the solve; the \
+         192-class cloud: 3.5 %, −1.7 %): on the cloud24 the bins' angular error, falling as \
+         the bins narrow (294 bins +0.4 … +2.3 %, 216 bins +0.8 … +3.2 %)"
             .to_string()
     } else {
         format!(
