@@ -1,6 +1,7 @@
 //! Where a thick slab's discrete-ordinates error sits, layer by layer: the higher orders'
 //! source (the final gather's, orders ≥ 2) of each of the top layers against a solve with
-//! every layer split `SLAB_FINE` times, and the source's slope inside the layer three ways —
+//! every layer split `SLAB_FINE` times, the fine solve's profile inside the layer (its top
+//! and bottom sub-layers over the layer's mean), and the source's slope inside the layer three ways —
 //! the fine solve's own (the linear fit that keeps the layer's first moment), the
 //! neighbours' differences the sweep uses (one-sided in the top layer), and Fick's law from
 //! the layer's own net flux (`∇φ = −3 σtr F`).
@@ -88,8 +89,11 @@ fn main() {
         layers * split,
         100.0 * (coarse.r / fine.r - 1.0)
     );
-    println!("| layer | source vs fine | slope: fine | differences | Fick |");
-    println!("|---|---|---|---|---|");
+    println!(
+        "| layer | source / top layer's | source vs fine | fine: top / bottom sub-layer | \
+         slope: fine | differences | Fick |"
+    );
+    println!("|---|---|---|---|---|---|---|");
     // Both solves use unit cubes, so the fine layers' σs (and the density σs·Σ p I Ω) are
     // `split` times smaller for the same radiance.
     let scale = split as f64;
@@ -113,8 +117,11 @@ fn main() {
         };
         let fick = -1.5 * tau_tr * coarse.net_up[k] / coarse.fluence[k];
         println!(
-            "| {k} | {:+.2} % | {:+.3} | {:+.3} | {:+.3} |",
+            "| {k} | {:.1e} | {:+.2} % | {:.2} / {:.2} | {:+.3} | {:+.3} | {:+.3} |",
+            s[k] / s[0],
             100.0 * (s[k] / (scale * mean) - 1.0),
+            sub[0] / mean,
+            sub[split - 1] / mean,
             6.0 * (mean_height - 0.5),
             differences,
             fick
