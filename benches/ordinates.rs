@@ -61,7 +61,7 @@ fn case(dims: [usize; 3]) -> Case {
         irradiance: 1.0,
     }];
     let pass = LightPass::compute(&medium, 0, &lights).unwrap();
-    let external = op.external_density_from_pass(&pass).unwrap();
+    let external = op.first_bounce_density_from_pass(&pass).unwrap();
     eprintln!(
         "{dims:?}: operator + light pass + first-bounce density built in {:.2} s",
         t0.elapsed().as_secs_f64()
@@ -77,7 +77,7 @@ fn case(dims: [usize; 3]) -> Case {
 fn solve(c: &Case) {
     let t0 = Instant::now();
     let mut e = vec![0.0; c.op.len()];
-    c.op.transport(&c.external, &mut e);
+    c.op.transport_external(&c.external, None, &mut e, None);
     let run = c.op.sweep_until_change(&e, TOLERANCE, 1000);
     let (iterations, change) = (run.iterations, run.final_change);
     let secs = t0.elapsed().as_secs_f64();
@@ -85,9 +85,9 @@ fn solve(c: &Case) {
     let (grid, channel) = (c.medium.grid(), &c.medium.channels()[0]);
     let n = grid.cell_count();
     let m = c.op.bins().len();
-    // State: g, E, the previous iterate and the external density (f64 each), plus the
-    // operator's scratch (density and per-piece sweep output).
-    let state = 4 * n * m * 8 + c.op.scratch_bytes();
+    // State: g, E, the previous iterate and the external density (f64 each, per cell with
+    // medium and bin), plus the operator's scratch (density and per-piece sweep output).
+    let state = 4 * c.op.len() * 8 + c.op.scratch_bytes();
     eprintln!(
         "{:?} Gauss–Seidel to {TOLERANCE:e}: {iterations} iterations, {secs:.1} s \
          ({:.2} s/iteration), final change {change:.2e}, energy imbalance {:.2e}, \

@@ -240,19 +240,16 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
             let options =
                 crate::engine::methods::ordinates_options(&scene.solve, &bins, &medium.phase());
             let op = OrdinatesOperator::new(&medium, 0, bins, options)?;
-            // The external density is (scattered light pass) + emission; split the two by
-            // computing it once without emission.
-            let with_emission = op.external_density_from_pass(&light_pass)?;
+            // The source is the scattered light pass transported plus the emission
+            // transported: the two parts, kept apart.
             let scattered = op.first_bounce_density_from_pass(&light_pass)?;
-            let emitted: Vec<f64> = with_emission
-                .iter()
-                .zip(&scattered)
-                .map(|(w, s)| w - s)
-                .collect();
             let mut first_bounce = vec![0.0; op.len()];
             op.transport(&scattered, &mut first_bounce);
+            let emitted: Vec<f64> = (0..medium.grid().cell_count())
+                .map(|i| channel.emission.get(i) as f64)
+                .collect();
             let mut emission_part = vec![0.0; op.len()];
-            op.transport_emission(&emitted, &mut emission_part);
+            op.transport_emission(&emitted, &mut emission_part)?;
             Ok(Family {
                 op: Box::new(op),
                 emission_part,

@@ -90,13 +90,14 @@ const HIERARCHICAL_FIXED_BYTES: u64 = 40 << 20;
 /// `benches/memory.py` and `data/fire-scattering.toml` with the operator counted by its far
 /// links, 0.1 did with the operator per non-empty cell, which was larger on small clouds).
 const HIERARCHICAL_FURTHER_CHANNEL_FRACTION: f64 = 0.25;
-/// Discrete ordinates: per cell and bin, the system's source and the iterate (f64, 16 bytes;
+/// Discrete ordinates: per cell with medium and bin (the state: empty cells carry none), the
+/// system's source and the iterate (f64, 16 bytes;
 /// fitted 18 on the generated clouds of `benches/memory.py`, whose peaks vary by 10 % from
 /// run to run); the iteration's vectors come on top (Gauss–Seidel's one), and a sky's
 /// uncollided light. The sweeps hold one group of bins at a time (per cell, below), and the
 /// solved field is let go as its f32 copy is made.
 const ORDINATES_BYTES_PER_CELL_BIN: u64 = 18;
-/// Discrete ordinates: per cell and bin, the uncollided light of a sky (kept through the
+/// Discrete ordinates: per cell with medium and bin, the uncollided light of a sky (kept through the
 /// solve, added to the solution after).
 const ORDINATES_SKY_BYTES_PER_CELL_BIN: u64 = 8;
 /// Discrete ordinates: what each further channel keeps, per non-empty cell and bin (the
@@ -106,7 +107,7 @@ const ORDINATES_SKY_BYTES_PER_CELL_BIN: u64 = 8;
 const ORDINATES_STORED_BYTES_PER_OCCUPIED_CELL_BIN: u64 = 5;
 const ORDINATES_STORED_BYTES_PER_CELL: u64 = 8;
 /// Discrete ordinates: what the allocator still holds of a channel's solve when the next
-/// channel's begins, per cell and bin. Fitted between two three-channel scenes of
+/// channel's begins, per cell with medium and bin. Fitted between two three-channel scenes of
 /// `benches/memory.py --only discrete-ordinates`: the 32 × 32 × 24 cloud (216 bins) peaks
 /// 40–75 MiB above its one-channel self from run to run (4–7 bytes per cell and bin and
 /// further channel), `data/cloud-sky.toml` within 2 % of the model without this term.
@@ -295,15 +296,17 @@ impl<'a> Occupancy<'a> {
 
     /// The cells of the transport grid at `scale` that the discrete-ordinates scattering
     /// product multiplies each sweep ([`formfactor::ordinates::scattering_product_cells`]):
-    /// those of blocks that hold a scattering cell (σt > 0 and albedo > 0 in any channel).
+    /// those with medium of blocks that hold a scattering cell (σt > 0 and albedo > 0 in any
+    /// channel).
     pub fn ordinates_product_cells(&self, scale: usize) -> usize {
+        let with_medium = self.on_transport_grid(scale, |i| self.occupied[i]);
         let scatters = self.on_transport_grid(scale, |i| {
             self.medium
                 .channels()
                 .iter()
                 .any(|c| c.sigma_t[i] > 0.0 && c.albedo.get(i) > 0.0)
         });
-        formfactor::ordinates::scattering_product_cells(&scatters)
+        formfactor::ordinates::scattering_product_cells(&with_medium, &scatters)
     }
 
     /// Per cell of the transport grid at `scale`: whether any of its data cells is `marked`
@@ -684,9 +687,11 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
         }
         SolveMethod::DiscreteOrdinates => {
             let bins = direction_bins(scene, settings) as u64;
-            let unknowns = s.transport_cells.saturating_mul(bins);
+            // The state is the cells with medium alone; light crosses the empty ones in the
+            // sweeps' per-cell buffers.
+            let unknowns = s.transport_occupied.saturating_mul(bins);
             parts.push(MemoryPart {
-                what: "the discrete-ordinates state (cells × direction bins)",
+                what: "the discrete-ordinates state (cells with medium × direction bins)",
                 bytes: per_channel(
                     unknowns
                         .saturating_mul(ORDINATES_BYTES_PER_CELL_BIN)
@@ -705,14 +710,14 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
             });
             if scene.environment.as_ref().is_some_and(|e| !e.is_dark()) {
                 parts.push(MemoryPart {
-                    what: "the sky's uncollided light (cells × direction bins)",
+                    what: "the sky's uncollided light (cells with medium × direction bins)",
                     bytes: unknowns.saturating_mul(ORDINATES_SKY_BYTES_PER_CELL_BIN),
                 });
             }
             let vectors = work_vectors(&settings.iteration, settings.max_iterations);
             if vectors > 0 {
                 parts.push(MemoryPart {
-                    what: "the iteration's vectors (cells × direction bins each)",
+                    what: "the iteration's vectors (cells with medium × direction bins each)",
                     bytes: unknowns.saturating_mul(8).saturating_mul(vectors),
                 });
             }
@@ -741,7 +746,7 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
         // unknown each); the patches hold a few numbers per channel.
         let unknowns = match settings.method {
             SolveMethod::DiscreteOrdinates => s
-                .transport_cells
+                .transport_occupied
                 .saturating_mul(direction_bins(scene, settings) as u64),
             SolveMethod::Zonal | SolveMethod::ZonalHierarchical => s.transport_cells,
             SolveMethod::None | SolveMethod::SingleScatter | SolveMethod::TwoPass => 0,
@@ -1049,12 +1054,21 @@ mod tests {
         let small = scene("discrete-ordinates", 24, 16);
         let more_bins = scene("discrete-ordinates", 384, 16);
         let more_cells = scene("discrete-ordinates", 24, 32);
-        // The state is cells × bins: 16× the bins or 8× the cells add about that much state.
         let state = |s: &Scene| {
             let estimate = solve_peak(s, &s.solve, &Occupancy::of(&s.medium));
             estimate.total() - estimate.parts()[0].bytes
         };
-        assert!(state(&more_bins) > 10 * state(&small));
+        // The state is the cells with medium × bins, at least the source and the iterate (f64
+        // each): 16× the bins add that much per cell with medium, and the empty cells (88 % of
+        // the cloud's) none.
+        let with_medium = Occupancy::of(&small.medium).at(1) as u64;
+        assert!(with_medium > 0 && with_medium < small.medium.grid().cell_count() as u64 / 4);
+        let added = state(&more_bins) - state(&small);
+        let cell_bins = with_medium * (384 - 24);
+        assert!(
+            (16 * cell_bins..=40 * cell_bins).contains(&added),
+            "{added} bytes for {cell_bins} cell-bins with medium"
+        );
         assert!(state(&more_cells) > 6 * state(&small));
         // Exact zonal grows with the square of the non-empty cells.
         let z16 = scene("zonal", 24, 16);
@@ -1067,8 +1081,10 @@ mod tests {
                 source: LimitSource::Given,
             })
         };
-        assert!(check_solve(&more_bins, &more_bins.solve, limit(peak(&more_bins))).is_ok());
-        let err = check_solve(&more_bins, &more_bins.solve, limit(peak(&small)))
+        // (On 32³ cells, where the state is more than the process.)
+        let big = scene("discrete-ordinates", 384, 32);
+        assert!(check_solve(&big, &big.solve, limit(peak(&big))).is_ok());
+        let err = check_solve(&big, &big.solve, limit(peak(&more_cells)))
             .unwrap_err()
             .to_string();
         assert!(

@@ -712,16 +712,25 @@ pub fn solve_ordinates(
     // neighbours' differences (thick cells along an oblique beam).
     let beams = op.beam_profiles_from_pass(light_pass)?;
     let mut source = vec![0.0; op.len()];
+    // The fluence of the source and of any uncollided inflow at every cell, the empty ones
+    // too (which carry no state): with `K I`'s, the export's fluence there.
+    let mut fixed_fluence = vec![0.0; medium.grid().cell_count()];
     match emitters {
         Some(pass) => {
             op.add_collision_density(pass.fluence(), pass.current(), &mut external)?;
-            op.transport_first_bounce(&external, &beams, &mut source);
+            op.transport_first_bounce(&external, &beams, &mut source, Some(&mut fixed_fluence));
         }
         None => {
-            op.transport_external(&external, Some(&beams), &mut source);
+            op.transport_external(
+                &external,
+                Some(&beams),
+                &mut source,
+                Some(&mut fixed_fluence),
+            );
         }
     }
     drop(beams);
+    let mut inflow_fluence: Option<Vec<f64>> = None;
     let environment = environment.filter(|e| !e.is_dark());
     // A ground's last round gathers the final bounce toward every bin already (what the
     // ground sees): the render's higher orders are that, not a second gather.
@@ -741,11 +750,12 @@ pub fn solve_ordinates(
                     let along = environment_bin_radiance(env, op.bins(), c, channels);
                     let psi = op.inflow_radiance(&along)?;
                     let mut scattered = vec![0.0; op.len()];
-                    op.apply(&psi, &mut scattered);
+                    op.apply(&psi.radiance, &mut scattered);
                     for (s, k) in source.iter_mut().zip(&scattered) {
                         *s += k;
                     }
-                    Some(psi)
+                    inflow_fluence = Some(psi.fluence);
+                    Some(psi.radiance)
                 }
                 None => None,
             };
@@ -773,20 +783,16 @@ pub fn solve_ordinates(
             let mut round =
                 |ground_source: &[f32], initial: Option<&[f64]>, settings: &SolveSettings| {
                     let looked_up = gr.lookup(ground_source.to_vec())?;
-                    let mut field = vec![0.0; op.len()];
-                    field.par_chunks_mut(m).enumerate().for_each(|(cell, f)| {
-                        let x = grid.cell_center(cell);
-                        for (l, fl) in f.iter_mut().enumerate() {
-                            let d = centres[l];
-                            *fl = if d.z > 0.0 {
-                                looked_up.sent_along(x, d, 0)
-                            } else {
-                                along[l]
-                            };
+                    let psi = op.inflow_field(|cell, l| {
+                        let d = centres[l];
+                        if d.z > 0.0 {
+                            looked_up.sent_along(grid.cell_center(cell), d, 0)
+                        } else {
+                            along[l]
                         }
                     });
-                    let psi = op.inflow_field(&field)?;
-                    drop(field);
+                    inflow_fluence = Some(psi.fluence);
+                    let psi = psi.radiance;
                     let mut s = vec![0.0; op.len()];
                     op.apply(&psi, &mut s);
                     for (s, b) in s.iter_mut().zip(&source) {
@@ -807,8 +813,11 @@ pub fn solve_ordinates(
                     // `external` holds no emission (it is transported apart, or replaced by
                     // the emitters' first collision).
                     let e_scat = gr.scattered_irradiance(medium, c, &|cell, travel| {
-                        let i = cell * m + bins.bin_of(travel);
-                        (toward[i] + external[i]).max(0.0) + channel.emission.get(cell) as f64
+                        let scattered = op.state_row(cell).map_or(0.0, |k| {
+                            let i = k * m + bins.bin_of(travel);
+                            (toward[i] + external[i]).max(0.0)
+                        });
+                        scattered + channel.emission.get(cell) as f64
                     })?;
                     let next = gr.radiance(Some(&e_scat));
                     gathered = Some(toward);
@@ -828,12 +837,24 @@ pub fn solve_ordinates(
     });
     // The emission's own first scattering is not among them: the render draws it in the
     // view's own direction ([`emitter_beam`]), as it draws the lights'.
-    // Of the bins' radiance only its fluence is kept (the export's); the higher orders as
+    // Of the bins' radiance only its fluence is kept (the export's; at the empty cells the
+    // source's, the inflow's and one more scattering's, `I = F + K I`); the higher orders as
     // f32, for the cells that scatter (the rest are zeros), after the f64 radiance is let go.
-    let fluence: Vec<f32> = op.fluence(&radiance).iter().map(|&v| v as f32).collect();
+    if let Some(inflow) = &inflow_fluence {
+        for (f, i) in fixed_fluence.iter_mut().zip(inflow) {
+            *f += i;
+        }
+    }
+    let fluence: Vec<f32> = op
+        .fluence_everywhere(&radiance, &fixed_fluence)
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
     drop(radiance);
-    let higher_order = CellRows::from_dense(op.grid().cell_count(), op.bins().len(), |i| {
-        higher[i].max(0.0) as f32
+    let m = op.bins().len();
+    let higher_order = CellRows::from_dense(op.grid().cell_count(), m, |i| {
+        op.state_row(i / m)
+            .map_or(0.0, |k| higher[k * m + i % m].max(0.0) as f32)
     })
     .context("the higher orders' rows")?;
     drop(higher);

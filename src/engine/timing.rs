@@ -497,16 +497,18 @@ pub fn solve_time_at_speed(
                 });
             }
             let product_cells = occupancy.ordinates_product_cells(scale) as f64 * parts_per_cell;
-            let uncached = (cell_bins / ORDINATES_CACHED_CELL_BINS).min(1.0);
-            let per_sweep = cell_bins
-                * (ORDINATES_SWEEP_SECONDS_PER_CELL_BIN
-                    + uncached * ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN)
+            // The state (the iterate and the source) is the cells with medium; the sweeps
+            // cross every cell.
+            let state_cell_bins = transport_occupied * bins;
+            let uncached = (state_cell_bins / ORDINATES_CACHED_CELL_BINS).min(1.0);
+            let per_sweep = cell_bins * ORDINATES_SWEEP_SECONDS_PER_CELL_BIN
+                + state_cell_bins * uncached * ORDINATES_UNCACHED_SECONDS_PER_CELL_BIN
                 + product_cells
                     * bins
                     * bins.sqrt()
                     * ORDINATES_PRODUCT_SECONDS_PER_CELL_BIN_ROOT_BIN;
             let vector_work = iterations.map_or(0.0, |n| {
-                n as f64 * krylov_vector_passes(&settings.iteration) * cell_bins
+                n as f64 * krylov_vector_passes(&settings.iteration) * state_cell_bins
             }) * KRYLOV_SECONDS_PER_ENTRY_PASS;
             parts.push(TimePart {
                 what: iterations_label,
@@ -722,7 +724,7 @@ fn probe_iterations(
     } else {
         let pass = medium::light_pass::LightPass::compute(coarse, c, &scene.lights).ok()?;
         let density = op.first_bounce_density_from_pass(&pass).ok()?;
-        op.transport_external(&density, None, &mut external);
+        op.transport_external(&density, None, &mut external, None);
     }
     let options = solver::SolveOptions {
         method,

@@ -712,16 +712,16 @@ bins = 384
     assert!(info.status.success(), "{}", stderr(&info));
     let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
     let peak = info["peak_memory_bytes"].as_u64().unwrap();
-    // 82,944 cells × 384 bins of f64 state: hundreds of megabytes (past the limit below),
-    // against the medium's one.
-    assert!(peak > 512 << 20, "{info}");
+    // The cloud's cells with medium (about a tenth of 82,944) × 384 bins of f64 state:
+    // over a hundred megabytes (past the limit below), against the medium's one.
+    assert!(peak > 128 << 20, "{info}");
 
     let out = dir.path().join("big.volrad");
     let started = std::time::Instant::now();
     let o = volrad(&[
         "-q",
         "--max-memory",
-        "512M",
+        "128M",
         "solve",
         s(&scene),
         "-o",
@@ -759,7 +759,7 @@ bins = 384
     ]);
     let fewer: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(
-        fewer["peak_memory_bytes"].as_u64().unwrap() <= 512 << 20,
+        fewer["peak_memory_bytes"].as_u64().unwrap() <= 128 << 20,
         "{fewer}"
     );
 

@@ -100,18 +100,19 @@ fn solve(medium: &Medium, op: &OrdinatesOperator) {
         irradiance: 1.0,
     }];
     let pass = LightPass::compute(medium, 0, &lights).unwrap();
-    let external = op.external_density_from_pass(&pass).unwrap();
+    let external = op.first_bounce_density_from_pass(&pass).unwrap();
     let mut e = vec![0.0; op.len()];
-    op.transport(&external, &mut e);
+    op.transport_external(&external, None, &mut e, None);
     let run = op.sweep_until_change(&e, 1e-5, 1000);
     let iterations = run.iterations;
     let secs = t0.elapsed().as_secs_f64();
     let balance = op.energy_balance(&run.solution, &external, None);
-    let (n, m) = (grid.cell_count(), op.bins().len());
+    // Per cell with medium and bin: e, g, the change's copy and the external density.
+    let (n, m) = (op.state_cells().len(), op.bins().len());
     let state = 4 * n * m * 8 + op.scratch_bytes();
     println!(
         "{:?} Gauss–Seidel to 1e-5: {iterations} iterations, {secs:.1} s ({:.2} s/iteration), \
-         energy imbalance {:.2e}, state {:.0} MB ({:.1} bytes per cell per bin)",
+         energy imbalance {:.2e}, state {:.0} MB ({:.1} bytes per cell with medium per bin)",
         grid.dims,
         secs / iterations as f64,
         balance.relative_imbalance(),

@@ -4,7 +4,8 @@
 //! Built column by column: for each piece of each bin and each source cell, a unit source is
 //! propagated through the downstream box of that cell only (not a whole-grid sweep), giving
 //! the transport "form factors" `F_{c l, c' l}`; the matrix is then
-//! `K[(c,l), (c',j)] = F_{c l, c' l} σs_{c'} P_lj Ω_j`. Vacuum sides only. With a linear
+//! `K[(c,l), (c',j)] = F_{c l, c' l} σs_{c'} P_lj Ω_j`, over the operator's state cells
+//! (those with medium, [`OrdinatesOperator::state_cells`]). Vacuum sides only. With a linear
 //! source the unit source's slopes reach its neighbours, so the box starts one cell upstream.
 
 use solver::operator::{RowAccess, TransportOperator};
@@ -28,10 +29,11 @@ impl AssembledOrdinates {
         let [nx, ny, nz] = grid.dims;
         let n = grid.cell_count();
         let m = op.bins().len();
-        if n * m > MAX_ASSEMBLED_UNKNOWNS {
+        let unknowns = op.len();
+        if unknowns > MAX_ASSEMBLED_UNKNOWNS {
             return Err(OrdinatesError::Length {
                 what: "assembled unknowns (cells × bins)",
-                got: n * m,
+                got: unknowns,
                 expected: MAX_ASSEMBLED_UNKNOWNS,
             });
         }
@@ -48,7 +50,7 @@ impl AssembledOrdinates {
         let sigma_s = op.sigma_s();
         let matrix = op.phase_matrix();
         let omega = op.bins().solid_angles();
-        let mut tri = TriMat::new((n * m, n * m));
+        let mut tri = TriMat::new((unknowns, unknowns));
         // Each cell's outflow through its downstream x, y and z faces (each face's moments),
         // and its response.
         let mut out = vec![[[0.0f64; 3]; 3]; n];
@@ -64,6 +66,7 @@ impl AssembledOrdinates {
                     continue;
                 }
                 let [ci, cj, ck] = grid.coords(src);
+                let src_row = op.state_row(src).expect("a scattering cell carries state");
                 // The box's upstream corner: the source cell, or with a linear source its
                 // upstream neighbours, whose slopes it changes.
                 let first = |v: usize, len: usize, fwd: bool| {
@@ -127,10 +130,10 @@ impl AssembledOrdinates {
                         for &i in &xs {
                             let c = grid.index(i, j, k);
                             let f = piece.weight * response[c];
-                            if f != 0.0 {
+                            if let (Some(row), true) = (op.state_row(c), f != 0.0) {
                                 for (jb, &omega_jb) in omega.iter().enumerate() {
                                     let v = f * sigma_s_src * matrix.get(l, jb) * omega_jb;
-                                    tri.add_triplet(c * m + l, src * m + jb, v);
+                                    tri.add_triplet(row * m + l, src_row * m + jb, v);
                                 }
                             }
                             out[c] = [[0.0; 3]; 3];

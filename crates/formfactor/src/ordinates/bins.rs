@@ -27,13 +27,13 @@ pub const AUTO_BINS_ISOTROPIC_BELOW: f64 = 0.3;
 /// +3.1 % with 216 and 7.6 %, +8.1 % with 96).
 pub const AUTO_BINS_MODERATE_UP_TO: f64 = 0.7;
 
-/// The largest state `cells × bins` [`auto_bin_count`] grows the bins to: 80 Mi cell-bins,
-/// about 2 GiB of solver state for one channel and 3.8 GiB for three under a sky (24 bytes
-/// per cell-bin while one channel iterates, 8 kept per channel solved, 8 more for a sky's
-/// light). The 64 × 64 × 48 transport grid of the large samples takes its 384 bins (75.5 M;
-/// 52 s and 2.2 GiB for the 192 × 192 × 144 cloud, docs/performance.md); a grid of
-/// 96 × 96 × 72 keeps 96. Past it the bins stay where the state fits (never under 96,
-/// whose cost the memory check reports).
+/// The most transport cells × bins [`auto_bin_count`] grows the bins to: 80 Mi cell-bins,
+/// what every sweep crosses (the solver state is the cells with medium × bins,
+/// [`OrdinatesOperator::state_cells`](super::OrdinatesOperator::state_cells): a cloud's is a
+/// tenth of this). The 64 × 64 × 48 transport grid of the large samples takes its 384 bins
+/// (75.5 M; 78 s and 516 MiB for the 192 × 192 × 144 cloud, docs/performance.md); a grid of
+/// 96 × 96 × 72 keeps 96. Past it the bins stay where the sweeps' work stays bounded (never
+/// under 96, whose cost the memory check reports).
 pub const AUTO_BINS_MAX_CELL_BINS: usize = 80 << 20;
 
 /// The bin count volrad chooses for a medium whose phase function has mean cosine

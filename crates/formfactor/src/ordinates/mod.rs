@@ -26,7 +26,8 @@ pub use phase_matrix::PhaseMatrix;
 pub use sweep::{
     default_forward_truncation_degrees, exponential_half_change, forward_peak_fraction,
     forward_truncation_fraction, scattering_product_cells, BeamLight, BeamProfiles, EnergyBalance,
-    OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve, MAX_TRANSPORT_REFINEMENT,
+    OrdinatesOperator, OrdinatesOptions, SweepEnergy, SweepSolve, Uncollided,
+    MAX_TRANSPORT_REFINEMENT,
 };
 
 /// What was wrong with an ordinates set-up.

@@ -42,7 +42,9 @@ use super::phase_matrix::{bin_averaged_phase, default_quadrature, PhaseMatrix};
 use super::OrdinatesError;
 
 mod beams;
+mod state;
 pub use beams::{exponential_half_change, BeamLight, BeamProfiles};
+use state::StateCells;
 
 /// Largest transport refinement (sub-cells per cell side of the sweep; a scene's
 /// `[solve] transport_refinement`).
@@ -1094,21 +1096,25 @@ const TRANSPOSE_BLOCK: usize = 64;
 const SCATTER_BLOCK: usize = 512;
 
 /// The cells the scattering product multiplies each sweep (`M²` multiply-adds each), given
-/// which cells scatter (cell index order): every cell of a block of [`SCATTER_BLOCK`] that
-/// holds one. Blocks of empty or absorbing cells are skipped; a medium that scatters
-/// everywhere (a shield, a uniform block) costs its every cell.
-pub fn scattering_product_cells(scatters: &[bool]) -> usize {
-    scatters
+/// which cells hold medium (the state's) and which scatter (cell index order): every cell
+/// with medium of a block of [`SCATTER_BLOCK`] cells that holds a scattering one. Blocks of
+/// empty or absorbing cells are skipped; a medium that scatters everywhere (a shield, a
+/// uniform block) costs its every cell.
+pub fn scattering_product_cells(medium: &[bool], scatters: &[bool]) -> usize {
+    assert_eq!(medium.len(), scatters.len());
+    medium
         .chunks(SCATTER_BLOCK)
-        .filter(|block| block.iter().any(|&s| s))
-        .map(<[bool]>::len)
+        .zip(scatters.chunks(SCATTER_BLOCK))
+        .filter(|(_, s)| s.iter().any(|&s| s))
+        .map(|(m, _)| m.iter().filter(|&&m| m).count())
         .sum()
 }
 
-/// Where [`OrdinatesOperator::scatter_into`] writes: `S[c·M + l]` or `S[l·N + c]`.
+/// Where [`OrdinatesOperator::scatter_into`] writes: the state's rows `S[k·M + l]`, or
+/// every cell bin-major, `S[l·stride + c]`.
 #[derive(Clone, Copy, PartialEq)]
 enum Layout {
-    CellMajor,
+    Rows,
     BinMajor,
 }
 
@@ -1176,6 +1182,9 @@ fn piece_classes(pieces: &[Piece], face_coupling: bool) -> (Vec<usize>, Vec<usiz
 /// once; the fields are private, so they stay consistent.
 pub struct OrdinatesOperator {
     grid: Grid,
+    /// The cells that carry unknowns (σt > 0): the state vectors' rows, `S[k·M + l]` for
+    /// row `k`'s cell.
+    state: StateCells,
     sigma_t: Vec<f64>,
     sigma_s: Vec<f64>,
     /// The δ-M fraction `f` the sweep treats as unscattered (`σt* = σt − f σs`).
@@ -1414,8 +1423,17 @@ impl OrdinatesOperator {
         } else {
             (Vec::new(), Vec::new(), Vec::new())
         };
+        let state = StateCells::new(&sigma_t, SCATTER_BLOCK).ok_or_else(|| {
+            OrdinatesError::Medium(format!("{n} cells: more than a 32-bit index reaches"))
+        })?;
+        tracing::debug!(
+            state_cells = state.len(),
+            cells = n,
+            "discrete-ordinates state: the cells with medium"
+        );
         Ok(OrdinatesOperator {
             grid,
+            state,
             sigma_t,
             sigma_s,
             truncation: f,
@@ -1445,6 +1463,19 @@ impl OrdinatesOperator {
 
     pub fn grid(&self) -> &Grid {
         &self.grid
+    }
+
+    /// The cells that carry unknowns, in cell order: those with medium (σt > 0). Every
+    /// cells × bins vector of this operator (a solution, a density, a transported field)
+    /// holds their rows, `v[k·M + l]` for bin `l` of cell `state_cells()[k]`; light crosses
+    /// the empty cells in the sweeps alone.
+    pub fn state_cells(&self) -> &[u32] {
+        self.state.cells()
+    }
+
+    /// Cell `c`'s row in the operator's vectors, if it carries state.
+    pub fn state_row(&self, c: usize) -> Option<usize> {
+        self.state.row(c)
     }
 
     pub fn bins(&self) -> &DirectionBins {
@@ -1652,24 +1683,27 @@ impl OrdinatesOperator {
             + self.source_function_scale.len() * 8
             + self.cell_level.len() * 4
             + self.level_tau.len() * 8
+            + self.state.bytes()
     }
 
-    /// Scattering density `S[c·M + l] = σs_c Σ_j P_lj x_j Ω_j` (radiance per length).
+    /// Scattering density `S[k·M + l] = σs Σ_j P_lj x_j Ω_j` of each state row (radiance
+    /// per length).
     pub fn scatter_density(&self, x: &[f64], density: &mut [f64]) {
         let m = self.bins.len();
         assert!(
             x.len() == self.len() && density.len() == self.len(),
-            "scatter_density: vectors must have cells × bins entries"
+            "scatter_density: vectors must have state cells × bins entries"
         );
-        self.scatter_into(&self.scatter, x, density, Layout::CellMajor, 0..m);
+        self.scatter_into(&self.scatter, x, density, Layout::Rows, 0..m);
     }
 
     /// Scattering densities of `bins` in `layout`, by blocks of cells: one GEMM
-    /// `X_block (cells × M) · Wᵀ (M × bins)` per block, then the rows scaled by σs. Blocks
-    /// without scattering cells are written as zeros without the product. `weights`
-    /// (`W[l·M + j]`, M × M row-major) is the solve's `P_lj Ω_j` (`self.scatter`) or the final
-    /// gather's weights ([`gather_density`](Self::gather_density)). Cell-major `dst` holds
-    /// every bin; bin-major `dst` holds `bins` alone, from its first column.
+    /// `X_block (rows × M) · Wᵀ (M × bins)` per block of the state's rows, then the rows
+    /// scaled by σs. Blocks without scattering cells are written as zeros without the
+    /// product. `weights` (`W[l·M + j]`, M × M row-major) is the solve's `P_lj Ω_j`
+    /// (`self.scatter`) or the final gather's weights ([`gather_density`](Self::gather_density)).
+    /// `Rows` `dst` holds every bin of the state's rows; bin-major `dst` holds `bins` alone,
+    /// from its first column, for every cell (zero where no state is).
     fn scatter_into(
         &self,
         weights: &[f64],
@@ -1680,152 +1714,165 @@ impl OrdinatesOperator {
     ) {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        debug_assert!(
-            x.len() == n * m && bins.start < bins.end && bins.end <= m && weights.len() == m * m
+        assert!(
+            x.len() == self.len()
+                && bins.start < bins.end
+                && bins.end <= m
+                && weights.len() == m * m
         );
         assert!(
             dst.len()
                 >= match layout {
                     Layout::BinMajor => bins.len() * self.stride,
-                    Layout::CellMajor => n * m,
+                    Layout::Rows => self.len(),
                 }
         );
         let first_column = match layout {
             Layout::BinMajor => bins.start,
-            Layout::CellMajor => 0,
+            Layout::Rows => 0,
         };
         // Bin-major densities are the sweeps' input: the source function with a linear source.
         let scale = match layout {
             Layout::BinMajor => self.sweep_scale(),
-            Layout::CellMajor => &self.sigma_s,
+            Layout::Rows => &self.sigma_s,
         };
         let base = SharedMut(dst.as_mut_ptr());
-        let blocks = n.div_ceil(SCATTER_BLOCK);
-        (0..blocks).into_par_iter().for_each(|b| {
-            let c0 = b * SCATTER_BLOCK;
-            let c1 = (c0 + SCATTER_BLOCK).min(n);
-            // SAFETY: `x` has N·M cell-major elements, `dst` is large enough for `layout`
-            // (asserted above), and block b is this task's alone.
-            unsafe {
-                self.scatter_block(
-                    (weights, scale),
-                    x.as_ptr(),
-                    Layout::CellMajor,
-                    (base, layout, first_column),
-                    bins.clone(),
-                    c0..c1,
-                )
-            };
-        });
+        (0..n.div_ceil(SCATTER_BLOCK))
+            .into_par_iter()
+            .for_each(|b| {
+                // SAFETY: `x` has the state's rows (asserted), `dst` is large enough for
+                // `layout` (asserted above), and block b is this task's alone.
+                unsafe {
+                    self.scatter_block(
+                        (weights, scale),
+                        x.as_ptr(),
+                        (base, layout, first_column),
+                        bins.clone(),
+                        b,
+                    )
+                };
+            });
     }
 
-    /// `(row, column)` strides of a cell × bin array in `layout`.
-    fn strides(&self, layout: Layout) -> (usize, usize) {
-        match layout {
-            Layout::CellMajor => (self.bins.len(), 1),
-            Layout::BinMajor => (1, self.stride),
-        }
-    }
-
-    /// [`scatter_into`](Self::scatter_into) for the cells `cells` of `x` (laid out as
-    /// `x_layout`), written into `dst`: `(pointer, layout, the bin of its first column)`.
+    /// [`scatter_into`](Self::scatter_into) for the cells of block `block` (of
+    /// [`SCATTER_BLOCK`] cells) from the state rows `x`, written into `dst`: `(pointer,
+    /// layout, the bin of its first column)`.
     ///
     /// # Safety
-    /// `weights` must hold M × M values, `x` must point to a whole cell × bin array in its
-    /// layout, `dst` to one whose columns (bin-major) start at its first column's bin and
-    /// reach past `bins`, and no one else may write `x` for these cells, or access the elements
-    /// (c, l) of `dst` with `c` in `cells` and `l` in `bins`, while this runs.
+    /// `weights` must hold M × M values, `x` must point to the state's rows (`len()`
+    /// values), `dst` to a whole array in `layout` whose columns (bin-major) start at its
+    /// first column's bin and reach past `bins`, and no one else may write `x` for these
+    /// cells, or access the elements (cell or row of this block, `l` in `bins`) of `dst`,
+    /// while this runs.
     unsafe fn scatter_block(
         &self,
         (weights, scale): (&[f64], &[f64]),
         x: *const f64,
-        x_layout: Layout,
         (dst, layout, first_column): (SharedMut, Layout, usize),
         bins: std::ops::Range<usize>,
-        cells: std::ops::Range<usize>,
+        block: usize,
     ) {
         let m = self.bins.len();
-        let (rsa, csa) = self.strides(x_layout);
-        let (rsc, csc) = self.strides(layout);
+        let rows = self.state.rows_of_block(block);
+        let cells = self.state.cells_of_block(block);
+        let row_cells = &self.state.cells()[rows.clone()];
+        let scatters = row_cells.iter().any(|&c| scale[c as usize] != 0.0);
         debug_assert!(bins.start >= first_column);
-        let at = |c: usize, l: usize| dst.ptr().add(c * rsc + (l - first_column) * csc);
-        let ss = &scale[cells.clone()];
-        if ss.iter().any(|&v| v != 0.0) {
+        let product = |out: *mut f64, rsc: usize, csc: usize| {
             matrixmultiply::dgemm(
-                cells.len(),
+                rows.len(),
                 m,
                 bins.len(),
                 1.0,
-                x.add(cells.start * rsa),
-                rsa as isize,
-                csa as isize,
+                x.add(rows.start * m),
+                m as isize,
+                1,
                 weights.as_ptr().add(bins.start * m),
                 1,
                 m as isize,
                 0.0,
-                at(cells.start, bins.start),
+                out,
                 rsc as isize,
                 csc as isize,
-            );
-            for l in bins {
-                for (c, &sc) in cells.clone().zip(ss) {
-                    *at(c, l) *= sc;
+            )
+        };
+        match layout {
+            Layout::Rows => {
+                let at = |k: usize, l: usize| dst.ptr().add(k * m + l - first_column);
+                if scatters {
+                    product(at(rows.start, bins.start), m, 1);
+                }
+                for (k, &c) in rows.zip(row_cells) {
+                    for l in bins.clone() {
+                        *at(k, l) = if scatters {
+                            *at(k, l) * scale[c as usize]
+                        } else {
+                            0.0
+                        };
+                    }
                 }
             }
-        } else {
-            for l in bins {
-                for c in cells.clone() {
-                    *at(c, l) = 0.0;
+            Layout::BinMajor => {
+                let column = |l: usize| dst.ptr().add((l - first_column) * self.stride);
+                if scatters {
+                    // The product's rows land packed from the block's first cell, then
+                    // move out to their cells from the last: a row's cell is never before
+                    // its packed place, nor at a packed place not yet read.
+                    product(column(bins.start).add(cells.start), 1, self.stride);
+                }
+                for l in bins {
+                    let col = column(l);
+                    if scatters {
+                        for (i, &c) in row_cells.iter().enumerate().rev() {
+                            let c = c as usize;
+                            *col.add(c) = *col.add(cells.start + i) * scale[c];
+                        }
+                    }
+                    for c in cells.clone() {
+                        if !scatters || self.state.row(c).is_none() {
+                            *col.add(c) = 0.0;
+                        }
+                    }
                 }
             }
         }
     }
 
-    /// Copies the columns `bins` of cell-major `src` (`N·M`) into bin-major `dst` (columns
-    /// `stride` apart, the first `bins.start`'s), by blocks of cells so that both sides
-    /// stream.
+    /// Copies the columns `bins` of the state rows `src` into bin-major `dst` (columns
+    /// `stride` apart, the first `bins.start`'s; zero at cells without state), by blocks of
+    /// cells so that both sides stream.
     fn cells_to_bins(&self, src: &[f64], bins: std::ops::Range<usize>, dst: &mut [f64]) {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        assert!(src.len() == n * m && bins.end <= m && dst.len() >= bins.len() * self.stride);
+        assert!(src.len() == self.len() && bins.end <= m && dst.len() >= bins.len() * self.stride);
         let base = SharedMut(dst.as_mut_ptr());
-        src.par_chunks(m * TRANSPOSE_BLOCK)
-            .enumerate()
-            .for_each(|(b, rows)| {
-                let c0 = b * TRANSPOSE_BLOCK;
+        (0..n.div_ceil(SCATTER_BLOCK))
+            .into_par_iter()
+            .for_each(|b| {
+                let rows = self.state.rows_of_block(b);
+                let row_cells = &self.state.cells()[rows.clone()];
                 for l in bins.clone() {
                     let column = (l - bins.start) * self.stride;
-                    for (i, row) in rows.chunks(m).enumerate() {
-                        // SAFETY: inside `dst` (asserted); block b's cells are this task's.
-                        unsafe { *base.ptr().add(column + c0 + i) = row[l] };
+                    // SAFETY: inside `dst` (asserted); block b's cells are this task's.
+                    unsafe {
+                        for c in self.state.cells_of_block(b) {
+                            *base.ptr().add(column + c) = 0.0;
+                        }
+                        for (k, &c) in rows.clone().zip(row_cells) {
+                            *base.ptr().add(column + c as usize) = src[k * m + l];
+                        }
                     }
                 }
             });
     }
 
-    /// The external density: isotropic emission `e` plus the first-bounce density
-    /// `σs p̄_l(d) irradiance` of each light (`lights`: flow direction, per-cell mean
-    /// `E·T_L`). Directional lights use exact bin averages `p̄_l(d)`.
-    pub fn external_density(
-        &self,
-        emission: Option<&[f64]>,
-        lights: &[(DVec3, &[f64])],
-    ) -> Result<Vec<f64>, OrdinatesError> {
+    /// The lights' first-bounce density `σs p̄_l(d) irradiance` (`lights`: flow direction,
+    /// per-cell mean `E·T_L`), the state's rows. Directional lights use exact bin averages
+    /// `p̄_l(d)`. (The channel's emission is the operator's own:
+    /// [`transport_external`](Self::transport_external) sweeps it.)
+    pub fn external_density(&self, lights: &[(DVec3, &[f64])]) -> Result<Vec<f64>, OrdinatesError> {
         let n = self.grid.cell_count();
-        let m = self.bins.len();
-        let mut density = vec![0.0; n * m];
-        if let Some(e) = emission {
-            if e.len() != n {
-                return Err(OrdinatesError::Length {
-                    what: "emission",
-                    got: e.len(),
-                    expected: n,
-                });
-            }
-            for (d, &ec) in density.chunks_mut(m).zip(e) {
-                d.fill(ec);
-            }
-        }
+        let mut density = vec![0.0; self.len()];
         for &(dir, irradiance) in lights {
             if irradiance.len() != n {
                 return Err(OrdinatesError::Length {
@@ -1840,7 +1887,7 @@ impl OrdinatesOperator {
                 dir,
                 self.options.first_bounce_quadrature,
             );
-            density.par_chunks_mut(m).enumerate().for_each(|(c, d)| {
+            self.for_each_row(&mut density, |c, d| {
                 let w = self.sigma_s[c] * irradiance[c];
                 if w != 0.0 {
                     for (dl, p) in d.iter_mut().zip(&pbar) {
@@ -1852,22 +1899,24 @@ impl OrdinatesOperator {
         Ok(density)
     }
 
-    /// [`external_density`](Self::external_density) from a light pass (which must be for
-    /// this operator's grid) and the channel's emission. Point and spot lights use `p(ω_l·d)`
-    /// at bin centres for the direction `d` from the light to each cell centre, renormalised
-    /// per cell (a bin-centre approximation).
-    pub fn external_density_from_pass(&self, pass: &LightPass) -> Result<Vec<f64>, OrdinatesError> {
-        self.density_from_pass(pass, Some(&self.emission))
+    /// `f(cell, bins)` for each row of a state vector, in parallel.
+    fn for_each_row(&self, v: &mut [f64], f: impl Fn(usize, &mut [f64]) + Sync) {
+        let cells = self.state.cells();
+        v.par_chunks_mut(self.bins.len())
+            .zip(cells)
+            .for_each(|(d, &c)| f(c as usize, d));
     }
 
-    /// The first-bounce part of
-    /// [`external_density_from_pass`](Self::external_density_from_pass): the light pass
-    /// scattered once, without the emission.
+    /// The lights' first-bounce density from a light pass (which must be for this
+    /// operator's grid), the state's rows: [`external_density`](Self::external_density) for
+    /// directional lights; point and spot lights use `p(ω_l·d)` at bin centres for the
+    /// direction `d` from the light to each cell centre, renormalised per cell (a bin-centre
+    /// approximation).
     pub fn first_bounce_density_from_pass(
         &self,
         pass: &LightPass,
     ) -> Result<Vec<f64>, OrdinatesError> {
-        self.density_from_pass(pass, None)
+        self.density_from_pass(pass)
     }
 
     /// That `pass` is of this operator's grid and each of its fields holds a cell irradiance
@@ -1887,11 +1936,7 @@ impl OrdinatesOperator {
         }
     }
 
-    fn density_from_pass(
-        &self,
-        pass: &LightPass,
-        emission: Option<&[f64]>,
-    ) -> Result<Vec<f64>, OrdinatesError> {
+    fn density_from_pass(&self, pass: &LightPass) -> Result<Vec<f64>, OrdinatesError> {
         let m = self.bins.len();
         self.check_pass(pass)?;
         let mut directional = Vec::new();
@@ -1909,14 +1954,14 @@ impl OrdinatesOperator {
                 directional.push((direction, irr.as_slice()));
             }
         }
-        let mut density = self.external_density(emission, &directional)?;
+        let mut density = self.external_density(&directional)?;
         let omega = self.bins.solid_angles();
         let centres = self.bins.centres();
         for (f, irr) in pass.fields.iter().zip(&irr_store) {
             if matches!(f.light, Light::Directional { .. }) {
                 continue;
             }
-            density.par_chunks_mut(m).enumerate().for_each(|(c, d)| {
+            self.for_each_row(&mut density, |c, d| {
                 let w = self.sigma_s[c] * irr[c];
                 if w == 0.0 {
                     return;
@@ -1934,7 +1979,7 @@ impl OrdinatesOperator {
     }
 
     /// Adds the first-collision density of uncollided light with scalar flux `fluence` and net
-    /// flux vector `current` per cell (an emitter pass) to the cell-major `density`. The
+    /// flux vector `current` per cell (an emitter pass) to `density` (the state's rows). The
     /// angular shape of that light is taken as a lobe about `J` of mean cosine `|J|/φ`, which
     /// keeps both moments exactly (a single beam and an isotropic field are exact), scattered
     /// by [`PhaseFunction::eval_from_lobe`] toward the bin centres, renormalised per cell as
@@ -1958,16 +2003,16 @@ impl OrdinatesOperator {
                 });
             }
         }
-        if density.len() != n * m {
+        if density.len() != self.len() {
             return Err(OrdinatesError::Length {
                 what: "density",
                 got: density.len(),
-                expected: n * m,
+                expected: self.len(),
             });
         }
         let omega = self.bins.solid_angles();
         let centres = self.bins.centres();
-        density.par_chunks_mut(m).enumerate().for_each(|(c, d)| {
+        self.for_each_row(density, |c, d| {
             let ss = self.sigma_s[c];
             let phi = fluence[c];
             if ss == 0.0 || phi <= 0.0 {
@@ -1983,35 +2028,48 @@ impl OrdinatesOperator {
         Ok(())
     }
 
-    /// Transports a cell-major density (`S[c·M + l]`, radiance per length) through the grid:
-    /// `out[c·M + l]` = the cell- and bin-averaged radiance it produces. Returns the power
+    /// Transports a density (`S[k·M + l]` of the state's rows, radiance per length) through
+    /// the grid: `out[k·M + l]` = the cell- and bin-averaged radiance it produces. Returns the power
     /// bookkeeping. The density is taken as scattered light, `σs` times a smooth field (the
     /// lights' first scattering, a first-collision density): with
     /// [`OrdinatesOptions::linear_source`] its slopes are the source function's. Emission goes
     /// through [`transport_emission`](Self::transport_emission).
     pub fn transport(&self, density: &[f64], out: &mut [f64]) -> SweepEnergy {
-        self.transport_density(density, out, true, None)
+        self.transport_density(density, out, true, None, None)
     }
 
     /// [`transport`](Self::transport) of a density that holds the first scattering of the
     /// lights `beams` profiles (with anything else, such as a first-collision density): their
     /// part of each cell's slopes is the beam's own profile, not the neighbours' differences
-    /// ([`BeamProfiles`]).
+    /// ([`BeamProfiles`]). With `fluence` (one value per cell) adds to it the transported
+    /// light's fluence at every cell, those without state too.
     pub fn transport_first_bounce(
         &self,
         density: &[f64],
         beams: &BeamProfiles,
         out: &mut [f64],
+        fluence: Option<&mut [f64]>,
     ) -> SweepEnergy {
-        self.transport_density(density, out, true, Some(beams))
+        self.transport_density(density, out, true, Some(beams), fluence)
     }
 
-    /// [`transport`](Self::transport) for an emission density (`e[c·M + l]`): swept uniform in
-    /// each cell whatever [`OrdinatesOptions::linear_source`] says, since emission need not
-    /// follow σt (a glow given per length is smooth in itself, not over σt) and its slopes
-    /// from the source function would be wrong where σt varies.
-    pub fn transport_emission(&self, density: &[f64], out: &mut [f64]) -> SweepEnergy {
-        self.transport_density(density, out, false, None)
+    /// The radiance of an isotropic emission density `emission` (one value per cell, any
+    /// cell): swept uniform in each cell whatever [`OrdinatesOptions::linear_source`] says,
+    /// since emission need not follow σt (a glow given per length is smooth in itself, not
+    /// over σt) and its slopes from the source function would be wrong where σt varies.
+    pub fn transport_emission(
+        &self,
+        emission: &[f64],
+        out: &mut [f64],
+    ) -> Result<SweepEnergy, OrdinatesError> {
+        if emission.len() != self.grid.cell_count() {
+            return Err(OrdinatesError::Length {
+                what: "emission",
+                got: emission.len(),
+                expected: self.grid.cell_count(),
+            });
+        }
+        Ok(self.transport_emitted(emission, out, false, None))
     }
 
     fn transport_density(
@@ -2020,26 +2078,28 @@ impl OrdinatesOperator {
         out: &mut [f64],
         linear: bool,
         beams: Option<&BeamProfiles>,
+        fluence: Option<&mut [f64]>,
     ) -> SweepEnergy {
         let n = self.grid.cell_count();
         let m = self.bins.len();
         assert!(
-            density.len() == n * m && out.len() == n * m,
-            "transport: vectors must have cells × bins entries"
+            density.len() == self.len() && out.len() == self.len(),
+            "transport: vectors must have state cells × bins entries"
         );
-        // Each group's bin-major copy for the sweeps.
         // Empty profiles (a flat source, the option off, no directional light) change nothing.
         let beams = beams.filter(|b| b.lights() > 0);
         assert!(
             beams.is_none_or(|b| b.fits(n, m)),
             "transport: beam profiles made by another operator"
         );
-        self.transport_tallied(out, (linear, beams), false, |bins, dst| {
+        // Each group's bin-major copy for the sweeps.
+        let fill = |bins: std::ops::Range<usize>, dst: &mut [f64]| {
             self.cells_to_bins(density, bins.clone(), dst);
             if linear && self.linear_source() {
                 self.densities_to_source_function(dst, bins.len());
             }
-        })
+        };
+        self.transport_tallied(out, (linear, beams), false, fill, fluence)
     }
 
     /// [`transport_all`](Self::transport_all) with power tallied, under the scratch's lock.
@@ -2049,6 +2109,7 @@ impl OrdinatesOperator {
         (linear, beams): (bool, Option<&BeamProfiles>),
         add: bool,
         fill: impl Fn(std::ops::Range<usize>, &mut [f64]),
+        fluence: Option<&mut [f64]>,
     ) -> SweepEnergy {
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let sweep = Sweep {
@@ -2056,42 +2117,57 @@ impl OrdinatesOperator {
             linear,
             beams,
         };
-        self.transport_all(out, &mut guard, sweep, add, fill)
+        self.transport_all(out, &mut guard, sweep, add, fill, fluence)
     }
 
-    /// The system's source from the lights' first scattering `scattered` (cell-major, as
-    /// [`first_bounce_density_from_pass`](Self::first_bounce_density_from_pass) gives it,
+    /// `T_e(emission)` into `out` (added to it with `add`): each cell's isotropic emission
+    /// density straight into every bin's column, swept flat.
+    fn transport_emitted(
+        &self,
+        emission: &[f64],
+        out: &mut [f64],
+        add: bool,
+        fluence: Option<&mut [f64]>,
+    ) -> SweepEnergy {
+        let fill = |bins: std::ops::Range<usize>, dst: &mut [f64]| {
+            let stride = self.stride;
+            dst[..bins.len() * stride]
+                .par_chunks_mut(stride)
+                .for_each(|column| column[..emission.len()].copy_from_slice(emission));
+        };
+        self.transport_tallied(out, (false, None), add, fill, fluence)
+    }
+
+    /// The system's source from the lights' first scattering `scattered` (the state's rows,
+    /// as [`first_bounce_density_from_pass`](Self::first_bounce_density_from_pass) gives it,
     /// with any first-collision density of emitters added) and the channel's own emission:
     /// `out = T(scattered) + T_e(emission)`, the emission swept as
     /// [`transport_emission`](Self::transport_emission) does, straight from the per-cell
-    /// values (no density vector of its own). With `beams` (the lights' profiles,
-    /// [`beam_profiles_from_pass`](Self::beam_profiles_from_pass)) the first scattering's
-    /// slopes are the beams' own ([`transport_first_bounce`](Self::transport_first_bounce)).
+    /// values (no density vector of its own; empty cells emit too). With `beams` (the lights'
+    /// profiles, [`beam_profiles_from_pass`](Self::beam_profiles_from_pass)) the first
+    /// scattering's slopes are the beams' own
+    /// ([`transport_first_bounce`](Self::transport_first_bounce)). With `fluence` (one value
+    /// per cell) adds to it the source's fluence at every cell, those without state too.
     pub fn transport_external(
         &self,
         scattered: &[f64],
         beams: Option<&BeamProfiles>,
         out: &mut [f64],
+        mut fluence: Option<&mut [f64]>,
     ) -> SweepEnergy {
-        let mut energy = self.transport_density(scattered, out, true, beams);
+        let mut energy =
+            self.transport_density(scattered, out, true, beams, fluence.as_deref_mut());
         if self.emission.iter().any(|&e| e != 0.0) {
-            let emitted = self.transport_tallied(out, (false, None), true, |bins, dst| {
-                let stride = self.stride;
-                dst[..bins.len() * stride]
-                    .par_chunks_mut(stride)
-                    .for_each(|column| {
-                        column[..self.emission.len()].copy_from_slice(&self.emission)
-                    });
-            });
-            energy.add(&emitted);
+            energy.add(&self.transport_emitted(&self.emission, out, true, fluence));
         }
         energy
     }
 
     /// Group by group ([`groups`](Self::groups)): `fill(bins, density)` writes the group's
     /// bin-major densities, every piece of the group is swept through them, and the pieces
-    /// are gathered into cell-major `out` (added to it with `add`); tallies power when
-    /// `sweep.tally`.
+    /// are gathered into the state rows `out` (added to it with `add`); tallies power when
+    /// `sweep.tally`. With `fluence` (one value per cell) adds to it the transported
+    /// light's `Σ_l I_l Ω_l` at every cell, those without state too.
     fn transport_all(
         &self,
         out: &mut [f64],
@@ -2099,9 +2175,15 @@ impl OrdinatesOperator {
         sweep: Sweep<'_>,
         add: bool,
         fill: impl Fn(std::ops::Range<usize>, &mut [f64]),
+        mut fluence: Option<&mut [f64]>,
     ) -> SweepEnergy {
         let m = self.bins.len();
         let stride = self.stride;
+        assert!(out.len() == self.len());
+        assert!(fluence
+            .as_ref()
+            .is_none_or(|f| f.len() == self.grid.cell_count()));
+        let omega = self.bins.solid_angles();
         let mut total = SweepEnergy::default();
         for (bins, pieces) in self.groups.iter().zip(&self.group_pieces) {
             fill(bins.clone(), &mut s.density);
@@ -2118,22 +2200,40 @@ impl OrdinatesOperator {
                 total.add(e);
             }
             let piece_out = &s.piece_out;
-            // Sum of each bin's pieces, by blocks of cells so that both sides stream.
+            // Sum of each bin's pieces, by blocks of rows so that both sides stream.
+            let cells = self.state.cells();
             out.par_chunks_mut(m * TRANSPOSE_BLOCK)
                 .enumerate()
                 .for_each(|(b, rows)| {
-                    let c0 = b * TRANSPOSE_BLOCK;
+                    let k0 = b * TRANSPOSE_BLOCK;
                     for l in bins.clone() {
                         for (i, row) in rows.chunks_mut(m).enumerate() {
+                            let c = cells[k0 + i] as usize;
                             if !add {
                                 row[l] = 0.0;
                             }
                             for &p in &self.bin_pieces[l] {
-                                row[l] += piece_out[(p - pieces.start) * stride + c0 + i];
+                                row[l] += piece_out[(p - pieces.start) * stride + c];
                             }
                         }
                     }
                 });
+            if let Some(fluence) = fluence.as_deref_mut() {
+                fluence
+                    .par_chunks_mut(TRANSPOSE_BLOCK)
+                    .enumerate()
+                    .for_each(|(b, fl)| {
+                        let c0 = b * TRANSPOSE_BLOCK;
+                        for l in bins.clone() {
+                            for &p in &self.bin_pieces[l] {
+                                let column = &piece_out[(p - pieces.start) * stride..];
+                                for (i, f) in fl.iter_mut().enumerate() {
+                                    *f += omega[l] * column[c0 + i];
+                                }
+                            }
+                        }
+                    });
+            }
         }
         total
     }
@@ -2686,9 +2786,10 @@ impl OrdinatesOperator {
         energy.finish_sweep(piece, h, &buf.out[..fnx * fny], tally)
     }
 
-    /// Energy balance of a solution `I` of `I = T(external) + K I`: transports
-    /// `external + scatter(I)` once and tallies the escape; absorption from `I` itself.
-    /// `beams`: the profiles `external` was transported with
+    /// Energy balance of a solution `I` of `I = T(external) + T_e(emission) + K I` (the
+    /// source [`transport_external`](Self::transport_external) makes): transports
+    /// `external + scatter(I)` and the channel's emission once and tallies the escape;
+    /// absorption from `I` itself. `beams`: the profiles `external` was transported with
     /// ([`transport_first_bounce`](Self::transport_first_bounce)), so that the escape is the
     /// solve's own.
     pub fn energy_balance(
@@ -2697,25 +2798,27 @@ impl OrdinatesOperator {
         external: &[f64],
         beams: Option<&BeamProfiles>,
     ) -> EnergyBalance {
-        let n = self.grid.cell_count();
         let m = self.bins.len();
-        let mut density = vec![0.0; n * m];
+        let mut density = vec![0.0; self.len()];
         self.scatter_density(solution, &mut density);
         for (d, e) in density.iter_mut().zip(external) {
             *d += e;
         }
-        let mut out = vec![0.0; n * m];
-        let sweep = self.transport_density(&density, &mut out, true, beams);
+        let mut out = vec![0.0; self.len()];
+        let sweep = self.transport_external(&density, beams, &mut out, None);
         let v = self.grid.cell_volume();
         let omega = self.bins.solid_angles();
+        let four_pi: f64 = omega.iter().sum();
         let source: f64 = external
             .chunks(m)
             .map(|d| d.iter().zip(omega).map(|(a, b)| a * b).sum::<f64>() * v)
-            .sum();
+            .sum::<f64>()
+            + self.emission.iter().sum::<f64>() * four_pi * v;
         let absorbed: f64 = solution
             .chunks(m)
-            .enumerate()
-            .map(|(c, x)| {
+            .zip(self.state.cells())
+            .map(|(x, &c)| {
+                let c = c as usize;
                 (self.sigma_t[c] - self.sigma_s[c])
                     * v
                     * x.iter().zip(omega).map(|(a, b)| a * b).sum::<f64>()
@@ -2729,7 +2832,7 @@ impl OrdinatesOperator {
     }
 
     /// The final gather's higher-order source towards each bin centre, from a solution `x`:
-    /// `out[c·M + l] = σs_c Σ_j p̄_j(ω_l) x_j Ω_j`, with `p̄_j(ω)` the true phase function
+    /// `out[k·M + l] = σs Σ_j p̄_j(ω_l) x_j Ω_j` (the state's rows), with `p̄_j(ω)` the true phase function
     /// averaged over the incoming bin `j` for the exact outgoing direction `ω_l` (one final
     /// directional bounce, Max §VII.D, as physics.md asks). Not
     /// [`scatter_density`](Self::scatter_density), whose phase matrix also averages over the
@@ -2738,11 +2841,10 @@ impl OrdinatesOperator {
     /// 384 bins; what mattered there was the interpolation near face edges.) Between bin
     /// centres a renderer interpolates ([`face_bilinear`](super::bins::face_bilinear)).
     pub fn gather_density(&self, x: &[f64], out: &mut [f64]) {
-        let n = self.grid.cell_count();
         let m = self.bins.len();
         assert!(
-            x.len() == n * m && out.len() == n * m,
-            "gather_density: vectors must have cells × bins entries"
+            x.len() == self.len() && out.len() == self.len(),
+            "gather_density: vectors must have state cells × bins entries"
         );
         let omega = self.bins.solid_angles();
         // The phase matrix's incoming-bin nodes: as fine as the solve itself resolved.
@@ -2763,16 +2865,16 @@ impl OrdinatesOperator {
             })
             .collect();
         // The same block product as the solve's scattering, with these weights.
-        self.scatter_into(&weights, x, out, Layout::CellMajor, 0..m);
+        self.scatter_into(&weights, x, out, Layout::Rows, 0..m);
     }
 
-    /// The uncollided radiance, cell- and bin-averaged (`ψ[c·M + l]`), of light entering the
-    /// grid from outside with radiance `along[l]` in each bin `l` (an environment: at the bin
-    /// centre, or its mean over the bin), in the sweep's own discretisation: the source
-    /// `σt* L_l` with that inflow keeps `L_l` everywhere, so `ψ = L_l − T(σt* L_l)`. A
-    /// non-absorbing medium in a uniform inflow then holds it everywhere (the white furnace)
-    /// to the solver's tolerance.
-    pub fn inflow_radiance(&self, along: &[f64]) -> Result<Vec<f64>, OrdinatesError> {
+    /// The uncollided radiance, cell- and bin-averaged, of light entering the grid from
+    /// outside with radiance `along[l]` in each bin `l` (an environment: at the bin centre,
+    /// or its mean over the bin), in the sweep's own discretisation: the source `σt* L_l`
+    /// with that inflow keeps `L_l` everywhere, so `ψ = L_l − T(σt* L_l)`. A non-absorbing
+    /// medium in a uniform inflow then holds it everywhere (the white furnace) to the
+    /// solver's tolerance.
+    pub fn inflow_radiance(&self, along: &[f64]) -> Result<Uncollided, OrdinatesError> {
         let m = self.bins.len();
         if along.len() != m {
             return Err(OrdinatesError::Length {
@@ -2781,66 +2883,116 @@ impl OrdinatesOperator {
                 expected: m,
             });
         }
-        Ok(self.uncollided_inflow(|_, l| along[l]))
+        Ok(self.inflow_field(|_, l| along[l]))
     }
 
     /// The uncollided radiance of light that enters through the boundary with radiance
-    /// `field[c·M + l]` along bin `l` on the line through cell `c`'s centre: a field that is
-    /// constant along each bin's lines (what enters stays what it is, as a uniform
+    /// `field(c, l)` along bin `l` on the line through cell `c`'s centre (any cell): a field
+    /// that is constant along each bin's lines (what enters stays what it is, as a uniform
     /// environment's light, or a ground's seen back along the line). Along a line the
     /// uncollided radiance is `f − u`, where `u` is the light the line's cells extinguish,
     /// `u' = −σ u + σ f` from zero at the boundary: one transport sweep of the density `σ f`,
     /// so a non-absorbing medium stays at `f` in the sweep's own discretisation.
-    pub fn inflow_field(&self, field: &[f64]) -> Result<Vec<f64>, OrdinatesError> {
+    pub fn inflow_field(&self, field: impl Fn(usize, usize) -> f64 + Sync) -> Uncollided {
         let m = self.bins.len();
-        if field.len() != self.len() {
-            return Err(OrdinatesError::Length {
-                what: "inflow field",
-                got: field.len(),
-                expected: self.len(),
-            });
-        }
-        Ok(self.uncollided_inflow(|c, l| field[c * m + l]))
-    }
-
-    /// `ψ = f − T(σt* f)` for the inflow `f(cell, bin)` (see [`Self::inflow_field`]).
-    fn uncollided_inflow(&self, f: impl Fn(usize, usize) -> f64) -> Vec<f64> {
-        let m = self.bins.len();
-        let mut density = vec![0.0; self.len()];
-        for (c, ((d, &st), &ss)) in density
-            .chunks_mut(m)
-            .zip(&self.sigma_t)
-            .zip(&self.sigma_s)
-            .enumerate()
-        {
-            let sweep_sigma = (st - self.truncation * ss).max(0.0);
-            for (l, dl) in d.iter_mut().enumerate() {
-                *dl = sweep_sigma * f(c, l);
-            }
-        }
+        let n = self.grid.cell_count();
+        // The field at the state's rows, read once; σt* f is the density.
         let mut psi = vec![0.0; self.len()];
-        self.transport(&density, &mut psi);
-        for (c, p) in psi.chunks_mut(m).enumerate() {
-            for (l, pl) in p.iter_mut().enumerate() {
-                *pl = (f(c, l) - *pl).max(0.0);
+        self.for_each_row(&mut psi, |c, f| {
+            for (l, fl) in f.iter_mut().enumerate() {
+                *fl = field(c, l);
             }
+        });
+        let mut density = psi.clone();
+        self.for_each_row(&mut density, |c, d| {
+            let sweep_sigma = (self.sigma_t[c] - self.truncation * self.sigma_s[c]).max(0.0);
+            d.iter_mut().for_each(|v| *v *= sweep_sigma);
+        });
+        let mut extinguished = vec![0.0; self.len()];
+        let mut fluence = vec![0.0; n];
+        self.transport_density(&density, &mut extinguished, true, None, Some(&mut fluence));
+        drop(density);
+        for (p, u) in psi.iter_mut().zip(&extinguished) {
+            *p = (*p - u).max(0.0);
         }
-        psi
+        drop(extinguished);
+        let omega = self.bins.solid_angles();
+        fluence.par_iter_mut().enumerate().for_each(|(c, fl)| {
+            *fl = match self.state.row(c) {
+                Some(k) => psi[k * m..(k + 1) * m]
+                    .iter()
+                    .zip(omega)
+                    .map(|(a, b)| a * b)
+                    .sum(),
+                None => ((0..m).map(|l| field(c, l) * omega[l]).sum::<f64>() - *fl).max(0.0),
+            }
+        });
+        Uncollided {
+            radiance: psi,
+            fluence,
+        }
     }
 
-    /// Angular integral `Σ_l I_l Ω_l` per cell (the zonal `4π ×` mean radiance).
+    /// Angular integral `Σ_l I_l Ω_l` of the state rows `solution`, per cell (the zonal
+    /// `4π ×` mean radiance); 0 at cells without state (see
+    /// [`fluence_everywhere`](Self::fluence_everywhere)).
     pub fn fluence(&self, solution: &[f64]) -> Vec<f64> {
+        let m = self.bins.len();
         let omega = self.bins.solid_angles();
-        solution
-            .chunks(self.bins.len())
-            .map(|x| x.iter().zip(omega).map(|(a, b)| a * b).sum())
-            .collect()
+        let mut fluence = vec![0.0; self.grid.cell_count()];
+        for (x, &c) in solution.chunks(m).zip(self.state.cells()) {
+            fluence[c as usize] = x.iter().zip(omega).map(|(a, b)| a * b).sum();
+        }
+        fluence
     }
+
+    /// Every cell's fluence of a solution `total` (the state's rows) of `I = F + K I`, where
+    /// `fixed` is the fluence of `F` at every cell (what
+    /// [`transport_external`](Self::transport_external) and [`inflow_field`](Self::inflow_field)
+    /// tally: the source and any uncollided inflow): the state cells' own `Σ_l I_l Ω_l`, and
+    /// elsewhere `fixed` plus the fluence of `K total`, which costs one sweep (none when
+    /// every cell carries state).
+    pub fn fluence_everywhere(&self, total: &[f64], fixed: &[f64]) -> Vec<f64> {
+        assert!(total.len() == self.len() && fixed.len() == self.grid.cell_count());
+        let mut fluence = fixed.to_vec();
+        if !self.state.is_every_cell() {
+            let mut scattered = vec![0.0; self.len()];
+            let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
+            let sweep = Sweep {
+                tally: false,
+                linear: true,
+                beams: None,
+            };
+            self.transport_all(
+                &mut scattered,
+                &mut guard,
+                sweep,
+                false,
+                |bins, dst| self.scatter_into(&self.scatter, total, dst, Layout::BinMajor, bins),
+                Some(&mut fluence),
+            );
+        }
+        let m = self.bins.len();
+        let omega = self.bins.solid_angles();
+        for (x, &c) in total.chunks(m).zip(self.state.cells()) {
+            fluence[c as usize] = x.iter().zip(omega).map(|(a, b)| a * b).sum();
+        }
+        fluence
+    }
+}
+
+/// The uncollided light of an inflow through the boundary
+/// ([`OrdinatesOperator::inflow_field`]).
+pub struct Uncollided {
+    /// `ψ[k·M + l]`, the state's rows.
+    pub radiance: Vec<f64>,
+    /// `Σ_l ψ_l Ω_l` at every cell, those without state too.
+    pub fluence: Vec<f64>,
 }
 
 impl TransportOperator for OrdinatesOperator {
     fn len(&self) -> usize {
-        self.grid.cell_count() * self.bins.len()
+        self.state.len() * self.bins.len()
     }
 
     /// `y = K x`: scatter `x` once with the phase matrix, transport the result.
@@ -2852,9 +3004,14 @@ impl TransportOperator for OrdinatesOperator {
             linear: true,
             beams: None,
         };
-        self.transport_all(y, s, sweep, false, |bins, dst| {
-            self.scatter_into(&self.scatter, x, dst, Layout::BinMajor, bins)
-        });
+        self.transport_all(
+            y,
+            s,
+            sweep,
+            false,
+            |bins, dst| self.scatter_into(&self.scatter, x, dst, Layout::BinMajor, bins),
+            None,
+        );
     }
 
     /// Block Gauss–Seidel over bins: groups of `gauss_seidel_group` bins in index order; each
@@ -2868,8 +3025,8 @@ impl TransportOperator for OrdinatesOperator {
         let n = self.grid.cell_count();
         let m = self.bins.len();
         assert!(
-            g.len() == n * m && source.len() == n * m,
-            "sweep_in_place: vectors must have cells × bins entries"
+            g.len() == self.len() && source.len() == self.len(),
+            "sweep_in_place: vectors must have state cells × bins entries"
         );
         let stride = self.stride;
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
@@ -2877,26 +3034,23 @@ impl TransportOperator for OrdinatesOperator {
         let g_cells = SharedMut(g.as_mut_ptr());
         let density = SharedMut(s.density.as_mut_ptr());
         let blocks = n.div_ceil(SCATTER_BLOCK);
-        let block_cells = |b: usize| b * SCATTER_BLOCK..((b + 1) * SCATTER_BLOCK).min(n);
-        let scatter_block = |bins: std::ops::Range<usize>, cells: std::ops::Range<usize>| {
-            // SAFETY: `g` has n·m cell-major elements (asserted), the density buffer a
-            // group's columns of `stride` (≥ n) elements; each block's cells belong to one
-            // task.
+        let scatter_block = |bins: std::ops::Range<usize>, block: usize| {
+            // SAFETY: `g` has the state's rows (asserted), the density buffer a group's
+            // columns of `stride` (≥ n) elements; each block's cells belong to one task.
             unsafe {
                 self.scatter_block(
                     (&self.scatter, self.sweep_scale()),
                     g_cells.ptr(),
-                    Layout::CellMajor,
                     (density, Layout::BinMajor, bins.start),
                     bins,
-                    cells,
+                    block,
                 )
             }
         };
         // Scattering density for the first group's bins from the current g.
         (0..blocks)
             .into_par_iter()
-            .for_each(|b| scatter_block(self.groups[0].clone(), block_cells(b)));
+            .for_each(|b| scatter_block(self.groups[0].clone(), b));
         for (k, (bins, pieces)) in self.groups.iter().zip(&self.group_pieces).enumerate() {
             let density_ref = &s.density;
             s.piece_out[..pieces.len() * stride]
@@ -2914,15 +3068,16 @@ impl TransportOperator for OrdinatesOperator {
             let piece_out = &s.piece_out;
             let next = self.groups.get(k + 1).cloned();
             (0..blocks).into_par_iter().for_each(|b| {
-                let cells = block_cells(b);
-                for c in cells.clone() {
+                let rows = self.state.rows_of_block(b);
+                for (row, &c) in rows.clone().zip(&self.state.cells()[rows]) {
                     for l in bins.clone() {
                         let kg: f64 = self.bin_pieces[l]
                             .iter()
-                            .map(|&p| piece_out[(p - pieces.start) * stride + c])
+                            .map(|&p| piece_out[(p - pieces.start) * stride + c as usize])
                             .sum();
-                        let i = c * m + l;
-                        // SAFETY: inside g (n·m, asserted); these cells are this task's.
+                        let i = row * m + l;
+                        // SAFETY: inside g (the state's rows, asserted); these rows are
+                        // this task's.
                         unsafe {
                             let gl = g_cells.ptr().add(i);
                             *gl = (1.0 - omega) * *gl + omega * (source[i] + kg);
@@ -2932,7 +3087,7 @@ impl TransportOperator for OrdinatesOperator {
                 if let Some(next) = next.clone() {
                     // The next group's densities of these cells: this task's alone, and
                     // nobody reads them now (this group's sweeps are done).
-                    scatter_block(next, cells);
+                    scatter_block(next, b);
                 }
             });
         }

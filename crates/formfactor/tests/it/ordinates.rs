@@ -279,12 +279,12 @@ fn one_sweep_conserves_energy() {
         // Extinguished power computed from the returned radiances agrees.
         let m = op.bins().len();
         let v = grid.cell_volume();
-        let from_radiance: f64 = (0..grid.cell_count())
-            .map(|c| {
-                op.sigma_t()[c]
+        let from_radiance: f64 = (op.state_cells().iter().enumerate())
+            .map(|(k, &c)| {
+                op.sigma_t()[c as usize]
                     * v
                     * (0..m)
-                        .map(|l| out[c * m + l] * op.bins().solid_angles()[l])
+                        .map(|l| out[k * m + l] * op.bins().solid_angles()[l])
                         .sum::<f64>()
             })
             .sum();
@@ -325,12 +325,12 @@ fn refined_sweep_conserves_energy_and_refuses_bad_options() {
     assert!((e.emitted - e.extinguished - e.escaped_total()).abs() < 1e-10 * e.emitted);
     let m = op.bins().len();
     let v = grid.cell_volume();
-    let from_radiance: f64 = (0..grid.cell_count())
-        .map(|c| {
-            op.sigma_t()[c]
+    let from_radiance: f64 = (op.state_cells().iter().enumerate())
+        .map(|(k, &c)| {
+            op.sigma_t()[c as usize]
                 * v
                 * (0..m)
-                    .map(|l| out[c * m + l] * op.bins().solid_angles()[l])
+                    .map(|l| out[k * m + l] * op.bins().solid_angles()[l])
                     .sum::<f64>()
         })
         .sum();
@@ -390,9 +390,10 @@ fn empty_grid_transmits_everything_and_extinguishes_nothing() {
         emission: CellValues::Uniform(0.0),
     };
     let op = operator(grid, &ch, 0.0, 2, false);
-    let density = vec![1.0; op.len()];
+    // Nothing carries state; an emission density in every cell crosses them all.
+    assert_eq!(op.len(), 0);
     let mut out = vec![0.0; op.len()];
-    let e = op.transport(&density, &mut out);
+    let e = op.transport_emission(&[1.0; 64], &mut out).unwrap();
     assert_eq!(e.extinguished, 0.0);
     // Emitted: e · V · 4π per cell.
     assert!((e.emitted - 64.0 * 4.0 * PI).abs() < 1e-9);
@@ -488,11 +489,9 @@ fn full_solve_balances_first_bounce_and_emission() {
         .map(|i| ch.emission.get(i) as f64)
         .collect();
     let dir = DVec3::new(0.5, 0.2, -0.8).normalize();
-    let external = op
-        .external_density(Some(&emission), &[(dir, &irradiance)])
-        .unwrap();
+    let external = op.external_density(&[(dir, &irradiance)]).unwrap();
     let mut e = vec![0.0; op.len()];
-    op.transport(&external, &mut e);
+    op.transport_external(&external, None, &mut e, None);
     let (x, iters) = jacobi(&op, &e, 1e-9);
     let b = op.energy_balance(&x, &external, None);
     // Source power = emission V 4π + σs V irradiance.
@@ -514,9 +513,7 @@ fn gauss_seidel_reaches_the_jacobi_solution_in_fewer_sweeps() {
     let ch = blob_channel(&grid, 3.0, 0.98);
     let op = operator(grid, &ch, 0.6, 4, false);
     let irradiance = vec![1.0; grid.cell_count()];
-    let external = op
-        .external_density(None, &[(DVec3::NEG_Z, &irradiance)])
-        .unwrap();
+    let external = op.external_density(&[(DVec3::NEG_Z, &irradiance)]).unwrap();
     let mut e = vec![0.0; op.len()];
     op.transport(&external, &mut e);
     let (xj, jac_iters) = jacobi(&op, &e, 1e-10);
@@ -551,9 +548,8 @@ fn infinite_medium_limit() {
     };
     for g in [0.0, 0.85] {
         let op = operator(grid, &ch, g, 2, true);
-        let external = op.external_density(Some(&vec![emission; nz]), &[]).unwrap();
         let mut e = vec![0.0; op.len()];
-        op.transport_emission(&external, &mut e);
+        op.transport_emission(&vec![emission; nz], &mut e).unwrap();
         let (x, _) = jacobi(&op, &e, 1e-11);
         let expect = emission / (sigma as f64 * (1.0 - albedo as f64));
         let m = op.bins().len();
@@ -569,8 +565,11 @@ fn infinite_medium_limit() {
     }
 }
 
+/// The system's source is the lights' first bounce transported plus the channel's emission
+/// transported, the empty cells' emission too; its fluence tally holds every cell, and at the
+/// cells with medium it is the rows' own.
 #[test]
-fn the_external_density_is_the_first_bounce_plus_the_channels_emission() {
+fn the_source_is_the_first_bounce_and_the_channels_emission_transported() {
     let grid = Grid::new([4, 3, 5], 1.0).unwrap();
     let mut ch = blob_channel(&grid, 2.0, 0.9);
     ch.emission = CellValues::PerCell(
@@ -579,6 +578,8 @@ fn the_external_density_is_the_first_bounce_plus_the_channels_emission() {
             .collect(),
     );
     let op = operator(grid, &ch, 0.5, 2, false);
+    let empty = ch.sigma_t.iter().filter(|&&s| s == 0.0).count();
+    assert!(empty > 0 && op.state_cells().len() == grid.cell_count() - empty);
     let lights = [
         Light::Directional {
             direction: DVec3::new(0.3, 0.2, -0.9).normalize(),
@@ -591,15 +592,79 @@ fn the_external_density_is_the_first_bounce_plus_the_channels_emission() {
     ];
     let pass =
         LightPass::compute(&medium(grid, &ch, PhaseFunction::Isotropic), 0, &lights).unwrap();
-    let all = op.external_density_from_pass(&pass).unwrap();
     let first = op.first_bounce_density_from_pass(&pass).unwrap();
     assert!(first.iter().any(|&v| v > 0.0));
-    let m = op.bins().len();
-    for (c, (a, f)) in all.chunks(m).zip(first.chunks(m)).enumerate() {
-        let e = ch.emission.get(c) as f64;
-        for (x, y) in a.iter().zip(f) {
-            assert!((x - y - e).abs() <= 1e-12 * x.abs().max(1.0), "cell {c}");
+    let mut all = vec![0.0; op.len()];
+    let mut fluence = vec![0.0; grid.cell_count()];
+    op.transport_external(&first, None, &mut all, Some(&mut fluence));
+    let mut scattered = vec![0.0; op.len()];
+    op.transport(&first, &mut scattered);
+    let emission: Vec<f64> = (0..grid.cell_count())
+        .map(|c| ch.emission.get(c) as f64)
+        .collect();
+    let mut emitted = vec![0.0; op.len()];
+    op.transport_emission(&emission, &mut emitted).unwrap();
+    for (i, (a, (s, e))) in all.iter().zip(scattered.iter().zip(&emitted)).enumerate() {
+        assert!((a - s - e).abs() <= 1e-12 * a.abs().max(1.0), "entry {i}");
+    }
+    let rows = op.fluence(&all);
+    for c in 0..grid.cell_count() {
+        match op.state_row(c) {
+            Some(_) => assert!((fluence[c] - rows[c]).abs() <= 1e-12 * rows[c].max(1.0)),
+            // Light crosses the empty cells: emitted there and from the cloud.
+            None => assert!(rows[c] == 0.0 && fluence[c] > 0.0, "cell {c}"),
         }
+    }
+}
+
+/// The state is the cells with medium; the light in the empty cells is the same as in a
+/// medium whose empty cells hold a trace of it (and so carry state). Uniform face fluxes:
+/// with linear ones the sweep crosses a cell without medium by a step of its own (the
+/// faces' profiles are not carried across), which a trace of medium would not take.
+#[test]
+fn empty_cells_carry_no_state_but_their_fluence_is_the_trace_mediums() {
+    let grid = Grid::new([6, 5, 5], 1.0).unwrap();
+    let ch = blob_channel(&grid, 2.0, 0.9);
+    let mut traced = ch.clone();
+    for s in &mut traced.sigma_t {
+        if *s == 0.0 {
+            *s = 1e-5;
+        }
+    }
+    let irradiance: Vec<f64> = (0..grid.cell_count())
+        .map(|c| (-0.2 * grid.coords(c)[2] as f64).exp())
+        .collect();
+    let dir = DVec3::new(0.2, -0.3, -0.9).normalize();
+    let solve = |ch: &ChannelMedium| {
+        let op = OrdinatesOperator::new(
+            &medium(grid, ch, PhaseFunction::HenyeyGreenstein { g: 0.6 }),
+            0,
+            DirectionBins::cube(2).unwrap(),
+            OrdinatesOptions {
+                linear_faces: false,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let external = op.external_density(&[(dir, &irradiance)]).unwrap();
+        let mut e = vec![0.0; op.len()];
+        let mut fixed = vec![0.0; grid.cell_count()];
+        op.transport_external(&external, None, &mut e, Some(&mut fixed));
+        let (x, _) = jacobi(&op, &e, 1e-11);
+        (op.fluence_everywhere(&x, &fixed), op.len())
+    };
+    let (sparse, sparse_len) = solve(&ch);
+    let (dense, dense_len) = solve(&traced);
+    let m = 24;
+    let empty = ch.sigma_t.iter().filter(|&&s| s == 0.0).count();
+    assert!(empty > 0);
+    assert_eq!(dense_len, grid.cell_count() * m);
+    assert_eq!(sparse_len, (grid.cell_count() - empty) * m);
+    for (c, (a, b)) in sparse.iter().zip(&dense).enumerate() {
+        assert!(
+            *b > 0.0 && (a / b - 1.0).abs() < 1e-3,
+            "cell {c}: {a} vs {b}"
+        );
     }
 }
 
@@ -609,13 +674,13 @@ fn refuses_mismatched_inputs() {
     let ch = blob_channel(&grid, 1.0, 0.5);
     let op = operator(grid, &ch, 0.0, 1, false);
     assert!(matches!(
-        op.external_density(Some(&[1.0; 3]), &[]),
+        op.transport_emission(&[1.0; 3], &mut vec![0.0; op.len()]),
         Err(OrdinatesError::Length {
             what: "emission",
             ..
         })
     ));
-    assert!(op.external_density(None, &[(DVec3::Z, &[1.0; 7])]).is_err());
+    assert!(op.external_density(&[(DVec3::Z, &[1.0; 7])]).is_err());
     // A channel the medium does not have.
     assert!(matches!(
         OrdinatesOperator::new(
@@ -646,12 +711,12 @@ fn refuses_mismatched_inputs() {
     )
     .unwrap();
     assert_eq!(
-        op.external_density_from_pass(&foreign),
+        op.first_bounce_density_from_pass(&foreign),
         Err(OrdinatesError::ForeignLightPass)
     );
     let mut short =
         LightPass::compute(&medium(grid, &ch, PhaseFunction::Isotropic), 0, &light).unwrap();
-    assert!(op.external_density_from_pass(&short).is_ok());
+    assert!(op.first_bounce_density_from_pass(&short).is_ok());
     short.fields[0].cell_irradiance.pop();
     assert!(matches!(
         op.first_bounce_density_from_pass(&short),
@@ -830,7 +895,7 @@ fn truncated_forward_peak_keeps_energy_and_the_solution() {
     let mut fluence = Vec::new();
     for degrees in [0.0, 12.0] {
         let op = make(degrees, &blob).unwrap();
-        let external = op.external_density(None, &[(dir, &irradiance)]).unwrap();
+        let external = op.external_density(&[(dir, &irradiance)]).unwrap();
         let mut e = vec![0.0; op.len()];
         op.transport(&external, &mut e);
         let (x, iters) = jacobi(&op, &e, 1e-9);
@@ -858,20 +923,22 @@ fn truncated_forward_peak_keeps_energy_and_the_solution() {
     assert!(matches!(make(95.0, &blob), Err(OrdinatesError::Option(_))));
 }
 
-/// What `volrad info`'s time model counts for the scattering product: every cell of a
-/// 512-cell block that holds a scattering cell, none of a block without one, and the last,
-/// shorter block's own length.
+/// What `volrad info`'s time model counts for the scattering product: every cell with
+/// medium of a 512-cell block that holds a scattering cell, none of a block without one, and
+/// the last, shorter block's own.
 #[test]
 fn the_scattering_product_counts_the_blocks_that_scatter() {
     use formfactor::ordinates::scattering_product_cells;
-    let mut scatters = vec![false; 3 * 512 + 100];
-    assert_eq!(scattering_product_cells(&scatters), 0);
-    scatters[511] = true; // block 0
-    assert_eq!(scattering_product_cells(&scatters), 512);
-    scatters[3 * 512 + 99] = true; // the short last block
-    assert_eq!(scattering_product_cells(&scatters), 612);
+    let n = 3 * 512 + 100;
+    let medium: Vec<bool> = (0..n).map(|c| c % 2 == 0).collect();
+    let mut scatters = vec![false; n];
+    assert_eq!(scattering_product_cells(&medium, &scatters), 0);
+    scatters[510] = true; // block 0
+    assert_eq!(scattering_product_cells(&medium, &scatters), 256);
+    scatters[3 * 512 + 98] = true; // the short last block
+    assert_eq!(scattering_product_cells(&medium, &scatters), 306);
     scatters.iter_mut().for_each(|s| *s = true);
-    assert_eq!(scattering_product_cells(&scatters), scatters.len());
+    assert_eq!(scattering_product_cells(&vec![true; n], &scatters), n);
 }
 
 /// Max's fixed face shares spread a beam sideways at every cell (numerical diffusion); the
@@ -883,8 +950,9 @@ fn the_scattering_product_counts_the_blocks_that_scatter() {
 fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
     let grid = Grid::new([16, 16, 16], 1.0).unwrap();
     let n = grid.cell_count();
+    // A trace of medium, so that every cell carries the beam's radiance.
     let void = ChannelMedium {
-        sigma_t: vec![0.0; n],
+        sigma_t: vec![1e-6; n],
         albedo: CellValues::Uniform(0.0),
         emission: CellValues::Uniform(0.0),
     };
@@ -910,7 +978,8 @@ fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
         density[l] = 1.0; // cell (0, 0, 0)
         let mut out = vec![0.0; n * m];
         let e = op.transport(&density, &mut out);
-        assert!((e.emitted - e.escaped_total()).abs() < 1e-9 * e.emitted);
+        assert!((e.emitted - e.extinguished - e.escaped_total()).abs() < 1e-9 * e.emitted);
+        assert!(e.extinguished < 1e-4 * e.emitted);
         let w: Vec<f64> = (0..n).map(|c| out[c * m + l]).collect();
         let total: f64 = w.iter().sum();
         let mean = (0..n).fold(DVec3::ZERO, |a, c| a + grid.cell_center(c) * w[c]) / total;
@@ -1002,8 +1071,8 @@ fn beam_profiles_from_a_light_pass_are_the_beams_own() {
         let mut by_pass = vec![0.0; op.len()];
         let mut by_analytic = vec![0.0; op.len()];
         let mut by_neighbours = vec![0.0; op.len()];
-        op.transport_first_bounce(&external, &from_pass, &mut by_pass);
-        op.transport_first_bounce(&external, &analytic, &mut by_analytic);
+        op.transport_first_bounce(&external, &from_pass, &mut by_pass, None);
+        op.transport_first_bounce(&external, &analytic, &mut by_analytic, None);
         op.transport(&external, &mut by_neighbours);
         let scale = by_analytic.iter().fold(0.0f64, |a, &b| a.max(b.abs()));
         let worst = |x: &[f64], y: &[f64]| {

@@ -67,9 +67,8 @@ fn isotropic_ordinates_agree_with_zonal() {
             },
         )
         .unwrap();
-        let external = op.external_density(Some(&emission), &[]).unwrap();
         let mut e = vec![0.0; op.len()];
-        op.transport_emission(&external, &mut e);
+        op.transport_emission(&emission, &mut e).unwrap();
         let radiance = iterate(&op, &e);
         // The zonal unknown is the cell's source per length: e + σs ∫I dω / 4π.
         let fluence = op.fluence(&radiance);

@@ -94,9 +94,8 @@ pub fn scattered_ordinates(r: usize, n: usize) -> Vec<f64> {
         },
     )
     .unwrap();
-    let external = op.external_density(Some(&e), &[]).unwrap();
     let mut t = vec![0.0; op.len()];
-    op.transport_emission(&external, &mut t);
+    op.transport_emission(&e, &mut t).unwrap();
     let radiance = iterate(&op, &t);
     let fluence = op.fluence(&radiance);
     let s: Vec<f64> = (0..grid.cell_count())

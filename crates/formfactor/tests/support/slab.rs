@@ -67,7 +67,7 @@ pub fn slab_operator(
         })
         .collect();
     let dir = DVec3::new((1.0 - mu0 * mu0).sqrt(), 0.0, -mu0);
-    let external = op.external_density(None, &[(dir, &irradiance)]).unwrap();
+    let external = op.external_density(&[(dir, &irradiance)]).unwrap();
     // The beam's optical depth falls by σh/μ0 from each layer's lower face to its upper.
     let depth_change = vec![[0.0, 0.0, -a]; nz];
     let beams = op
@@ -86,7 +86,7 @@ pub fn first_order_reflectance(
 ) -> f64 {
     let (op, external, beams) = slab_operator(case, nz, n, options);
     let mut out = vec![0.0; op.len()];
-    let energy = op.transport_first_bounce(&external, &beams, &mut out);
+    let energy = op.transport_first_bounce(&external, &beams, &mut out, None);
     energy.escaped[5] / case.3
 }
 
@@ -108,7 +108,7 @@ pub fn solve_slab_with(
     let (op, external, beams) = slab_operator((tau, albedo, g, mu0), nz, n, base);
     let len = op.len();
     let mut e = vec![0.0; len];
-    op.transport_first_bounce(&external, &beams, &mut e);
+    op.transport_first_bounce(&external, &beams, &mut e, None);
     // I = E + K I by GMRES: source iteration needs tens of thousands of sweeps for the thick,
     // conservative slabs (spectral radius 1 − O(1/τ²)).
     let options = SolveOptions {
