@@ -107,10 +107,12 @@ const ORDINATES_SKY_BYTES_PER_CELL_BIN: u64 = 8;
 const ORDINATES_STORED_BYTES_PER_OCCUPIED_CELL_BIN: u64 = 5;
 const ORDINATES_STORED_BYTES_PER_CELL: u64 = 8;
 /// Discrete ordinates: what the allocator still holds of a channel's solve when the next
-/// channel's begins, per cell with medium and bin. Fitted between two three-channel scenes of
-/// `benches/memory.py --only discrete-ordinates`: the 32 × 32 × 24 cloud (216 bins) peaks
-/// 40–75 MiB above its one-channel self from run to run (4–7 bytes per cell and bin and
-/// further channel), `data/cloud-sky.toml` within 2 % of the model without this term.
+/// channel's begins, per cell with medium and bin. Fitted per cell and bin while the state
+/// held every cell, between two three-channel scenes of `benches/memory.py --only
+/// discrete-ordinates`: the 32 × 32 × 24 cloud (216 bins) peaked 40–75 MiB above its
+/// one-channel self from run to run (4–7 bytes per cell and bin and further channel),
+/// `data/cloud-sky.toml` within 2 % of the model without this term; counted per cell with
+/// medium since the state is, the three-channel cloud −6 % and the cloud-sky +4 %.
 const ORDINATES_FURTHER_CHANNEL_BYTES_PER_CELL_BIN: u64 = 6;
 /// Discrete ordinates: per cell, the sweep's coefficient tables and one group's densities
 /// and per-piece outputs.

@@ -851,11 +851,12 @@ pub fn solve_ordinates(
         .map(|&v| v as f32)
         .collect();
     drop(radiance);
-    let m = op.bins().len();
-    let higher_order = CellRows::from_dense(op.grid().cell_count(), m, |i| {
-        op.state_row(i / m)
-            .map_or(0.0, |k| higher[k * m + i % m].max(0.0) as f32)
-    })
+    let higher_order = CellRows::from_rows(
+        op.grid().cell_count(),
+        op.bins().len(),
+        op.state_cells(),
+        |i| higher[i].max(0.0) as f32,
+    )
     .context("the higher orders' rows")?;
     drop(higher);
     Ok((

@@ -20,24 +20,54 @@ impl CellRows {
     /// `row_of` of a cell without a row.
     const ABSENT: u32 = u32::MAX;
 
-    /// The rows of a dense `cells × width` field given as `value(cell, column)`, keeping the
-    /// cells with a non-zero value. `None` if `width` is 0 or there are more cells than
-    /// `u32` can rank.
+    /// The rows of a dense `cells × width` field given as `value(cell · width + column)`,
+    /// keeping the cells with a non-zero value. `None` if `width` is 0 or there are more
+    /// cells than `u32` can rank.
     pub fn from_dense(cells: usize, width: usize, value: impl Fn(usize) -> f32) -> Option<Self> {
+        Self::keeping_non_zero(cells, width, (0..cells).map(|c| (c, c * width)), value)
+    }
+
+    /// The rows of a field given for some cells only, the others zero: `value(k · width +
+    /// column)` for cell `row_cells[k]` (increasing, each below `cells`), as a
+    /// discrete-ordinates solve holds its cells with medium; kept as
+    /// [`from_dense`](Self::from_dense) keeps them. `None` where that gives `None`, or if
+    /// `row_cells` is not increasing within the grid.
+    pub fn from_rows(
+        cells: usize,
+        width: usize,
+        row_cells: &[u32],
+        value: impl Fn(usize) -> f32,
+    ) -> Option<Self> {
+        let increasing = row_cells.windows(2).all(|w| w[0] < w[1]);
+        if !increasing || row_cells.last().is_some_and(|&c| c as usize >= cells) {
+            return None;
+        }
+        let candidates = row_cells
+            .iter()
+            .enumerate()
+            .map(|(k, &c)| (c as usize, k * width));
+        Self::keeping_non_zero(cells, width, candidates, value)
+    }
+
+    /// The rows of `candidates` (cell, index of its first value, in cell order) with a
+    /// non-zero value.
+    fn keeping_non_zero(
+        cells: usize,
+        width: usize,
+        candidates: impl Iterator<Item = (usize, usize)>,
+        value: impl Fn(usize) -> f32,
+    ) -> Option<Self> {
         if width == 0 || cells >= Self::ABSENT as usize {
             return None;
         }
-        let mut row_of = Vec::with_capacity(cells);
+        let mut row_of = vec![Self::ABSENT; cells];
         let mut rows = Vec::new();
         let mut kept = 0u32;
-        for cell in 0..cells {
-            let base = cell * width;
+        for (cell, base) in candidates {
             if (base..base + width).any(|i| value(i) != 0.0) {
                 rows.extend((base..base + width).map(&value));
-                row_of.push(kept);
+                row_of[cell] = kept;
                 kept += 1;
-            } else {
-                row_of.push(Self::ABSENT);
             }
         }
         rows.shrink_to_fit();
@@ -159,6 +189,25 @@ mod tests {
         // As a file stores them, and back.
         let again = CellRows::from_parts(3, &rows.kept_mask(), rows.values().to_vec()).unwrap();
         assert_eq!(again, rows);
+    }
+
+    /// Rows given for some cells only (a solve's cells with medium) are what the dense field
+    /// with zeros elsewhere gives; a row of zeros among them is not kept.
+    #[test]
+    fn rows_of_some_cells_are_the_dense_fields_rows() {
+        let dense = [
+            1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 7.0, 4.0, 5.0, 6.0, 0.0, 0.0, 0.0,
+        ];
+        // Cells 0, 2, 3 and 4 hold values (4's all zero), cell 1 none.
+        let row_cells = [0, 2, 3, 4];
+        let packed: Vec<f32> = row_cells
+            .iter()
+            .flat_map(|&c| dense[3 * c as usize..3 * c as usize + 3].to_vec())
+            .collect();
+        let rows = CellRows::from_rows(5, 3, &row_cells, |i| packed[i]).unwrap();
+        assert_eq!(rows, CellRows::from_dense(5, 3, |i| dense[i]).unwrap());
+        assert!(CellRows::from_rows(5, 3, &[2, 0], |i| packed[i]).is_none());
+        assert!(CellRows::from_rows(5, 3, &[0, 5], |i| packed[i]).is_none());
     }
 
     #[test]

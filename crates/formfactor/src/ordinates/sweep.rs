@@ -1827,9 +1827,11 @@ impl OrdinatesOperator {
                             let c = c as usize;
                             *col.add(c) = *col.add(cells.start + i) * scale[c];
                         }
-                    }
-                    for c in cells.clone() {
-                        if !scatters || self.state.row(c).is_none() {
+                        for c in self.state.empty_cells_of_block(block) {
+                            *col.add(c) = 0.0;
+                        }
+                    } else {
+                        for c in cells.clone() {
                             *col.add(c) = 0.0;
                         }
                     }
@@ -1855,7 +1857,7 @@ impl OrdinatesOperator {
                     let column = (l - bins.start) * self.stride;
                     // SAFETY: inside `dst` (asserted); block b's cells are this task's.
                     unsafe {
-                        for c in self.state.cells_of_block(b) {
+                        for c in self.state.empty_cells_of_block(b) {
                             *base.ptr().add(column + c) = 0.0;
                         }
                         for (k, &c) in rows.clone().zip(row_cells) {
@@ -2117,7 +2119,7 @@ impl OrdinatesOperator {
             linear,
             beams,
         };
-        self.transport_all(out, &mut guard, sweep, add, fill, fluence)
+        self.transport_all(Some(out), &mut guard, sweep, add, fill, fluence)
     }
 
     /// `T_e(emission)` into `out` (added to it with `add`): each cell's isotropic emission
@@ -2165,12 +2167,12 @@ impl OrdinatesOperator {
 
     /// Group by group ([`groups`](Self::groups)): `fill(bins, density)` writes the group's
     /// bin-major densities, every piece of the group is swept through them, and the pieces
-    /// are gathered into the state rows `out` (added to it with `add`); tallies power when
-    /// `sweep.tally`. With `fluence` (one value per cell) adds to it the transported
-    /// light's `Σ_l I_l Ω_l` at every cell, those without state too.
+    /// are gathered into the state rows `out` (added to it with `add`; none without `out`);
+    /// tallies power when `sweep.tally`. With `fluence` (one value per cell) adds to it the
+    /// transported light's `Σ_l I_l Ω_l` at every cell, those without state too.
     fn transport_all(
         &self,
-        out: &mut [f64],
+        mut out: Option<&mut [f64]>,
         s: &mut Scratch,
         sweep: Sweep<'_>,
         add: bool,
@@ -2179,7 +2181,7 @@ impl OrdinatesOperator {
     ) -> SweepEnergy {
         let m = self.bins.len();
         let stride = self.stride;
-        assert!(out.len() == self.len());
+        assert!(out.as_ref().is_none_or(|o| o.len() == self.len()));
         assert!(fluence
             .as_ref()
             .is_none_or(|f| f.len() == self.grid.cell_count()));
@@ -2202,22 +2204,24 @@ impl OrdinatesOperator {
             let piece_out = &s.piece_out;
             // Sum of each bin's pieces, by blocks of rows so that both sides stream.
             let cells = self.state.cells();
-            out.par_chunks_mut(m * TRANSPOSE_BLOCK)
-                .enumerate()
-                .for_each(|(b, rows)| {
-                    let k0 = b * TRANSPOSE_BLOCK;
-                    for l in bins.clone() {
-                        for (i, row) in rows.chunks_mut(m).enumerate() {
-                            let c = cells[k0 + i] as usize;
-                            if !add {
-                                row[l] = 0.0;
-                            }
-                            for &p in &self.bin_pieces[l] {
-                                row[l] += piece_out[(p - pieces.start) * stride + c];
+            if let Some(out) = out.as_deref_mut() {
+                out.par_chunks_mut(m * TRANSPOSE_BLOCK)
+                    .enumerate()
+                    .for_each(|(b, rows)| {
+                        let k0 = b * TRANSPOSE_BLOCK;
+                        for l in bins.clone() {
+                            for (i, row) in rows.chunks_mut(m).enumerate() {
+                                let c = cells[k0 + i] as usize;
+                                if !add {
+                                    row[l] = 0.0;
+                                }
+                                for &p in &self.bin_pieces[l] {
+                                    row[l] += piece_out[(p - pieces.start) * stride + c];
+                                }
                             }
                         }
-                    }
-                });
+                    });
+            }
             if let Some(fluence) = fluence.as_deref_mut() {
                 fluence
                     .par_chunks_mut(TRANSPOSE_BLOCK)
@@ -2916,17 +2920,14 @@ impl OrdinatesOperator {
             *p = (*p - u).max(0.0);
         }
         drop(extinguished);
+        // Empty cells: what entered less what the medium upstream took; the rest, ψ's own.
         let omega = self.bins.solid_angles();
         fluence.par_iter_mut().enumerate().for_each(|(c, fl)| {
-            *fl = match self.state.row(c) {
-                Some(k) => psi[k * m..(k + 1) * m]
-                    .iter()
-                    .zip(omega)
-                    .map(|(a, b)| a * b)
-                    .sum(),
-                None => ((0..m).map(|l| field(c, l) * omega[l]).sum::<f64>() - *fl).max(0.0),
+            if self.state.row(c).is_none() {
+                *fl = ((0..m).map(|l| field(c, l) * omega[l]).sum::<f64>() - *fl).max(0.0);
             }
         });
+        self.rows_fluence_into(&psi, &mut fluence);
         Uncollided {
             radiance: psi,
             fluence,
@@ -2937,13 +2938,18 @@ impl OrdinatesOperator {
     /// `4π ×` mean radiance); 0 at cells without state (see
     /// [`fluence_everywhere`](Self::fluence_everywhere)).
     pub fn fluence(&self, solution: &[f64]) -> Vec<f64> {
-        let m = self.bins.len();
-        let omega = self.bins.solid_angles();
         let mut fluence = vec![0.0; self.grid.cell_count()];
-        for (x, &c) in solution.chunks(m).zip(self.state.cells()) {
+        self.rows_fluence_into(solution, &mut fluence);
+        fluence
+    }
+
+    /// Writes the state rows' `Σ_l x_l Ω_l` into their cells of `fluence` (the others are
+    /// left as they are).
+    fn rows_fluence_into(&self, rows: &[f64], fluence: &mut [f64]) {
+        let omega = self.bins.solid_angles();
+        for (x, &c) in rows.chunks(self.bins.len()).zip(self.state.cells()) {
             fluence[c as usize] = x.iter().zip(omega).map(|(a, b)| a * b).sum();
         }
-        fluence
     }
 
     /// Every cell's fluence of a solution `total` (the state's rows) of `I = F + K I`, where
@@ -2956,28 +2962,29 @@ impl OrdinatesOperator {
         assert!(total.len() == self.len() && fixed.len() == self.grid.cell_count());
         let mut fluence = fixed.to_vec();
         if !self.state.is_every_cell() {
-            let mut scattered = vec![0.0; self.len()];
-            let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-            let sweep = Sweep {
-                tally: false,
-                linear: true,
-                beams: None,
-            };
-            self.transport_all(
-                &mut scattered,
-                &mut guard,
-                sweep,
-                false,
-                |bins, dst| self.scatter_into(&self.scatter, total, dst, Layout::BinMajor, bins),
-                Some(&mut fluence),
-            );
+            self.scatter_and_transport(total, None, Some(&mut fluence));
         }
-        let m = self.bins.len();
-        let omega = self.bins.solid_angles();
-        for (x, &c) in total.chunks(m).zip(self.state.cells()) {
-            fluence[c as usize] = x.iter().zip(omega).map(|(a, b)| a * b).sum();
-        }
+        self.rows_fluence_into(total, &mut fluence);
         fluence
+    }
+
+    /// `K x` into the state rows `y` and its fluence added to `fluence` at every cell,
+    /// either or both.
+    fn scatter_and_transport(&self, x: &[f64], y: Option<&mut [f64]>, fluence: Option<&mut [f64]>) {
+        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
+        let sweep = Sweep {
+            tally: false,
+            linear: true,
+            beams: None,
+        };
+        self.transport_all(
+            y,
+            &mut guard,
+            sweep,
+            false,
+            |bins, dst| self.scatter_into(&self.scatter, x, dst, Layout::BinMajor, bins),
+            fluence,
+        );
     }
 }
 
@@ -2997,21 +3004,7 @@ impl TransportOperator for OrdinatesOperator {
 
     /// `y = K x`: scatter `x` once with the phase matrix, transport the result.
     fn apply(&self, x: &[f64], y: &mut [f64]) {
-        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-        let s = &mut *guard;
-        let sweep = Sweep {
-            tally: false,
-            linear: true,
-            beams: None,
-        };
-        self.transport_all(
-            y,
-            s,
-            sweep,
-            false,
-            |bins, dst| self.scatter_into(&self.scatter, x, dst, Layout::BinMajor, bins),
-            None,
-        );
+        self.scatter_and_transport(x, Some(y), None);
     }
 
     /// Block Gauss–Seidel over bins: groups of `gauss_seidel_group` bins in index order; each

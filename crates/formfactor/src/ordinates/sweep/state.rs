@@ -84,6 +84,22 @@ impl StateCells {
         b * self.block..((b + 1) * self.block).min(self.row.len())
     }
 
+    /// The cells of block `b` without state, in order: the gaps between its rows' cells.
+    #[inline]
+    pub(crate) fn empty_cells_of_block(&self, b: usize) -> impl Iterator<Item = usize> + '_ {
+        let cells = self.cells_of_block(b);
+        let ends = self.cells[self.rows_of_block(b)]
+            .iter()
+            .map(|&c| c as usize)
+            .chain(std::iter::once(cells.end));
+        ends.scan(cells.start, |next, end| {
+            let gap = *next..end;
+            *next = end + 1;
+            Some(gap)
+        })
+        .flatten()
+    }
+
     /// Bytes of the map.
     pub(crate) fn bytes(&self) -> usize {
         (self.cells.len() + self.row.len() + self.block_start.len()) * 4
@@ -104,6 +120,10 @@ mod tests {
         assert_eq!(s.rows_of_block(1), 1..3);
         assert_eq!(s.rows_of_block(2), 3..3);
         assert_eq!(s.cells_of_block(2), 6..7);
+        let empty: Vec<Vec<usize>> = (0..3)
+            .map(|b| s.empty_cells_of_block(b).collect())
+            .collect();
+        assert_eq!(empty, [vec![0, 2], vec![3], vec![6]]);
         assert!(!s.is_every_cell());
         assert!(StateCells::new(&[1.0, 1.0], 4).unwrap().is_every_cell());
     }
