@@ -43,6 +43,12 @@ impl VaryKey {
             .map_or("?", |(_, n)| n)
     }
 
+    /// Whether the key changes what is seen (the medium), not only how it is solved: cases
+    /// that differ only in keys that do not share one path-traced reference.
+    pub fn changes_the_medium(self) -> bool {
+        matches!(self, VaryKey::Albedo | VaryKey::G | VaryKey::SigmaTFactor)
+    }
+
     /// The short tag in case names (`a0.9`, `g0.85`, `s4`).
     fn tag(self) -> &'static str {
         match self {
@@ -104,6 +110,9 @@ pub struct SceneCase {
     pub path: PathBuf,
     /// `albedo 0.9, g 0.6` for a variant; empty for the scene as written.
     pub variant: String,
+    /// The scene file and the variation values that change the medium: cases with the same
+    /// key see the same light, so one path-traced reference serves them all.
+    pub reference_key: String,
     pub scene: Scene,
 }
 
@@ -134,6 +143,7 @@ pub fn scene_cases(
             name: base_name.to_string(),
             path: path.to_path_buf(),
             variant: String::new(),
+            reference_key: path.display().to_string(),
             scene: as_validated(Scene::from_file(path)?),
         }]);
     }
@@ -148,7 +158,11 @@ pub fn scene_cases(
         let mut edited = table.clone();
         let mut name = base_name.to_string();
         let mut variant = Vec::new();
+        let mut reference_key = path.display().to_string();
         for &(key, value) in &combination {
+            if key.changes_the_medium() {
+                reference_key.push_str(&format!(" {}={value}", key.name()));
+            }
             apply(&mut edited, key, value)
                 .with_context(|| format!("{}: --vary {}", path.display(), key.name()))?;
             name.push_str(&format!("_{}{value}", key.tag()));
@@ -161,6 +175,7 @@ pub fn scene_cases(
             name,
             path: path.to_path_buf(),
             variant: variant.join(", "),
+            reference_key,
             scene: as_validated(scene),
         });
     }

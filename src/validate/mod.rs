@@ -13,6 +13,7 @@
 //! report.md, `images.rs` the side-by-side pictures.
 
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -338,6 +339,9 @@ pub struct ReferenceResult {
     pub vs_mitsuba: Option<Comparison>,
     /// The Mitsuba files used, relative to the scene.
     pub mitsuba_files: Option<(String, String)>,
+    /// The case these references were made for, when it is another one that sees the same
+    /// medium (the `--vary` keys between them only change how it is solved).
+    pub made_for: Option<String>,
 }
 
 /// One scene's (or variant's) results.
@@ -412,10 +416,11 @@ pub fn run(options: &ValidateOptions, command: &str) -> Result<ValidationReport>
         bar
     };
     let mut results = Vec::new();
+    let mut references = Vec::new();
     for case in &cases {
         let span = tracing::info_span!("validate", scene = %case.name);
         let _enter = span.enter();
-        results.push(validate_scene(options, case, &bar)?);
+        results.push(validate_scene(options, case, &mut references, &bar)?);
     }
     bar.finish_and_clear();
 
@@ -545,9 +550,59 @@ fn mitsuba_reference(
     )))
 }
 
+/// The path-traced references of one case's views, kept for the cases after it that see the
+/// same medium (`--vary` over solve keys alone: [`cases::VaryKey::changes_the_medium`]).
+struct SharedReferences {
+    /// [`cases::SceneCase::reference_key`] of the case they were made for.
+    key: String,
+    /// The name of that case.
+    case: String,
+    /// Image and per-pixel standard error of each view.
+    images: Vec<(Image, Image)>,
+    views: Vec<ViewReference>,
+}
+
+fn path_traced_views(
+    scene: &Scene,
+    name: &str,
+    specs: &[scene::CameraSpec],
+    cameras: &[gather::Camera],
+    settings: &ValidateSettings,
+    bar: &ProgressBar,
+) -> Result<SharedReferences> {
+    let mut images = Vec::new();
+    let mut views = Vec::new();
+    for (k, (spec, camera)) in specs.iter().zip(cameras).enumerate() {
+        bar.set_message(format!(
+            "{name}: path-traced reference of {} ({} spp)",
+            spec.name, settings.reference_spp
+        ));
+        let started = Instant::now();
+        let (reference, reference_err) =
+            path_traced(scene, camera, settings.reference_spp, REFERENCE_SEED)?;
+        let seconds = started.elapsed().as_secs_f64();
+        tracing::info!(camera = %spec.name, seconds, spp = settings.reference_spp, "path-traced reference");
+        views.push(ViewReference {
+            camera: spec.name.clone(),
+            degrees: cases::orbit_degrees(k, specs.len()),
+            seconds,
+            relative_noise: relative_noise(&reference, &reference_err),
+        });
+        images.push((reference, reference_err));
+        bar.inc(1);
+    }
+    Ok(SharedReferences {
+        key: String::new(),
+        case: name.to_string(),
+        images,
+        views,
+    })
+}
+
 fn validate_scene(
     options: &ValidateOptions,
     case: &cases::SceneCase,
+    references: &mut Vec<Rc<SharedReferences>>,
     bar: &ProgressBar,
 ) -> Result<SceneResult> {
     let settings = &options.settings;
@@ -578,27 +633,21 @@ fn validate_scene(
         }
     }
 
-    let mut references = Vec::new();
-    let mut reference_views = Vec::new();
-    for (k, (spec, camera)) in specs.iter().zip(&cameras).enumerate() {
-        bar.set_message(format!(
-            "{name}: path-traced reference of {} ({} spp)",
-            spec.name, settings.reference_spp
-        ));
-        let started = Instant::now();
-        let (reference, reference_err) =
-            path_traced(scene, camera, settings.reference_spp, REFERENCE_SEED)?;
-        let seconds = started.elapsed().as_secs_f64();
-        tracing::info!(camera = %spec.name, seconds, spp = settings.reference_spp, "path-traced reference");
-        reference_views.push(ViewReference {
-            camera: spec.name.clone(),
-            degrees: cases::orbit_degrees(k, specs.len()),
-            seconds,
-            relative_noise: relative_noise(&reference, &reference_err),
-        });
-        references.push((reference, reference_err));
-        bar.inc(1);
-    }
+    let shared = match references.iter().find(|r| r.key == case.reference_key) {
+        Some(made) => {
+            bar.inc(specs.len() as u64);
+            made.clone()
+        }
+        None => {
+            let mut made = path_traced_views(scene, name, &specs, &cameras, settings, bar)?;
+            made.key = case.reference_key.clone();
+            let made = Rc::new(made);
+            references.push(made.clone());
+            made
+        }
+    };
+    let references = &shared.images;
+    let reference_views = shared.views.clone();
     let against_mitsuba = |img: &Image, img_err: Option<&Image>| -> Result<Option<Comparison>> {
         mitsuba
             .as_ref()
@@ -611,6 +660,7 @@ fn validate_scene(
     let reference_result = ReferenceResult {
         spp: settings.reference_spp,
         views: reference_views,
+        made_for: (shared.case != name).then(|| shared.case.clone()),
         // Both images are noisy here: take out both standard errors.
         vs_mitsuba: against_mitsuba(&references[0].0, Some(&references[0].1))?,
         mitsuba_files: mitsuba.as_ref().map(|(_, _, a, b)| (a.clone(), b.clone())),

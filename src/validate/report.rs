@@ -215,10 +215,14 @@ fn scene_section(md: &mut String, scene: &SceneResult) {
     };
     let reference_seconds: f64 = r.views.iter().map(|v| v.seconds).sum();
     let noise = r.views.iter().map(|v| v.relative_noise).sum::<f64>() / r.views.len().max(1) as f64;
+    let made = match &r.made_for {
+        Some(case) => format!(" (made for {case}, which sees the same medium)"),
+        None => String::new(),
+    };
     let _ = writeln!(
         md,
         "`{}`{variant}: {}×{}×{} cells, phase `{}`, {} views of {}×{}. References: {} spp in \
-         {:.1} s, mean per-pixel noise {}.",
+         {:.1} s{made}, mean per-pixel noise {}.",
         scene.path,
         scene.dims[0],
         scene.dims[1],

@@ -234,6 +234,62 @@ fn variants_and_orbit_views_are_each_measured_and_the_worst_is_named() {
     assert!(e.contains("medium.phase.g") && e.contains("g 1.5"), "{e}");
 }
 
+/// Cases that differ only in how the medium is solved (here the bins) share the first one's
+/// path-traced references, and say so; a case that changes the medium gets its own.
+#[test]
+fn cases_that_only_change_the_solve_share_their_references() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let out = dir.path().join("report");
+    let o = quick_validate(
+        &scene,
+        &out,
+        &[
+            "--methods",
+            "discrete-ordinates",
+            "--views",
+            "2",
+            "--vary",
+            "albedo=0.5,0.9",
+            "--vary",
+            "bins=24,54",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let scenes = json["scenes"].as_array().unwrap();
+    let names: Vec<&str> = scenes.iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "tiny_a0.5_b24",
+            "tiny_a0.5_b54",
+            "tiny_a0.9_b24",
+            "tiny_a0.9_b54"
+        ]
+    );
+    let made_for: Vec<&serde_json::Value> =
+        scenes.iter().map(|c| &c["reference"]["made_for"]).collect();
+    assert!(
+        made_for[0].is_null() && made_for[2].is_null(),
+        "{made_for:?}"
+    );
+    assert_eq!(made_for[1], "tiny_a0.5_b24");
+    assert_eq!(made_for[3], "tiny_a0.9_b24");
+    // Shared means the same images: both bin counts are measured against one reference, whose
+    // noise figures are the same, and the albedo 0.9 case's are its own.
+    let noise = |case: usize| scenes[case]["reference"]["views"][0]["relative_noise"].as_f64();
+    assert_eq!(noise(0), noise(1));
+    assert_eq!(noise(2), noise(3));
+    assert_ne!(noise(0), noise(2));
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        md.contains("(made for tiny_a0.5_b24, which sees the same medium)"),
+        "{md}"
+    );
+}
+
 #[test]
 fn unknown_method_and_missing_scene_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
