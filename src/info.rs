@@ -125,22 +125,31 @@ fn expected_ordinates_error(g: f64, bins: usize, tau_cell: f64, split: usize) ->
                  within about 1 % (about 2.5× the solve)"
             )
         }
+    } else if bins >= 864 {
+        "about 2.5 % per view, image mean within 1 % (cloud24, g = 0.85, 864 bins, 8 views: \
+         2.5 %, −0.4 … +0.7 % in the means; the bins' angular error falls about as 1 / bins: \
+         600 bins 2.6 %, 0.0 … +1.1 %, 384 bins 2.9 %, +0.2 … +1.8 %)"
+            .to_string()
+    } else if bins >= 600 {
+        "about 3 % per view, image mean within about 1 % (cloud24, g = 0.85, 600 bins, 8 views: \
+         2.6 %, 0.0 … +1.1 %): [solve] bins = 864 for −0.4 … +0.7 % (about 1.5× the solve)"
+            .to_string()
     } else if bins >= 384 && split > 1 {
         "about 3 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, cells split \
          in 2³, 8 views: 2.9 %, too bright by +0.4 … +1.8 %, the same whole; the bins' angular \
-         error, falling as the bins narrow: 294 bins +0.4 … +2.3 %, 216 bins +0.8 … +3.2 %)"
+         error, falling as the bins narrow: [solve] bins = 864 for −0.4 … +0.7 %)"
             .to_string()
     } else if bins >= 384 {
         "about 3 % per view, image mean within 2 % (cloud24, g = 0.85, 384 bins, 8 views: \
-         2.9 %, too bright by +0.2 … +1.8 %, the same split in 2³ at 7× the solve; the \
-         192-class cloud: 3.5 %, −1.7 %): on the cloud24 the bins' angular error, falling as \
-         the bins narrow (294 bins +0.4 … +2.3 %, 216 bins +0.8 … +3.2 %)"
+         2.9 %, too bright by +0.2 … +1.8 %; the 192-class cloud: 3.5 %, −1.7 %): the bins' \
+         angular error, falling about as 1 / bins: [solve] bins = 864 for a mean within 1 % \
+         (−0.4 … +0.7 %, about 3× the solve)"
             .to_string()
     } else {
         format!(
             "about 8 % per view, back-lit views up to +8 % bright at g = 0.85 with 96 bins \
-             (216 bins: 6 %, +3 %; {bins} bins here): set [solve] bins = 384 for about \
-             4.5 %, within 2 % in the mean (about 7× the solve)"
+             (216 bins: 6 %, +3 %; {bins} bins here): set [solve] bins = 864 for about \
+             2.5 %, within 1 % in the mean (about 20× the solve)"
         )
     };
     if tau_cell > 1.0 {

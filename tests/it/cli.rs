@@ -636,7 +636,7 @@ fn outputs_and_solutions_are_checked_before_the_work() {
         text.contains("direction bins   24, forward peak within 23.6° truncated")
             && text.contains("chosen by volrad")
             && text.contains("expected error")
-            && text.contains("bins = 384"),
+            && text.contains("bins = 864"),
         "{text}"
     );
     let o = volrad(&["info", s(&ordinates), "--json"]);
@@ -645,7 +645,7 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     assert!(f > 0.0 && f < 0.85, "{f}");
     assert!(info["ordinates"]["bins_choice"].is_null(), "{info}");
 
-    // Without `bins` volrad chooses them from the forward peak (g = 0.85: 384 on this small
+    // Without `bins` volrad chooses them from the forward peak (g = 0.85: 864 on this small
     // grid; isotropic: Max's 96), says so, and the solve sweeps what `info` printed.
     let auto = dir.path().join("scene-auto-bins.toml");
     let text = std::fs::read_to_string(&ordinates).unwrap();
@@ -653,7 +653,7 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     let o = volrad(&["info", s(&auto)]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(
-        text.contains("direction bins   384, forward peak within 5.9° truncated")
+        text.contains("direction bins   864, forward peak within 3.9° truncated")
             && text.contains("chosen by volrad for mean cosine 0.85"),
         "{text}"
     );
@@ -661,7 +661,7 @@ fn outputs_and_solutions_are_checked_before_the_work() {
     let o = volrad(&["-q", "solve", s(&auto), "-o", s(&solution)]);
     assert!(o.status.success(), "{}", stderr(&o));
     let stored = volrad::engine::solution::Solution::read(&solution).unwrap();
-    assert_eq!(stored.bins.as_ref().map(|b| b.directions.len()), Some(384));
+    assert_eq!(stored.bins.as_ref().map(|b| b.directions.len()), Some(864));
     let iso = dir.path().join("scene-auto-bins-iso.toml");
     let text = std::fs::read_to_string(&auto).unwrap().replace(
         r#"{ kind = "henyey-greenstein", g = 0.85 }"#,

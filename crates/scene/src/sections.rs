@@ -1,7 +1,7 @@
 //! Validation of each section of a scene file into the libraries' settings types; one
 //! function per section, called in file order by [`Ctx::scene`].
 
-use formfactor::ordinates::{forward_truncation_fraction, VALID_BINS};
+use formfactor::ordinates::{forward_truncation_fraction, MAX_FACE_DIVISIONS, VALID_BINS};
 use gather::{CameraSpec, OpticalModel, RenderSettings, OPTICAL_MODEL_NAMES};
 use medium::blackbody::RgbTable;
 use medium::coarsening::{MAX_TRANSPORT_SCALE, MAX_TRANSPORT_SPLIT};
@@ -904,7 +904,7 @@ impl Ctx<'_> {
 
     /// `[solve] bins`: `"auto"` or one of [`VALID_BINS`].
     fn bins(&self, v: &toml::Value) -> Result<BinCount, SceneError> {
-        let expects = format!("6n² for n = 1..=8 ({VALID_BINS:?})");
+        let expects = format!("6n² for n = 1..={MAX_FACE_DIVISIONS} ({VALID_BINS:?})");
         let bins = self.auto_or_count(v, "solve.bins", &expects, |b| {
             VALID_BINS.contains(&(b as usize))
         })?;

@@ -11,29 +11,32 @@ use glam::DVec3;
 use super::OrdinatesError;
 
 /// Discrete-ordinates bin counts volrad supports: the `6 n²` faces of an `n³` block of cubes.
-pub const VALID_BINS: [usize; 8] = [6, 24, 54, 96, 150, 216, 294, 384];
+pub const VALID_BINS: [usize; 12] = [6, 24, 54, 96, 150, 216, 294, 384, 486, 600, 726, 864];
 
 /// The bin counts [`auto_bin_count`] chooses from, each the smallest measured to reach its
 /// error class (docs/validation.md, the cloud24 orbit): Max's 96 up to `g` =
-/// [`AUTO_BINS_ISOTROPIC_BELOW`], 216 up to [`AUTO_BINS_MODERATE_UP_TO`], 384 beyond.
-pub const AUTO_BIN_STEPS: [usize; 3] = [96, 216, 384];
+/// [`AUTO_BINS_ISOTROPIC_BELOW`], 216 up to [`AUTO_BINS_MODERATE_UP_TO`], 864 beyond; 600
+/// and 384 are the steps down where the transport grid leaves no room for 864.
+pub const AUTO_BIN_STEPS: [usize; 5] = [96, 216, 384, 600, 864];
 
 /// Mean cosines up to this take Max's 96 bins: at g = 0 they are within 2 % per view; the
 /// error that more bins remove grows with the forward peak.
 pub const AUTO_BINS_ISOTROPIC_BELOW: f64 = 0.3;
 
 /// Mean cosines up to this take 216 bins (g = 0.6: 2.7 % per view and +0.6 % in the mean
-/// against 3.1 % and +2.0 % with 96); beyond it 384 (g = 0.85: 6.0 %, −2.0 %, against 6.3 %,
-/// +3.1 % with 216 and 7.6 %, +8.1 % with 96).
+/// against 3.1 % and +2.0 % with 96); beyond it 864 (g = 0.85: 2.5 %, −0.4 … +0.7 % in the
+/// means, against 2.6 %, 0.0 … +1.1 % with 600, 2.9 %, +0.2 … +1.8 % with 384, 6.3 %,
+/// +3.1 % with 216 and 7.6 %, +8.1 % with 96: the bins' angular error falls about as
+/// 1 / bins).
 pub const AUTO_BINS_MODERATE_UP_TO: f64 = 0.7;
 
 /// The most transport cells × bins [`auto_bin_count`] grows the bins to: 80 Mi cell-bins,
 /// what every sweep crosses (the solver state is the cells with medium × bins,
 /// [`OrdinatesOperator::state_cells`](super::OrdinatesOperator::state_cells): a cloud's is a
-/// tenth of this). The 64 × 64 × 48 transport grid of the large samples takes its 384 bins
-/// (75.5 M; 78 s and 516 MiB for the 192 × 192 × 144 cloud, docs/performance.md); a grid of
-/// 96 × 96 × 72 keeps 96. Past it the bins stay where the sweeps' work stays bounded (never
-/// under 96, whose cost the memory check reports).
+/// tenth of this). The 64 × 64 × 48 transport grid of the large samples takes 384 bins
+/// (75.5 M; 78 s and 516 MiB for the 192 × 192 × 144 cloud, docs/performance.md), a grid of
+/// 48 × 48 × 36 all 864, one of 96 × 96 × 72 keeps 96. Past it the bins stay where the
+/// sweeps' work stays bounded (never under 96, whose cost the memory check reports).
 pub const AUTO_BINS_MAX_CELL_BINS: usize = 80 << 20;
 
 /// The bin count volrad chooses for a medium whose phase function has mean cosine
@@ -46,7 +49,7 @@ pub fn auto_bin_count(mean_cosine: f64, cells: usize) -> usize {
     } else if mean_cosine <= AUTO_BINS_MODERATE_UP_TO {
         AUTO_BIN_STEPS[1]
     } else {
-        AUTO_BIN_STEPS[2]
+        AUTO_BIN_STEPS[AUTO_BIN_STEPS.len() - 1]
     };
     AUTO_BIN_STEPS
         .into_iter()
@@ -56,8 +59,8 @@ pub fn auto_bin_count(mean_cosine: f64, cells: usize) -> usize {
         .unwrap_or(AUTO_BIN_STEPS[0])
 }
 
-/// Largest face subdivision supported (`6·8² = 384` bins).
-pub const MAX_FACE_DIVISIONS: usize = 8;
+/// Largest face subdivision supported (`6·12² = 864` bins).
+pub const MAX_FACE_DIVISIONS: usize = 12;
 
 /// `atan(x y / (d √(x² + y² + d²)))`: the corner function whose signed sum over the four
 /// corners of a rectangle on the plane at distance `d` is the rectangle's solid angle.
@@ -137,7 +140,7 @@ pub struct DirectionBins {
 const CENTRE_QUADRATURE: usize = 32;
 
 impl DirectionBins {
-    /// The set of `count` bins: `count` must be `6 n²` with `1 ≤ n ≤ 8` ([`VALID_BINS`]).
+    /// The set of `count` bins: `count` must be `6 n²` with `1 ≤ n ≤ 12` ([`VALID_BINS`]).
     pub fn with_count(count: usize) -> Result<Self, OrdinatesError> {
         let n = (1..=MAX_FACE_DIVISIONS)
             .find(|n| 6 * n * n == count)
@@ -145,7 +148,7 @@ impl DirectionBins {
         Self::cube(n)
     }
 
-    /// The `6·n²` bins of an `n × n × n` block of cubes, `1 ≤ n ≤ 8`.
+    /// The `6·n²` bins of an `n × n × n` block of cubes, `1 ≤ n ≤ 12`.
     pub fn cube(n: usize) -> Result<Self, OrdinatesError> {
         if !(1..=MAX_FACE_DIVISIONS).contains(&n) {
             return Err(OrdinatesError::FaceDivisions(n));

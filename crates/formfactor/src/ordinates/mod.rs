@@ -19,7 +19,7 @@ pub mod sweep;
 pub use assembled::AssembledOrdinates;
 pub use bins::{
     auto_bin_count, DirectionBins, AUTO_BINS_MAX_CELL_BINS, AUTO_BINS_MODERATE_UP_TO,
-    AUTO_BIN_STEPS, VALID_BINS,
+    AUTO_BIN_STEPS, MAX_FACE_DIVISIONS, VALID_BINS,
 };
 pub use faces::gauss_legendre_unit;
 pub use phase_matrix::PhaseMatrix;
@@ -33,9 +33,9 @@ pub use sweep::{
 /// What was wrong with an ordinates set-up.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum OrdinatesError {
-    #[error("face divisions n = {0}: must be in 1..=8")]
+    #[error("face divisions n = {0}: must be in 1..={MAX_FACE_DIVISIONS}")]
     FaceDivisions(usize),
-    #[error("{0} bins: expected 6 n² for n = 1..=8 ({VALID_BINS:?})")]
+    #[error("{0} bins: expected 6 n² for n = 1..={MAX_FACE_DIVISIONS} ({VALID_BINS:?})")]
     BinCount(usize),
     #[error("channel {channel} does not exist (the medium has {channels})")]
     Channel { channel: usize, channels: usize },

@@ -60,7 +60,7 @@ fn medium(grid: Grid, channel: &ChannelMedium, phase: PhaseFunction) -> Medium {
 
 #[test]
 fn solid_angles_sum_to_four_pi() {
-    for n in 1..=8 {
+    for n in 1..=formfactor::ordinates::MAX_FACE_DIVISIONS {
         let bins = DirectionBins::cube(n).unwrap();
         assert_eq!(bins.len(), 6 * n * n);
         let total: f64 = bins.solid_angles().iter().sum();
@@ -801,7 +801,7 @@ fn forward_asymmetry_match_keeps_back_scattering() {
 fn face_bilinear_is_exact_at_centres_and_for_linear_fields() {
     use formfactor::ordinates::bins::{face_bilinear, FaceRect};
     let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
-    for n in 1..=8 {
+    for n in 1..=formfactor::ordinates::MAX_FACE_DIVISIONS {
         let bins = DirectionBins::cube(n).unwrap();
         for l in 0..bins.len() {
             let r = bins.rect(l);
@@ -997,7 +997,7 @@ fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
 }
 
 /// volrad's bin choice follows the forward peak (96 for isotropic-like, 216 for moderate,
-/// 384 for strong forward scattering) and steps down where the state `cells × bins` would
+/// 864 for strong forward scattering) and steps down where the state `cells × bins` would
 /// pass its cap, never below Max's 96.
 #[test]
 fn auto_bins_follow_the_forward_peak_within_the_state_cap() {
@@ -1006,12 +1006,19 @@ fn auto_bins_follow_the_forward_peak_within_the_state_cap() {
     assert_eq!(auto_bin_count(0.0, small), 96);
     assert_eq!(auto_bin_count(-0.5, small), 96);
     assert_eq!(auto_bin_count(0.6, small), 216);
-    assert_eq!(auto_bin_count(0.85, small), 384);
-    assert_eq!(auto_bin_count(0.95, small), 384);
-    // The 64 × 64 × 48 grid (the large samples' transport grid) takes all 384.
+    assert_eq!(auto_bin_count(0.85, small), 864);
+    assert_eq!(auto_bin_count(0.95, small), 864);
+    // 48 × 48 × 36 still takes all 864.
+    let cloud48 = 48 * 48 * 36;
+    assert_eq!(auto_bin_count(0.85, cloud48), 864);
+    // The 64 × 64 × 48 grid (the large samples' transport grid) takes 384: 600 would pass
+    // the cap.
     let cloud64 = 64 * 64 * 48;
-    assert!(cloud64 * 384 <= AUTO_BINS_MAX_CELL_BINS);
+    assert!(cloud64 * 384 <= AUTO_BINS_MAX_CELL_BINS && cloud64 * 600 > AUTO_BINS_MAX_CELL_BINS);
     assert_eq!(auto_bin_count(0.85, cloud64), 384);
+    // Between 48- and 64-class grids: 600.
+    let cloud56 = 56 * 56 * 42;
+    assert_eq!(auto_bin_count(0.85, cloud56), 600);
     // At 96 × 96 × 72, 216 bins would pass the cap, 96 fit.
     let cloud96 = 96 * 96 * 72;
     assert!(cloud96 * 216 > AUTO_BINS_MAX_CELL_BINS && cloud96 * 96 <= AUTO_BINS_MAX_CELL_BINS);

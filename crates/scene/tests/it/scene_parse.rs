@@ -946,7 +946,11 @@ fn solve_bins_are_auto_or_a_valid_count() {
         parse("[solve]\nbins = 216\n").unwrap().solve.bins,
         scene::BinCount::Fixed(216)
     );
-    for bad in ["bins = \"many\"", "bins = 97", "bins = 600"] {
+    assert_eq!(
+        parse("[solve]\nbins = 864\n").unwrap().solve.bins,
+        scene::BinCount::Fixed(864)
+    );
+    for bad in ["bins = \"many\"", "bins = 97", "bins = 1014"] {
         let err = parse(&format!("[solve]\n{bad}\n")).unwrap_err().to_string();
         assert!(
             err.contains("solve.bins") && err.contains("auto") && err.contains("6n²"),
