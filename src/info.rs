@@ -197,8 +197,9 @@ fn bins_choice(g: f64, bins: usize, scene: &Scene, occupancy: &budget::Occupancy
         })
         .collect();
     format!(
-        "{why}, which asks for {wanted}; held to {bins} so that cells × bins stays within \
-         {:.1} M ({cells} transport cells): {}",
+        "{why}, which asks for {wanted}; held to {bins} so that the sweeps' work (transport \
+         cells × bins, a cell-bin above 384 bins counted (bins / 384)^¼) stays within {:.1} M \
+         ({cells} transport cells): {}",
         formfactor::ordinates::AUTO_BINS_MAX_CELL_BINS as f64 / 1e6,
         costs.join(", ")
     )

@@ -159,8 +159,9 @@ pub struct SolveSettings {
 /// `[solve] bins`: how many direction bins discrete ordinates sweep.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BinCount {
-    /// Chosen from the medium: by the phase function's forward peak, as many as the state
-    /// (transport cells × bins) allows ([`formfactor::ordinates::auto_bin_count`]).
+    /// Chosen from the medium: by the phase function's forward peak, as many as a cap on
+    /// the sweeps' work (about transport cells × bins) allows
+    /// ([`formfactor::ordinates::auto_bin_count`]).
     #[default]
     Auto,
     /// One of [`VALID_BINS`](formfactor::ordinates::VALID_BINS).

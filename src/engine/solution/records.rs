@@ -1161,9 +1161,9 @@ mod tests {
         };
         assert!(bins.into_library().is_err());
         let bins = BinsRecord {
-            face_resolution: 9,
-            directions: vec![[1.0, 0.0, 0.0]; 486],
-            solid_angles: vec![1.0; 486],
+            face_resolution: 13,
+            directions: vec![[1.0, 0.0, 0.0]; 1014],
+            solid_angles: vec![1.0; 1014],
         };
         assert!(bins.into_library().is_err());
 

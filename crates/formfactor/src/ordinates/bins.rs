@@ -30,19 +30,29 @@ pub const AUTO_BINS_ISOTROPIC_BELOW: f64 = 0.3;
 /// 1 / bins).
 pub const AUTO_BINS_MODERATE_UP_TO: f64 = 0.7;
 
-/// The most transport cells × bins [`auto_bin_count`] grows the bins to: 80 Mi cell-bins,
-/// what every sweep crosses (the solver state is the cells with medium × bins,
-/// [`OrdinatesOperator::state_cells`](super::OrdinatesOperator::state_cells): a cloud's is a
-/// tenth of this). The 64 × 64 × 48 transport grid of the large samples takes 384 bins
-/// (75.5 M; 78 s and 516 MiB for the 192 × 192 × 144 cloud, docs/performance.md), a grid of
-/// 48 × 48 × 36 all 864, one of 96 × 96 × 72 keeps 96. Past it the bins stay where the
-/// sweeps' work stays bounded (never under 96, whose cost the memory check reports).
+/// The most sweep work [`auto_bin_count`] grows the bins to, in transport cell-bins
+/// ([`auto_bins_work`]): 80 Mi, what every sweep crosses (the solver state is the cells with
+/// medium × bins, [`OrdinatesOperator::state_cells`](super::OrdinatesOperator::state_cells):
+/// a cloud's is a tenth of this). The 64 × 64 × 48 transport grid of the large samples takes
+/// 384 bins (75.5 M; 78 s and 516 MiB for the 192 × 192 × 144 cloud, docs/performance.md), a
+/// 48 × 48 × 36 one 600, a 40 × 40 × 30 one 864, one of 96 × 96 × 72 keeps 96. Past it the
+/// bins stay where the sweeps' work stays bounded (never under 96, whose cost the memory
+/// check reports).
 pub const AUTO_BINS_MAX_CELL_BINS: usize = 80 << 20;
+
+/// The sweeps' work of `bins` bins on `cells` transport cells as [`AUTO_BINS_MAX_CELL_BINS`]
+/// counts it: cells × bins, each cell-bin above 384 bins weighted `(bins / 384)^¼` because
+/// the scattering product (bins² per cell) takes a growing share: 864 bins cost 1.24× per
+/// cell-bin what 384 do (the cloud24 at g = 0.85: 10.3 s against 3.7 s for 2.25× the bins).
+pub fn auto_bins_work(cells: usize, bins: usize) -> f64 {
+    let weight = (bins as f64 / 384.0).max(1.0).powf(0.25);
+    cells as f64 * bins as f64 * weight
+}
 
 /// The bin count volrad chooses for a medium whose phase function has mean cosine
 /// `mean_cosine`, swept on `cells` transport cells: the steps of [`AUTO_BIN_STEPS`] by the
-/// forward peak, the largest whose state stays within [`AUTO_BINS_MAX_CELL_BINS`], 96 at
-/// least.
+/// forward peak, the largest whose work ([`auto_bins_work`]) stays within
+/// [`AUTO_BINS_MAX_CELL_BINS`], 96 at least.
 pub fn auto_bin_count(mean_cosine: f64, cells: usize) -> usize {
     let wanted = if mean_cosine <= AUTO_BINS_ISOTROPIC_BELOW {
         AUTO_BIN_STEPS[0]
@@ -55,7 +65,7 @@ pub fn auto_bin_count(mean_cosine: f64, cells: usize) -> usize {
         .into_iter()
         .rev()
         .filter(|&b| b <= wanted)
-        .find(|&b| cells.saturating_mul(b) <= AUTO_BINS_MAX_CELL_BINS)
+        .find(|&b| auto_bins_work(cells, b) <= AUTO_BINS_MAX_CELL_BINS as f64)
         .unwrap_or(AUTO_BIN_STEPS[0])
 }
 

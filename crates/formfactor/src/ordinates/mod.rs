@@ -18,8 +18,8 @@ pub mod sweep;
 
 pub use assembled::AssembledOrdinates;
 pub use bins::{
-    auto_bin_count, DirectionBins, AUTO_BINS_MAX_CELL_BINS, AUTO_BINS_MODERATE_UP_TO,
-    AUTO_BIN_STEPS, MAX_FACE_DIVISIONS, VALID_BINS,
+    auto_bin_count, auto_bins_work, DirectionBins, AUTO_BINS_MAX_CELL_BINS,
+    AUTO_BINS_MODERATE_UP_TO, AUTO_BIN_STEPS, MAX_FACE_DIVISIONS, VALID_BINS,
 };
 pub use faces::gauss_legendre_unit;
 pub use phase_matrix::PhaseMatrix;

@@ -127,14 +127,14 @@ fn refuses_bad_face_divisions() {
         OrdinatesError::FaceDivisions(0)
     );
     assert_eq!(
-        DirectionBins::cube(9).unwrap_err(),
-        OrdinatesError::FaceDivisions(9)
+        DirectionBins::cube(13).unwrap_err(),
+        OrdinatesError::FaceDivisions(13)
     );
     // By count: every valid count is 6 n², anything else is refused naming it.
     for count in formfactor::ordinates::VALID_BINS {
         assert_eq!(DirectionBins::with_count(count).unwrap().len(), count);
     }
-    for count in [0, 7, 100, 486] {
+    for count in [0, 7, 100, 1014] {
         assert_eq!(
             DirectionBins::with_count(count).unwrap_err(),
             OrdinatesError::BinCount(count)
@@ -1001,24 +1001,31 @@ fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
 /// pass its cap, never below Max's 96.
 #[test]
 fn auto_bins_follow_the_forward_peak_within_the_state_cap() {
-    use formfactor::ordinates::{auto_bin_count, AUTO_BINS_MAX_CELL_BINS, VALID_BINS};
+    use formfactor::ordinates::{
+        auto_bin_count, auto_bins_work, AUTO_BINS_MAX_CELL_BINS, VALID_BINS,
+    };
     let small = 24 * 24 * 18;
     assert_eq!(auto_bin_count(0.0, small), 96);
     assert_eq!(auto_bin_count(-0.5, small), 96);
     assert_eq!(auto_bin_count(0.6, small), 216);
     assert_eq!(auto_bin_count(0.85, small), 864);
     assert_eq!(auto_bin_count(0.95, small), 864);
-    // 48 × 48 × 36 still takes all 864.
-    let cloud48 = 48 * 48 * 36;
-    assert_eq!(auto_bin_count(0.85, cloud48), 864);
     // The 64 × 64 × 48 grid (the large samples' transport grid) takes 384: 600 would pass
     // the cap.
     let cloud64 = 64 * 64 * 48;
     assert!(cloud64 * 384 <= AUTO_BINS_MAX_CELL_BINS && cloud64 * 600 > AUTO_BINS_MAX_CELL_BINS);
     assert_eq!(auto_bin_count(0.85, cloud64), 384);
-    // Between 48- and 64-class grids: 600.
-    let cloud56 = 56 * 56 * 42;
-    assert_eq!(auto_bin_count(0.85, cloud56), 600);
+    // Above 384 bins a cell-bin counts more (the scattering product's share grows): a
+    // 48 × 48 × 36 grid fits 864 × its cells but not their work, and takes 600; 40 × 40 × 30
+    // takes all 864.
+    let cloud48 = 48 * 48 * 36;
+    assert!(cloud48 * 864 <= AUTO_BINS_MAX_CELL_BINS);
+    assert!(auto_bins_work(cloud48, 864) > AUTO_BINS_MAX_CELL_BINS as f64);
+    assert_eq!(auto_bin_count(0.85, cloud48), 600);
+    assert_eq!(auto_bin_count(0.85, 40 * 40 * 30), 864);
+    // Up to 384 bins the work is cells × bins.
+    assert_eq!(auto_bins_work(1000, 384), 384_000.0);
+    assert_eq!(auto_bins_work(1000, 96), 96_000.0);
     // At 96 × 96 × 72, 216 bins would pass the cap, 96 fit.
     let cloud96 = 96 * 96 * 72;
     assert!(cloud96 * 216 > AUTO_BINS_MAX_CELL_BINS && cloud96 * 96 <= AUTO_BINS_MAX_CELL_BINS);
