@@ -997,8 +997,8 @@ fn face_coupling_keeps_a_beam_narrower_than_max_shares() {
 }
 
 /// volrad's bin choice follows the forward peak (96 for isotropic-like, 216 for moderate,
-/// 864 for strong forward scattering) and steps down where the state `cells × bins` would
-/// pass its cap, never below Max's 96.
+/// 864 for strong forward scattering) and steps down where the sweeps' work (`cells × bins`,
+/// more per cell-bin above 384 bins) would pass its cap, never below Max's 96.
 #[test]
 fn auto_bins_follow_the_forward_peak_within_the_state_cap() {
     use formfactor::ordinates::{
