@@ -563,13 +563,13 @@ struct SharedReferences {
 }
 
 fn path_traced_views(
-    scene: &Scene,
-    name: &str,
+    case: &cases::SceneCase,
     specs: &[scene::CameraSpec],
     cameras: &[gather::Camera],
     settings: &ValidateSettings,
     bar: &ProgressBar,
 ) -> Result<SharedReferences> {
+    let (scene, name) = (&case.scene, case.name.as_str());
     let mut images = Vec::new();
     let mut views = Vec::new();
     for (k, (spec, camera)) in specs.iter().zip(cameras).enumerate() {
@@ -592,7 +592,7 @@ fn path_traced_views(
         bar.inc(1);
     }
     Ok(SharedReferences {
-        key: String::new(),
+        key: case.reference_key.clone(),
         case: name.to_string(),
         images,
         views,
@@ -639,9 +639,7 @@ fn validate_scene(
             made.clone()
         }
         None => {
-            let mut made = path_traced_views(scene, name, &specs, &cameras, settings, bar)?;
-            made.key = case.reference_key.clone();
-            let made = Rc::new(made);
+            let made = Rc::new(path_traced_views(case, &specs, &cameras, settings, bar)?);
             references.push(made.clone());
             made
         }
