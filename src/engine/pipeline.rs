@@ -79,11 +79,12 @@ pub fn solve_scene(
         crate::engine::budget::check_solve_occupied(scene, settings, limit, occupancy)?;
     }
     if let (Some(tell), Some(occupancy)) = (&hooks.on_prediction, &occupancy) {
-        let predicted = crate::engine::timing::solve_time(
+        let predicted = crate::engine::timing::solve_time_cancellable(
             scene,
             settings,
             occupancy,
             rayon::current_num_threads(),
+            &hooks.control,
         );
         tracing::debug!(
             seconds = predicted.total().as_secs_f64(),
@@ -92,6 +93,11 @@ pub fn solve_scene(
             "predicted solve time"
         );
         tell(&predicted);
+    }
+    // The prediction's probe stops when the solve is cancelled; so does the solve, before it
+    // starts.
+    if hooks.control.is_cancelled() {
+        anyhow::bail!("solve cancelled");
     }
     // Multiple scattering is solved on the transport grid (the data grid itself at scale 1);
     // the light pass stays on the data grid for the render's exact first bounce.

@@ -329,8 +329,26 @@ pub fn solve_time(
     occupancy: &Occupancy,
     threads: usize,
 ) -> TimeEstimate {
+    solve_time_cancellable(
+        scene,
+        settings,
+        occupancy,
+        threads,
+        &solver::SolveControl::default(),
+    )
+}
+
+/// [`solve_time`] for a solve that `control` can cancel: the probe's iterations (seconds on a
+/// grid of many distinct σt) stop when it is, and the probe then counts as not measured.
+pub fn solve_time_cancellable(
+    scene: &Scene,
+    settings: &SolveSettings,
+    occupancy: &Occupancy,
+    threads: usize,
+    control: &solver::SolveControl,
+) -> TimeEstimate {
     let machine = measures_the_machine(settings.method).then(machine_factor);
-    solve_time_at_speed(scene, settings, occupancy, threads, machine)
+    estimate(scene, settings, occupancy, threads, machine, control)
 }
 
 /// [`solve_time`] on a machine `machine` times slower than the coefficients' (`None`: as
@@ -341,6 +359,18 @@ pub fn solve_time_at_speed(
     occupancy: &Occupancy,
     threads: usize,
     machine: Option<f64>,
+) -> TimeEstimate {
+    let control = solver::SolveControl::default();
+    estimate(scene, settings, occupancy, threads, machine, &control)
+}
+
+fn estimate(
+    scene: &Scene,
+    settings: &SolveSettings,
+    occupancy: &Occupancy,
+    threads: usize,
+    machine: Option<f64>,
+    control: &solver::SolveControl,
 ) -> TimeEstimate {
     let medium = &scene.medium;
     let grid = medium.grid();
@@ -397,7 +427,7 @@ pub fn solve_time_at_speed(
             what: "the probe of a coarse copy",
             seconds: PROBE_SECONDS + cells * PROBE_SECONDS_PER_DATA_CELL,
         });
-        probe(scene, settings)
+        probe_cancellable(scene, settings, control)
     } else {
         None
     };
@@ -630,9 +660,21 @@ pub struct Probe {
 /// the medium's bounding block ([`spectral_radius_estimate`]) misjudges clumped, back-lit
 /// and forward-scattering media. `None` if the copy cannot be built.
 pub fn probe(scene: &Scene, settings: &SolveSettings) -> Option<Probe> {
+    probe_cancellable(scene, settings, &solver::SolveControl::default())
+}
+
+/// [`probe`], its iterations stopped (and `None` returned) when `control` is cancelled.
+pub fn probe_cancellable(
+    scene: &Scene,
+    settings: &SolveSettings,
+    control: &solver::SolveControl,
+) -> Option<Probe> {
     use formfactor::ordinates::{DirectionBins, OrdinatesOperator};
     use medium::coarsening::Coarsening;
 
+    if control.is_cancelled() {
+        return None;
+    }
     let medium = &scene.medium;
     let grid = medium.grid();
     let scale = super::budget::smallest_scale_within(grid, PROBE_CELLS);
@@ -668,12 +710,15 @@ pub fn probe(scene: &Scene, settings: &SolveSettings) -> Option<Probe> {
         }
         let bins = DirectionBins::with_count(PROBE_BINS).ok()?;
         let op = OrdinatesOperator::new(&coarse, c, bins, options).ok()?;
+        if control.is_cancelled() {
+            return None;
+        }
         let rho = solver::spectral_radius(&op, PROBE_POWER_STEPS, PROBE_TOLERANCE).rho;
         if !rho.is_finite() {
             return None;
         }
         use solver::Method as M;
-        let run = |method| probe_iterations(scene, settings, &coarse, c, &op, method);
+        let run = |method| probe_iterations(scene, settings, (&coarse, c, &op), method, control);
         let iterations = match (ordinates, settings.iteration) {
             (true, M::Jacobi | M::GaussSeidel | M::Sor { .. } | M::Gmres { .. } | M::BiCgStab) => {
                 run(settings.iteration)
@@ -711,10 +756,13 @@ pub fn probe(scene: &Scene, settings: &SolveSettings) -> Option<Probe> {
 fn probe_iterations(
     scene: &Scene,
     settings: &SolveSettings,
-    coarse: &medium::Medium,
-    c: usize,
-    op: &formfactor::ordinates::OrdinatesOperator,
+    (coarse, c, op): (
+        &medium::Medium,
+        usize,
+        &formfactor::ordinates::OrdinatesOperator,
+    ),
     method: solver::Method,
+    control: &solver::SolveControl,
 ) -> Option<usize> {
     use solver::TransportOperator;
     let n = op.len();
@@ -732,14 +780,10 @@ fn probe_iterations(
         max_iterations: PROBE_SOLVE_ITERATIONS.min(settings.max_iterations),
         record_history: true,
     };
-    let (_, report) = solver::solve(
-        op,
-        &external,
-        None,
-        &options,
-        &solver::SolveControl::default(),
-    )
-    .ok()?;
+    let (_, report) = solver::solve(op, &external, None, &options, control).ok()?;
+    if control.is_cancelled() {
+        return None;
+    }
     if report.converged || report.iterations >= settings.max_iterations {
         return Some(report.iterations.max(1));
     }

@@ -170,3 +170,72 @@ fn the_machines_factor_is_given_measured_or_one() {
     assert_eq!(machine_factor_from(None, || Some(1e-9)), 1.0);
     assert_eq!(machine_factor_from(None, || None), 1.0);
 }
+
+/// A solve cancelled while its time is predicted stops there: the probe's iterations on the
+/// coarse copy (seconds on a grid of many distinct σt, where Python's Ctrl-C waited for them)
+/// see the cancellation, and the solve fails as cancelled before it starts.
+#[test]
+fn a_solve_cancelled_in_its_prediction_stops_there() {
+    // Every cell its own σt (1 … 3 per cell, thick): the probe's copy is the grid itself and
+    // its 40 Gauss–Seidel iterations took 3 s on 2 cores.
+    let cells = 24 * 24 * 20;
+    let bytes: Vec<u8> = (0..cells)
+        .flat_map(|i: u32| {
+            (1.0 + 2.0 * ((i.wrapping_mul(2_654_435_761) >> 8) as f32 / 16_777_216.0)).to_le_bytes()
+        })
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("thick.f32"), bytes).unwrap();
+    let text = r#"
+[volume]
+file = "thick.f32"
+dims = [24, 24, 20]
+
+[medium]
+albedo = 0.999
+
+[[light]]
+kind = "directional"
+direction = [0.0, 0.0, -1.0]
+irradiance = 1.0
+
+[solve]
+method = "discrete-ordinates"
+tolerance = 1e-12
+max_iterations = 100000
+"#;
+    let scene = Scene::from_toml_str(text, dir.path(), Path::new("thick.toml")).unwrap();
+    let occupancy = Occupancy::of(&scene.medium);
+    let control = solver::SolveControl::default();
+    control.cancel();
+    let started = std::time::Instant::now();
+    let predicted = volrad::engine::timing::solve_time_cancellable(
+        &scene,
+        &scene.solve,
+        &occupancy,
+        2,
+        &control,
+    );
+    let seconds = started.elapsed().as_secs_f64();
+    // Not measured: the prediction falls back on the diffusion estimate.
+    assert!(predicted.spectral_radius().is_some() || predicted.iterations().is_some());
+    assert!(
+        seconds < 1.0,
+        "the cancelled prediction took {seconds:.1} s"
+    );
+    let probed = volrad::engine::timing::probe_cancellable(&scene, &scene.solve, &control);
+    assert_eq!(probed, None, "a cancelled probe measured {probed:?}");
+
+    let hooks = SolveHooks {
+        control: std::sync::Arc::new(control),
+        on_prediction: Some(std::sync::Arc::new(
+            |_: &volrad::engine::timing::TimeEstimate| {},
+        )),
+        ..SolveHooks::default()
+    };
+    let started = std::time::Instant::now();
+    let error = solve_scene(&scene, &scene.solve, &hooks).unwrap_err();
+    let seconds = started.elapsed().as_secs_f64();
+    assert!(format!("{error:#}").contains("cancelled"), "{error:#}");
+    assert!(seconds < 1.0, "the cancelled solve took {seconds:.1} s");
+}
