@@ -18,7 +18,9 @@
 //! along 200,000 directions, optical depth through the three nested boxes in closed form; a
 //! cell's value is its mean, and the point value differs by up to about 1 %); for case ii an analog Monte Carlo of `--histories` particles
 //! (default 10⁷) scoring track length in each detector cell, with its standard error. Also the
-//! solve's time, the process's peak memory and the peak and time `volrad info` predicts.
+//! solve's time, the process's peak memory and the peak and time `volrad info` predicts, and
+//! the emitter pass's estimated rays per cell; with `TIME_PASS=1` the pass is run again alone
+//! after the solve and its report (rays, seconds) printed.
 
 use std::f64::consts::PI;
 use std::path::Path;
@@ -288,6 +290,18 @@ fn main() -> Result<()> {
         })
         .unwrap_or_else(|| "?".into());
     let occupancy = Occupancy::of(&scene.medium);
+    if std::env::var("TIME_PASS").is_ok() {
+        let pass =
+            medium::emitter_pass::EmitterPass::compute(&scene.medium, 0, &Default::default())?;
+        println!("pass: {:?}", pass.report());
+    }
+    for plan in volrad::engine::methods::emitter_pass_plans(&scene, &scene.solve) {
+        println!(
+            "emitter pass: {:.0} rays per cell (estimated), {}",
+            plan.rays_per_cell,
+            if plan.runs { "run" } else { "not run" }
+        );
+    }
     let predicted = solve_peak(&scene, &scene.solve, &occupancy).total();
     let predicted_time = solve_time(
         &scene,

@@ -131,10 +131,11 @@ fn run_solver(
 }
 
 /// The emitter pass's largest expected cost, in rays per cell, for a solve to run it. A compact
-/// source (Kobayashi's 6³ source cells in 60³, which runs it) is where the bins' ray effects
-/// are and the pass pays; a cloud that emits throughout (data/fire-scattering.toml: about
-/// 3,200, 17× the solve) is a smooth source the operator carries well.
-pub const MAX_EMITTER_RAYS_PER_CELL: f64 = 256.0;
+/// source (Kobayashi's 6³ source cells in 60³: about 310, its edge's sources sampled at points)
+/// is where the bins' ray effects are and the pass pays; a cloud that emits throughout
+/// (data/fire-scattering.toml: thousands, 17× the solve and more) is a smooth source the
+/// operator carries well.
+pub const MAX_EMITTER_RAYS_PER_CELL: f64 = 512.0;
 
 /// Cells at which the emitter pass's cost is sampled before it runs.
 pub const EMITTER_COST_SAMPLES: usize = 64;
