@@ -889,22 +889,7 @@ pub fn uniform_box_fluence(
 ) -> f64 {
     let mut sum = 0.0;
     for d in fibonacci_directions(directions) {
-        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-        for a in 0..3 {
-            if d[a] == 0.0 {
-                if x[a] < lo[a] || x[a] > hi[a] {
-                    t1 = -1.0;
-                }
-                continue;
-            }
-            let (mut ta, mut tb) = ((lo[a] - x[a]) / d[a], (hi[a] - x[a]) / d[a]);
-            if ta > tb {
-                std::mem::swap(&mut ta, &mut tb);
-            }
-            t0 = t0.max(ta);
-            t1 = t1.min(tb);
-        }
-        if t1 > t0 {
+        if let Some((t0, t1)) = chord_through_box(x, d, lo, hi) {
             sum += if sigma_t > 0.0 {
                 ((-sigma_t * t0).exp() - (-sigma_t * t1).exp()) / sigma_t
             } else {
@@ -913,6 +898,27 @@ pub fn uniform_box_fluence(
         }
     }
     emission * sum * 4.0 * PI / directions.max(1) as f64
+}
+
+/// Where the ray from `x` along `d` (forward only) enters and leaves the box `[lo, hi]`, if
+/// it crosses it.
+fn chord_through_box(x: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if x[a] < lo[a] || x[a] > hi[a] {
+                return None;
+            }
+            continue;
+        }
+        let (mut ta, mut tb) = ((lo[a] - x[a]) / d[a], (hi[a] - x[a]) / d[a]);
+        if ta > tb {
+            std::mem::swap(&mut ta, &mut tb);
+        }
+        t0 = t0.max(ta);
+        t1 = t1.min(tb);
+    }
+    (t1 > t0).then_some((t0, t1))
 }
 
 /// The 3³ Gauss–Legendre points of a cell of side `h` (offsets from its centre) and their
@@ -1091,17 +1097,8 @@ mod tests {
         let chords: Vec<DVec3> = fibonacci_directions(20_000).collect();
         let exact_at = |x: DVec3| -> f64 {
             let mut sum = 0.0;
-            for d in &chords {
-                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
-                for a in 0..3 {
-                    let (mut ta, mut tb) = ((box_lo[a] - x[a]) / d[a], (box_hi[a] - x[a]) / d[a]);
-                    if ta > tb {
-                        std::mem::swap(&mut ta, &mut tb);
-                    }
-                    t0 = t0.max(ta);
-                    t1 = t1.min(tb);
-                }
-                if t1 > t0 {
+            for &d in &chords {
+                if let Some((t0, t1)) = chord_through_box(x, d, box_lo, box_hi) {
                     sum += -(-(sigma as f64) * (t1 - t0)).exp_m1() / sigma as f64;
                 }
             }
