@@ -672,6 +672,8 @@ pub fn probe_cancellable(
     use formfactor::ordinates::{DirectionBins, OrdinatesOperator};
     use medium::coarsening::Coarsening;
 
+    // The solve's cancellation, not its progress: the probe's iterations are not the solve's.
+    let control = &solver::SolveControl::with_flag(control.flag());
     if control.is_cancelled() {
         return None;
     }
