@@ -427,7 +427,7 @@ fn estimate(
             what: "the probe of a coarse copy",
             seconds: PROBE_SECONDS + cells * PROBE_SECONDS_PER_DATA_CELL,
         });
-        probe_cancellable(scene, settings, control)
+        probe(scene, settings, control)
     } else {
         None
     };
@@ -658,13 +658,9 @@ pub struct Probe {
 /// shape, holes, where the light enters — more than of the grid it is solved on, and a copy of
 /// a few thousand cells gives them in about 0.2 s, where diffusion theory on
 /// the medium's bounding block ([`spectral_radius_estimate`]) misjudges clumped, back-lit
-/// and forward-scattering media. `None` if the copy cannot be built.
-pub fn probe(scene: &Scene, settings: &SolveSettings) -> Option<Probe> {
-    probe_cancellable(scene, settings, &solver::SolveControl::default())
-}
-
-/// [`probe`], its iterations stopped (and `None` returned) when `control` is cancelled.
-pub fn probe_cancellable(
+/// and forward-scattering media. `None` if the copy cannot be built, or when `control` is
+/// cancelled (its iterations stop then: seconds on a grid of many distinct σt).
+pub fn probe(
     scene: &Scene,
     settings: &SolveSettings,
     control: &solver::SolveControl,
@@ -732,6 +728,10 @@ pub fn probe_cancellable(
                 .map(|k| ((k as f64 / ZONAL_GAUSS_SEIDEL_GAIN).ceil() as usize).max(1)),
             _ => None,
         };
+        // Cancelled during the iterations: they stopped early, so nothing was measured.
+        if control.is_cancelled() {
+            return None;
+        }
         let measured = Probe {
             spectral_radius: rho,
             iterations,
@@ -783,9 +783,6 @@ fn probe_iterations(
         record_history: true,
     };
     let (_, report) = solver::solve(op, &external, None, &options, control).ok()?;
-    if control.is_cancelled() {
-        return None;
-    }
     if report.converged || report.iterations >= settings.max_iterations {
         return Some(report.iterations.max(1));
     }
