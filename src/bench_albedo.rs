@@ -275,13 +275,16 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
                 )
             } else {
                 Box::new(
-                    HierarchicalOperator::build(
+                    // The solve's operator: error control relative to the cells' first
+                    // collisions and emission (`solve_zonal`'s importance).
+                    HierarchicalOperator::build_with_importance(
                         &medium,
                         0,
                         &HierarchicalOptions {
                             tolerance: HIERARCHY_TOLERANCE,
                             ..HierarchicalOptions::default()
                         },
+                        Some(&full),
                     )
                     .context("building the hierarchical form factors")?,
                 )

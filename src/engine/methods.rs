@@ -305,6 +305,13 @@ pub fn solve_zonal(
             ground_radiance,
         ));
     }
+    let mut source = light_source.clone();
+    if let Some(pass) = emitters {
+        // The emission leaves the iterated source; its first collision comes in exactly.
+        for (i, (s, phi)) in source.iter_mut().zip(pass.fluence()).enumerate() {
+            *s += channel.sigma_s(i) as f64 * phi / (4.0 * PI) - channel.emission.get(i) as f64;
+        }
+    }
     let channels = medium.channels().len();
     let op: Box<dyn TransportOperator> = match settings.method {
         SolveMethod::Zonal => {
@@ -334,13 +341,16 @@ pub fn solve_zonal(
                 c,
                 channels,
             ));
-            let op = HierarchicalOperator::build(
+            let op = HierarchicalOperator::build_with_importance(
                 medium,
                 c,
                 &HierarchicalOptions {
                     tolerance: HIERARCHY_TOLERANCE,
                     ..HierarchicalOptions::default()
                 },
+                // Error control relative to every cell's own light, estimated by its
+                // first-collision source.
+                Some(&source),
             )
             .context("building the hierarchical form factors")?;
             tracing::info!(
@@ -354,13 +364,6 @@ pub fn solve_zonal(
             Box::new(op)
         }
     };
-    let mut source = light_source.clone();
-    if let Some(pass) = emitters {
-        // The emission leaves the iterated source; its first collision comes in exactly.
-        for (i, (s, phi)) in source.iter_mut().zip(pass.fluence()).enumerate() {
-            *s += channel.sigma_s(i) as f64 * phi / (4.0 * PI) - channel.emission.get(i) as f64;
-        }
-    }
     let environment = environment.filter(|e| !e.is_dark());
     let (g, report, ground_radiance) = match ground {
         None => {
