@@ -275,8 +275,9 @@ fn build_family(scene: &Scene, sigma_scale: f64) -> Result<Family> {
                 )
             } else {
                 Box::new(
-                    // The solve's operator: error control relative to the cells' first
-                    // collisions and emission (`solve_zonal`'s importance).
+                    // As the solve's operator: error control relative to every cell's light,
+                    // estimated by its source (`solve_zonal`'s importance when no emitter
+                    // pass runs; the bench carries the emission through the operator).
                     HierarchicalOperator::build_with_importance(
                         &medium,
                         0,

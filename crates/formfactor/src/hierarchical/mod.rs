@@ -195,17 +195,19 @@ impl HierarchicalOperator {
         let channel = channel_of(medium, channel)?;
         let grid = medium.grid();
         validate_near(&options.near)?;
-        if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
-            return Err(FormFactorError::Option {
-                name: "tolerance",
-                reason: format!("{} must be finite and > 0", options.tolerance),
-            });
+        for (name, bound) in [
+            ("tolerance", options.tolerance),
+            ("relative_tolerance", options.relative_tolerance),
+        ] {
+            if !(bound.is_finite() && bound > 0.0) {
+                return Err(FormFactorError::Option {
+                    name,
+                    reason: format!("{bound} must be finite and > 0"),
+                });
+            }
         }
-        if !(options.relative_tolerance.is_finite() && options.relative_tolerance > 0.0) {
-            return Err(FormFactorError::Option {
-                name: "relative_tolerance",
-                reason: format!("{} must be finite and > 0", options.relative_tolerance),
-            });
+        if let Some(w) = importance {
+            validate_importance(grid, w)?;
         }
         if !(options.max_opening > 0.0 && options.max_opening <= 2.0) {
             return Err(FormFactorError::Option {
@@ -311,11 +313,7 @@ impl HierarchicalOperator {
             levels.push(level);
         }
 
-        let importance = match importance {
-            Some(w) => Some(importance_pyramid(&levels, grid, &alpha, w)?),
-            None => None,
-        };
-        let relative_tolerance = options.relative_tolerance;
+        let importance = importance.map(|w| ImportancePyramid::new(&levels, &alpha, w));
 
         // Refinement, level by level from the root pair.
         let top = levels.len() - 1;
@@ -348,19 +346,11 @@ impl HierarchicalOperator {
                                 let m = k
                                     * (level.alpha_sum[a] * level.beta_max[b])
                                         .max(level.alpha_sum[b] * level.beta_max[a]);
-                                // The largest share of one receiver's own value the link
-                                // carries, from the importance (0 without it: no bound).
-                                let share = importance.as_ref().map_or(0.0, |w| {
-                                    let into_a =
-                                        level.alpha_sum[b] * level.beta_max[b] * w.mean[l][b]
-                                            / w.min[l][a];
-                                    let into_b =
-                                        level.alpha_sum[a] * level.beta_max[a] * w.mean[l][a]
-                                            / w.min[l][b];
-                                    k * into_a.max(into_b)
-                                });
                                 if m * rho * rho <= options.tolerance
-                                    && share * rho * rho <= relative_tolerance
+                                    && importance.as_ref().is_none_or(|w| {
+                                        w.share(l, level, a, b, k) * rho * rho
+                                            <= options.relative_tolerance
+                                    })
                                 {
                                     part.links.push((a as u32, b as u32, k as f32));
                                     continue;
@@ -1033,79 +1023,86 @@ impl LeafPairs<'_> {
     }
 }
 
-/// The children of cluster `c` that hold medium, without allocating.
 /// Smallest importance the oracle uses, as a fraction of the largest: cells below it are
 /// treated as this bright (a link's error relative to a cell at 10⁻⁸ of the peak would ask for
 /// every pair into it).
 pub const IMPORTANCE_FLOOR: f64 = 1e-6;
 
-/// Per level, the clusters' α-weighted mean importance and their active cells' smallest.
+/// Refuses an importance that is not one finite value ≥ 0 per cell, before the build's work.
+fn validate_importance(grid: &Grid, importance: &[f64]) -> Result<(), FormFactorError> {
+    let reason = if importance.len() != grid.cell_count() {
+        format!(
+            "{} values for {} cells",
+            importance.len(),
+            grid.cell_count()
+        )
+    } else if let Some(bad) = importance.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
+        format!("{bad}: every value must be finite and ≥ 0")
+    } else {
+        return Ok(());
+    };
+    Err(FormFactorError::Option {
+        name: "importance",
+        reason,
+    })
+}
+
+/// Per level and cluster, what the relative bound reads: the importance's sum `Σ g` (what a
+/// cluster sends) and the smallest `g/α` of its active cells (its dimmest receiver), with
+/// `g/α` floored at [`IMPORTANCE_FLOOR`] of its largest value.
 struct ImportancePyramid {
-    mean: Vec<Vec<f64>>,
+    sum: Vec<Vec<f64>>,
     min: Vec<Vec<f64>>,
 }
 
-fn importance_pyramid(
-    levels: &[Level],
-    grid: &Grid,
-    alpha: &[f64],
-    importance: &[f64],
-) -> Result<ImportancePyramid, FormFactorError> {
-    if importance.len() != grid.cell_count() {
-        return Err(FormFactorError::Option {
-            name: "importance",
-            reason: format!(
-                "{} values for {} cells",
-                importance.len(),
-                grid.cell_count()
-            ),
-        });
+impl ImportancePyramid {
+    fn new(levels: &[Level], alpha: &[f64], importance: &[f64]) -> Self {
+        // Per unit interception (a flux, not a source): a cell's share of a link is
+        // `α_i K Σ β_j g_j / g_i`, so what bounds it is `g/α`.
+        let per_alpha = |i: usize| {
+            if alpha[i] > 0.0 {
+                importance[i] / alpha[i]
+            } else {
+                0.0
+            }
+        };
+        let peak = (0..alpha.len()).map(per_alpha).fold(0.0f64, f64::max);
+        let floor = if peak > 0.0 {
+            peak * IMPORTANCE_FLOOR
+        } else {
+            1.0
+        };
+        let min0: Vec<f64> = (0..alpha.len()).map(|i| per_alpha(i).max(floor)).collect();
+        let sum0: Vec<f64> = min0.iter().zip(alpha).map(|(u, a)| u * a).collect();
+        let (mut sum, mut min) = (vec![sum0], vec![min0]);
+        for l in 1..levels.len() {
+            let (level, fine) = (&levels[l], &levels[l - 1]);
+            let (s, m): (Vec<f64>, Vec<f64>) = (0..level.count())
+                .into_par_iter()
+                .map(|c| {
+                    let (mut total, mut low) = (0.0, f64::INFINITY);
+                    for ch in children(level, fine, c).filter(|&ch| fine.alpha_sum[ch] > 0.0) {
+                        total += sum[l - 1][ch];
+                        low = low.min(min[l - 1][ch]);
+                    }
+                    (total, low)
+                })
+                .unzip();
+            sum.push(s);
+            min.push(m);
+        }
+        ImportancePyramid { sum, min }
     }
-    if let Some(bad) = importance.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
-        return Err(FormFactorError::Option {
-            name: "importance",
-            reason: format!("{bad}: every value must be finite and ≥ 0"),
-        });
+
+    /// The largest share of one receiving cell's own light the link `A–B` of `level` (index
+    /// `l`, factor `k`) carries, either way: `k β_B Σ_B g / min_A (g/α)`.
+    fn share(&self, l: usize, level: &Level, a: usize, b: usize, k: f64) -> f64 {
+        let (sum, min) = (&self.sum[l], &self.min[l]);
+        k * (level.beta_max[b] * sum[b] / min[a]).max(level.beta_max[a] * sum[a] / min[b])
     }
-    // Per unit interception (a flux, not a source): a cell's share of a link is
-    // `α_i K Σ β_j g_j / g_i`, so what bounds it is `g/α`.
-    let importance: Vec<f64> = importance
-        .iter()
-        .zip(alpha)
-        .map(|(&g, &a)| if a > 0.0 { g / a } else { 0.0 })
-        .collect();
-    let peak = importance.iter().fold(0.0f64, |m, &v| m.max(v));
-    let floor = if peak > 0.0 {
-        peak * IMPORTANCE_FLOOR
-    } else {
-        1.0
-    };
-    let cells: Vec<f64> = importance.iter().map(|&v| v.max(floor)).collect();
-    let mut mean = vec![cells.clone()];
-    let mut min = vec![cells];
-    for l in 1..levels.len() {
-        let (level, fine) = (&levels[l], &levels[l - 1]);
-        let (m, n): (Vec<f64>, Vec<f64>) = (0..level.count())
-            .into_par_iter()
-            .map(|c| {
-                let (mut sum, mut low) = (0.0, f64::INFINITY);
-                for ch in children(level, fine, c).filter(|&ch| fine.alpha_sum[ch] > 0.0) {
-                    sum += fine.alpha_sum[ch] * mean[l - 1][ch];
-                    low = low.min(min[l - 1][ch]);
-                }
-                if level.alpha_sum[c] > 0.0 {
-                    (sum / level.alpha_sum[c], low)
-                } else {
-                    (floor, floor)
-                }
-            })
-            .unzip();
-        mean.push(m);
-        min.push(n);
-    }
-    Ok(ImportancePyramid { mean, min })
 }
 
+/// The children of cluster `c` that hold medium, without allocating.
 fn active_children(level: &Level, fine: &Level, c: usize) -> ([usize; 8], usize) {
     let (mut out, mut count) = ([0usize; 8], 0);
     for ch in children(level, fine, c).filter(|&ch| fine.alpha_sum[ch] > 0.0) {

@@ -468,7 +468,7 @@ fn importance_bounds_the_error_relative_to_dim_cells() {
     };
     let all = HierarchicalOperator::build(&medium, 0, &leaves).unwrap();
     assert!(worst_far(&all) < 1e-4, "all leaves: {}", worst_far(&all));
-    // The bright cells, relative to their own value, no worse.
+    // The relative bound only adds links: the absolute one still holds for every link.
     assert!(weighted.link_count() > plain.link_count());
     // A bad importance is refused, naming it.
     let err = HierarchicalOperator::build_with_importance(&medium, 0, &options, Some(&x[1..]))
