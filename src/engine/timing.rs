@@ -711,7 +711,9 @@ pub fn probe(
         if control.is_cancelled() {
             return None;
         }
-        let rho = solver::spectral_radius(&op, PROBE_POWER_STEPS, PROBE_TOLERANCE).rho;
+        let rho =
+            solver::spectral_radius_cancellable(&op, PROBE_POWER_STEPS, PROBE_TOLERANCE, control)?
+                .rho;
         if !rho.is_finite() {
             return None;
         }

@@ -39,4 +39,6 @@ pub use options::{
 };
 pub use report::{SolveReport, StopReason};
 pub use solve::{solve, DIVERGENCE_FACTOR, STAGNATION_WINDOW};
-pub use spectral::{predicted_iterations, spectral_radius, SpectralEstimate};
+pub use spectral::{
+    predicted_iterations, spectral_radius, spectral_radius_cancellable, SpectralEstimate,
+};

@@ -26,13 +26,38 @@ pub fn spectral_radius(
     max_iterations: usize,
     tolerance: f64,
 ) -> SpectralEstimate {
+    power_iteration(op, max_iterations, tolerance, &|| false).unwrap_or(SpectralEstimate {
+        rho: f64::NAN,
+        iterations: 0,
+        converged: false,
+    })
+}
+
+/// [`spectral_radius`] that checks `control` before each application of `K` and gives
+/// `None` once it is cancelled (a prediction's probe, which a Ctrl-C should stop within one
+/// step rather than after all of them).
+pub fn spectral_radius_cancellable(
+    op: &dyn TransportOperator,
+    max_iterations: usize,
+    tolerance: f64,
+    control: &crate::SolveControl,
+) -> Option<SpectralEstimate> {
+    power_iteration(op, max_iterations, tolerance, &|| control.is_cancelled())
+}
+
+fn power_iteration(
+    op: &dyn TransportOperator,
+    max_iterations: usize,
+    tolerance: f64,
+    stop: &dyn Fn() -> bool,
+) -> Option<SpectralEstimate> {
     let n = op.len();
     if n == 0 {
-        return SpectralEstimate {
+        return Some(SpectralEstimate {
             rho: 0.0,
             iterations: 0,
             converged: true,
-        };
+        });
     }
     let mut red = Reducer::new(n);
     // 1 plus a small deterministic perturbation (golden-ratio sequence) to break symmetry.
@@ -45,29 +70,32 @@ pub fn spectral_radius(
     let mut previous = f64::NAN;
     let mut rho = 0.0;
     for k in 1..=max_iterations {
+        if stop() {
+            return None;
+        }
         op.apply(&x, &mut y);
         rho = red.norm(&y);
         if !rho.is_finite() {
-            return SpectralEstimate {
+            return Some(SpectralEstimate {
                 rho,
                 iterations: k,
                 converged: false,
-            };
+            });
         }
         if rho == 0.0 {
             // K x = 0: x is in the null space; for a nilpotent or zero operator ρ = 0.
-            return SpectralEstimate {
+            return Some(SpectralEstimate {
                 rho: 0.0,
                 iterations: k,
                 converged: true,
-            };
+            });
         }
         if (rho - previous).abs() <= tolerance * rho {
-            return SpectralEstimate {
+            return Some(SpectralEstimate {
                 rho,
                 iterations: k,
                 converged: true,
-            };
+            });
         }
         previous = rho;
         let inv = 1.0 / rho;
@@ -75,11 +103,11 @@ pub fn spectral_radius(
             *xi = yi * inv;
         }
     }
-    SpectralEstimate {
+    Some(SpectralEstimate {
         rho,
         iterations: max_iterations,
         converged: false,
-    }
+    })
 }
 
 /// Jacobi iterations to reduce the residual by `tolerance` at spectral radius `rho`:
