@@ -721,7 +721,7 @@ pub fn solve_ordinates(
     let mut fixed_fluence = vec![0.0; medium.grid().cell_count()];
     match emitters {
         Some(pass) => {
-            op.add_collision_density(pass.fluence(), pass.current(), &mut external)?;
+            op.add_collision_density(pass, &mut external)?;
             op.transport_first_bounce(&external, &beams, &mut source, Some(&mut fixed_fluence));
         }
         None => {
@@ -875,18 +875,17 @@ pub fn solve_ordinates(
 
 /// The emitters' first scattering in channel `c` of `medium` (the grid the pass ran on), as
 /// the render draws it ([`crate::engine::sources::EmitterBeamSource`]): per cell
-/// `[σs φ, |J| / φ, d]` — the emitter pass's flux `φ`, the mean cosine of the incident light
-/// about the flux vector's direction `d`, the field taken as a lobe about `d`
-/// ([`medium::PhaseFunction::eval_from_lobe`], the closure
-/// [`OrdinatesOperator::add_collision_density`] makes for the sweeps: exact for a compact
-/// emitter seen from afar, where the light comes from one direction, and for a cell inside a
-/// large one, where `J` vanishes). Drawn with the true phase function in the view's
-/// direction: stored in the bins at their centres, as a beam and an isotropic rest, it was
-/// drawn between bin centres and was 5–8 % RMS off the path tracer on a cube emitting inside a
-/// g = 0.6 cloud, whatever the bins (docs/validation.md, *Light from emitting cells*).
+/// `[σs φ, weight, cos_half_angle, d]` — the emitter pass's flux `φ` and the incident light's
+/// shape about the flux vector's direction `d` ([`medium::phase::IncidentShape`], from the
+/// pass's mean and mean squared cosine; the shape
+/// [`OrdinatesOperator::add_collision_density`] gives the sweeps). Drawn with the true phase
+/// function in the view's direction: stored in the bins at their centres, as a beam and an
+/// isotropic rest, it was drawn between bin centres and was 5–8 % RMS off the path tracer on a
+/// cube emitting inside a g = 0.6 cloud, whatever the bins (docs/validation.md, *Light from
+/// emitting cells*).
 pub fn emitter_beam(medium: &Medium, c: usize, pass: &EmitterPass) -> Vec<f32> {
     let channel = &medium.channels()[c];
-    let (fluence, current) = (pass.fluence(), pass.current());
+    let (fluence, current, second) = (pass.fluence(), pass.current(), pass.second());
     let mut values = Vec::with_capacity(EMITTER_BEAM_VALUES * fluence.len());
     for (i, (&phi, &j)) in fluence.iter().zip(current).enumerate() {
         let sigma_s = channel.sigma_s(i) as f64;
@@ -894,10 +893,12 @@ pub fn emitter_beam(medium: &Medium, c: usize, pass: &EmitterPass) -> Vec<f32> {
             values.extend_from_slice(&[0.0; EMITTER_BEAM_VALUES]);
             continue;
         }
-        let (lobe, d) = medium::phase::incident_lobe(phi, j);
+        let (mean, d) = medium::phase::incident_lobe(phi, j);
+        let shape = medium::phase::IncidentShape::from_moments(mean, second[i]);
         values.extend_from_slice(&[
             (sigma_s * phi) as f32,
-            lobe as f32,
+            shape.weight() as f32,
+            shape.cos_half_angle() as f32,
             d.x as f32,
             d.y as f32,
             d.z as f32,

@@ -8,6 +8,7 @@ use formfactor::ordinates::bins::{face_bilinear, interpolate_with};
 use gather::single_scatter::{SingleScatter, SingleScatterOptions};
 use gather::{each_step, InScattering, OpticalModel, RayCarry, StepSample, Trilinear, ViewSegment};
 use glam::DVec3;
+use medium::phase::{IncidentShape, ShapeScattering};
 use medium::{CellValues, ChannelMedium, Grid, Interpolation, Medium, PhaseFunction};
 
 use crate::engine::solution::{
@@ -679,13 +680,13 @@ impl InScattering for BinnedSource<'_> {
 }
 
 /// The emitters' first scattering (discrete ordinates with an emitter pass), in the view's own
-/// direction: per cell of the solved grid `[σs φ, ḡ, d]`
+/// direction: per cell of the solved grid `[σs φ, weight, cos_half_angle, d]`
 /// ([`emitter_beam`](crate::engine::methods::emitter_beam)), the source toward `ω` being
-/// `σs φ · p_ḡ(ω·d)` ([`PhaseFunction::eval_from_lobe`]) with the true phase function, drawn
-/// between cells as the solved sources are.
+/// `σs φ · S(shape, ω·d)` ([`medium::phase::ShapeScattering`]) with the true phase function,
+/// drawn between cells as the solved sources are.
 pub struct EmitterBeamSource<'a> {
     values: &'a [f32],
-    phase: PhaseFunction,
+    scattering: ShapeScattering,
     lattice: CellLattice<'a>,
     max: f64,
 }
@@ -693,21 +694,23 @@ pub struct EmitterBeamSource<'a> {
 impl<'a> EmitterBeamSource<'a> {
     /// `values` holds [`EMITTER_BEAM_VALUES`] per cell of the lattice's solved grid.
     pub fn new(values: &'a [f32], phase: PhaseFunction, lattice: CellLattice<'a>) -> Self {
-        // Each cell's largest value: forward or backward, whichever its lobe favours.
+        let scattering = phase.shape_scattering();
+        // Each cell's largest value: forward or backward, whichever its shape favours (a
+        // cone's average of the phase function is largest along its axis or opposite it).
         let largest: Vec<f32> = values
             .chunks(EMITTER_BEAM_VALUES)
             .map(|v| {
-                let a = v[1] as f64;
-                let peak = phase
-                    .eval_from_lobe(a, 1.0)
-                    .max(phase.eval_from_lobe(a, -1.0));
+                let shape = IncidentShape::from_parts(v[1] as f64, v[2] as f64);
+                let peak = scattering
+                    .eval(shape, 1.0)
+                    .max(scattering.eval(shape, -1.0));
                 (v[0] as f64 * peak) as f32
             })
             .collect();
         let max = lattice.bound(&largest, 1);
         EmitterBeamSource {
             values,
-            phase,
+            scattering,
             lattice,
             max,
         }
@@ -717,8 +720,12 @@ impl<'a> EmitterBeamSource<'a> {
     #[inline]
     fn toward(&self, cell: usize, w: DVec3) -> f64 {
         let v = &self.values[cell * EMITTER_BEAM_VALUES..(cell + 1) * EMITTER_BEAM_VALUES];
-        let d = DVec3::new(v[2] as f64, v[3] as f64, v[4] as f64);
-        v[0] as f64 * self.phase.eval_from_lobe(v[1] as f64, w.dot(d))
+        if v[0] == 0.0 {
+            return 0.0;
+        }
+        let shape = IncidentShape::from_parts(v[1] as f64, v[2] as f64);
+        let d = DVec3::new(v[3] as f64, v[4] as f64, v[5] as f64);
+        v[0] as f64 * self.scattering.eval(shape, w.dot(d))
     }
 }
 

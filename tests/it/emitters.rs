@@ -161,11 +161,12 @@ fn an_emitting_cube_in_vacuum_and_in_an_absorber_has_the_exact_fluence_in_every_
 /// rendered from a stored solution (16 samples per pixel: the cube's edges are sharp), agrees
 /// with the path tracer, which samples emission as a source: isotropic in zonal-hierarchical,
 /// discrete ordinates and two-pass, g = 0.6 in discrete ordinates (whose first collision
-/// then has a direction: a lobe about the pass's flux vector, drawn by the render in the view's
-/// own direction) and two-pass. Measured: RMS 0.7 %, 0.9 % and 1.1 % (zonal-hierarchical,
-/// discrete ordinates, two-pass at g = 0), 2.1 % and 2.3 % (discrete ordinates and two-pass at
-/// g = 0.6; discrete ordinates 5.1 % with the first collision as a beam and an isotropic rest
-/// stored in the bins, and 5–8 % whatever the bins); image means −2.2 … +1.2 %.
+/// then has a direction: a cone and a rest about the pass's flux vector, drawn by the render in
+/// the view's own direction) and two-pass. Measured: RMS 0.7 %, 0.9 % and 1.1 %
+/// (zonal-hierarchical, discrete ordinates, two-pass at g = 0), 1.3 % and 2.3 % (discrete
+/// ordinates and two-pass at g = 0.6; discrete ordinates 2.1 % with the first collision a
+/// Henyey–Greenstein lobe of its mean cosine, 5.1 % as a beam and an isotropic rest stored in
+/// the bins, and 5–8 % whatever the bins); image means −2.2 … +1.2 %.
 /// Two-pass sent no photons from emitting cells before, and missed 45 % of this image.
 #[test]
 fn a_source_inside_a_scattering_medium_matches_the_path_tracer() {
@@ -484,10 +485,12 @@ fn every_cells_scalar_flux_against_an_analog_monte_carlo() {
             // nearly every cell agrees: 87 %, 73 % and 61 % of the scattering cells did at
             // albedo 0.5 with centre values and the bins' and tallies' own flux.
             if *method == "discrete-ordinates" && phase == FORWARD_PEAKED {
-                // The bins' own flux at g = 0.85, the emitters' first collision a lobe about
-                // the flux vector: 98 % and 84 % of the scattering cells at albedo 0.5 and
-                // 0.99 (85 % and 63 % with a beam and an isotropic rest).
-                let share = if albedo < 0.9 { 0.95 } else { 0.8 };
+                // The bins' own flux at g = 0.85, the emitters' first collision a cone and an
+                // isotropic rest with the pass's three moments: 100 % and 99 % of the
+                // scattering cells at albedo 0.5 and 0.99, 100 % and 94 % of the empty ones
+                // (100 %, 94 %; 98 %, 85 % with a Henyey–Greenstein lobe of the mean cosine; 85
+                // % and 63 % of the scattering cells with a beam and an isotropic rest).
+                let share = if albedo < 0.9 { 0.98 } else { 0.92 };
                 assert!(
                     inside.2 >= share && outside.2 >= share,
                     "{method}, albedo {albedo}: {:.1} % of the scattering cells and {:.1} % of \
@@ -604,14 +607,15 @@ fn two_views_of_an_emitting_cube_pixel_by_pixel() {
                 // With isotropic scattering every method agrees with the reference in each band
                 // (within 3 % plus three standard errors; measured −0.3 … +1.4 % bright, 0 …
                 // +7 % dim) and in most pixels (87–96 %; the rest are dim ones whose reference
-                // is 10–30 % uncertain). At g = 0.85 discrete ordinates and two-pass are 0–5 %
-                // off in the bright pixels and −2 … +25 % in the dim ones, which the scattered
-                // light reaches at wide angles from the forward peak (their bins' angular
-                // error: #18).
-                let (bright_bound, dim_bound, share) = if phase == ISOTROPIC {
-                    (0.03, 0.03, 0.8)
-                } else {
-                    (0.05, 0.25, 0.6)
+                // is 10–30 % uncertain). At g = 0.85 discrete ordinates are within 2 % in the
+                // bright pixels (−4.9 … +5.4 % with the emitters' first collision a
+                // Henyey–Greenstein lobe of its mean cosine, which scatters a nearby emitter's
+                // light 2–3× too strongly forward) and −21 … −2 % in the dim ones; two-pass 2–4
+                // % and −2 … +25 %.
+                let (bright_bound, dim_bound, share) = match (phase == ISOTROPIC, *method) {
+                    (true, _) => (0.03, 0.03, 0.8),
+                    (false, "discrete-ordinates") => (0.03, 0.25, 0.75),
+                    (false, _) => (0.05, 0.25, 0.6),
                 };
                 let agrees =
                     |(ratio, se): (f64, f64), bound: f64| (ratio - 1.0).abs() < bound + 3.0 * se;

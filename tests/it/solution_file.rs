@@ -492,20 +492,22 @@ fn golden_ordinates_decodes() {
     let emitted = s.channels[2].emitted_fluence.as_ref().unwrap();
     assert_eq!(emitted.len(), cells);
     assert!(emitted.iter().all(|&v| v > 0.0));
-    // And its first scattering for the render to draw by direction (format 11): σs φ, the
-    // incident lobe's mean cosine and its unit axis per cell.
+    // And its first scattering for the render to draw by direction (format 11; format 13:
+    // the incident light as a cone and a rest): σs φ, the cone's weight and cosine, and the
+    // unit axis per cell.
     let beam = s.channels[2].emitted_beam.as_ref().unwrap();
-    assert_eq!(beam.len(), 5 * cells);
-    for v in beam.chunks(5) {
-        let axis = (v[2] * v[2] + v[3] * v[3] + v[4] * v[4]).sqrt();
+    assert_eq!(beam.len(), 6 * cells);
+    for v in beam.chunks(6) {
+        let axis = (v[3] * v[3] + v[4] * v[4] + v[5] * v[5]).sqrt();
         assert!(v[0] > 0.0 && (0.0..=1.0).contains(&v[1]), "{v:?}");
+        assert!((-1.0..=1.0).contains(&v[2]), "{v:?}");
         assert!(axis == 0.0 || (axis - 1.0).abs() < 1e-5, "{v:?}");
     }
     // Every channel emits here; each has its own.
     assert!(s.channels.iter().all(|c| c
         .emitted_beam
         .as_ref()
-        .is_some_and(|b| b.len() == 5 * cells)));
+        .is_some_and(|b| b.len() == 6 * cells)));
 }
 
 #[test]
@@ -560,7 +562,7 @@ const SMALL_SIGMA_T: [f32; 4] = [0.66302073, 1.6, 1.6, 0.66302073];
 const SMALL_ALBEDO: [f32; 4] = [0.74503577, 0.95, 0.95, 0.74503577];
 const SMALL_IRRADIANCE: [f32; 4] = [0.6758711, 0.34533805, 0.27765468, 0.44522983];
 const SMALL_SOURCE: [f32; 4] = [0.035039145, 0.081582904, 0.06898902, 0.024120944];
-const ORDINATES_FLUENCE_2: [f32; 4] = [0.19967195, 0.2700402, 0.19973058, 0.25242102];
+const ORDINATES_FLUENCE_2: [f32; 4] = [0.1997151, 0.2691873, 0.19978654, 0.25200474];
 const TWO_PASS_INTERACTIONS: u64 = 42;
 const TWO_PASS_MAX_SOURCE: f64 = 0.09003358334302902;
 

@@ -52,9 +52,9 @@ pub enum ScatteredField {
     TwoPass(Box<montecarlo::two_pass::TwoPassSolution>),
 }
 
-/// Values per transport cell of [`ChannelSolution::emitted_beam`]: the isotropic part of the
-/// emitters' first scattering, its beam's, and the beam's direction.
-pub const EMITTER_BEAM_VALUES: usize = 5;
+/// Values per transport cell of [`ChannelSolution::emitted_beam`]: `σs φ` of the emitters'
+/// first scattering, the incident light's shape (its cone's weight and cosine) and its axis.
+pub const EMITTER_BEAM_VALUES: usize = 6;
 
 /// Direction bins as stored: what a render needs to look radiance up by direction (in the
 /// file as [`records::BinsRecord`]).

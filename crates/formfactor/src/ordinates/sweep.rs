@@ -1980,30 +1980,29 @@ impl OrdinatesOperator {
         Ok(density)
     }
 
-    /// Adds the first-collision density of uncollided light with scalar flux `fluence` and net
-    /// flux vector `current` per cell (an emitter pass) to `density` (the state's rows). The
-    /// angular shape of that light is taken as a lobe about `J` of mean cosine `|J|/φ`, which
-    /// keeps both moments exactly (a single beam and an isotropic field are exact), scattered
-    /// by [`PhaseFunction::eval_from_lobe`] toward the bin centres, renormalised per cell as
-    /// for point lights. So `Σ_l density Ω_l` grows by `σs φ` per cell. (A beam `|J|` and an
-    /// isotropic rest `φ − |J|`, the split before, scattered a nearby emitter's light, which
-    /// arrives from a wide cone, as sharply as a distant one's.)
+    /// Adds the first-collision density of the uncollided light an emitter pass gives (per
+    /// cell its scalar flux, net flux vector and mean squared cosine about it) to `density`
+    /// (the state's rows). The light's angular shape is a uniform cone about `J` and an
+    /// isotropic rest with the pass's three moments ([`medium::phase::IncidentShape`]; a beam,
+    /// an isotropic field and a compact uniform source seen from outside are exact), scattered
+    /// by [`medium::phase::ShapeScattering`] toward the bin centres, renormalised per cell as
+    /// for point lights. So `Σ_l density Ω_l` grows by `σs φ` per cell. (A Henyey–Greenstein
+    /// lobe of the same mean cosine, the shape before, scattered a nearby emitter's light,
+    /// which arrives from a wide cone with sharp edges, 2–3× too strongly forward.)
     pub fn add_collision_density(
         &self,
-        fluence: &[f64],
-        current: &[DVec3],
+        pass: &medium::emitter_pass::EmitterPass,
         density: &mut [f64],
     ) -> Result<(), OrdinatesError> {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        for (what, got) in [("fluence", fluence.len()), ("current", current.len())] {
-            if got != n {
-                return Err(OrdinatesError::Length {
-                    what,
-                    got,
-                    expected: n,
-                });
-            }
+        let (fluence, current, second) = (pass.fluence(), pass.current(), pass.second());
+        if fluence.len() != n {
+            return Err(OrdinatesError::Length {
+                what: "emitter pass",
+                got: fluence.len(),
+                expected: n,
+            });
         }
         if density.len() != self.len() {
             return Err(OrdinatesError::Length {
@@ -2014,14 +2013,16 @@ impl OrdinatesOperator {
         }
         let omega = self.bins.solid_angles();
         let centres = self.bins.centres();
+        let table = self.phase.shape_scattering();
         self.for_each_row(density, |c, d| {
             let ss = self.sigma_s[c];
             let phi = fluence[c];
             if ss == 0.0 || phi <= 0.0 {
                 return;
             }
-            let (lobe, dir) = medium::phase::incident_lobe(phi, current[c]);
-            let scattered = |l: usize| self.phase.eval_from_lobe(lobe, centres[l].dot(dir));
+            let (mean, dir) = medium::phase::incident_lobe(phi, current[c]);
+            let shape = medium::phase::IncidentShape::from_moments(mean, second[c]);
+            let scattered = |l: usize| table.eval(shape, centres[l].dot(dir));
             let norm: f64 = (0..m).map(|l| scattered(l) * omega[l]).sum();
             for (l, dl) in d.iter_mut().enumerate() {
                 *dl += ss * phi * scattered(l) / norm;
