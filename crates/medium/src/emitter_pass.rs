@@ -3,8 +3,11 @@
 //! first-collision source of the emitting medium: what the light pass is for lights.
 //!
 //! At a point `x` the uncollided scalar flux (fluence) of the emission `e` (radiance per
-//! length, piecewise constant per cell) is `φ(x) = ∫ e(y) T(x, y) / |x − y|² dy`, and its net
-//! flux vector `J(x)` the same integral weighted by the unit vector from `y` to `x`. A cell's
+//! length, piecewise constant per cell) is `φ(x) = ∫ e(y) T(x, y) / |x − y|² dy`, its net
+//! flux vector `J(x)` the same integral weighted by the unit vector `ω` from `y` to `x`, and
+//! its second moment weighted by `ω ωᵀ` (kept as the mean squared cosine about `J`: how wide
+//! the light's cone is, which its first scattering by a forward-peaked phase function needs;
+//! [`crate::phase::IncidentShape`]). A cell's
 //! value is the mean of both over the cell (what its collisions, `σt ∫ φ dV`, need, and what a
 //! Monte Carlo tallies); it differs from the centre's value by up to 10 % at the corners of an
 //! emitting region, where `φ` has a kink at every face the emission changes across. Both are
