@@ -1,7 +1,8 @@
 //! Render speed: the generated 64×64×48 cloud (Max's cloud, seed 7) at 512×384, 1 sample per
 //! pixel, exact per-cell segments: emission + absorption (the particle model, emission = σt),
 //! and the scattering renders of `data/cloud.toml` (first bounce from the light pass, alone
-//! and with a stored per-cell multiple-scattering source as a zonal solution supplies it).
+//! and with a stored per-cell multiple-scattering source as a zonal solution supplies it), and
+//! the table the emitters' first scattering is drawn with.
 //! Run with `cargo bench --bench render`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -184,10 +185,24 @@ fn bench_service_render(c: &mut Criterion) {
     group.finish();
 }
 
+/// The table a render of discrete ordinates' emitters' first scattering draws with
+/// (`ShapeScattering`): built on a solution's first render and kept in its render cache.
+fn bench_shape_table(c: &mut Criterion) {
+    let mut group = c.benchmark_group("render");
+    for g in [0.85, 0.95] {
+        let phase = PhaseFunction::HenyeyGreenstein { g };
+        group.bench_function(format!("emitter_shape_table_g{g}"), |b| {
+            b.iter(|| phase.shape_scattering())
+        });
+    }
+    group.finish();
+}
+
 criterion_group!(
     benches,
     bench_render,
     bench_scattering_render,
-    bench_service_render
+    bench_service_render,
+    bench_shape_table
 );
 criterion_main!(benches);

@@ -686,28 +686,37 @@ impl InScattering for BinnedSource<'_> {
 /// drawn between cells as the solved sources are.
 pub struct EmitterBeamSource<'a> {
     values: &'a [f32],
-    scattering: ShapeScattering,
+    scattering: &'a ShapeScattering,
     lattice: CellLattice<'a>,
     max: f64,
 }
 
 impl<'a> EmitterBeamSource<'a> {
-    /// `values` holds [`EMITTER_BEAM_VALUES`] per cell of the lattice's solved grid.
-    pub fn new(values: &'a [f32], phase: PhaseFunction, lattice: CellLattice<'a>) -> Self {
-        let scattering = phase.shape_scattering();
-        // Each cell's largest value: forward or backward, whichever its shape favours (a
-        // cone's average of the phase function is largest along its axis or opposite it).
-        let largest: Vec<f32> = values
-            .chunks(EMITTER_BEAM_VALUES)
-            .map(|v| {
-                let shape = IncidentShape::from_parts(v[1] as f64, v[2] as f64);
-                let peak = scattering
-                    .eval(shape, 1.0)
-                    .max(scattering.eval(shape, -1.0));
-                (v[0] as f64 * peak) as f32
-            })
-            .collect();
-        let max = lattice.bound(&largest, 1);
+    /// `values` holds [`EMITTER_BEAM_VALUES`] per cell of the lattice's solved grid; the
+    /// table and the bound are built on the first render and kept in `cache`.
+    pub fn new(
+        values: &'a [f32],
+        phase: PhaseFunction,
+        lattice: CellLattice<'a>,
+        cache: &'a RenderCache,
+    ) -> Self {
+        let (scattering, max) = cache.emitter_beam(|| {
+            let scattering = phase.shape_scattering();
+            // Each cell's largest value: forward or backward, whichever its shape favours (a
+            // cone's average of the phase function is largest along its axis or opposite it).
+            let largest: Vec<f32> = values
+                .chunks(EMITTER_BEAM_VALUES)
+                .map(|v| {
+                    let shape = IncidentShape::from_parts(v[1] as f64, v[2] as f64);
+                    let peak = scattering
+                        .eval(shape, 1.0)
+                        .max(scattering.eval(shape, -1.0));
+                    (v[0] as f64 * peak) as f32
+                })
+                .collect();
+            let max = lattice.bound(&largest, 1);
+            (scattering, max)
+        });
         EmitterBeamSource {
             values,
             scattering,
@@ -878,7 +887,12 @@ pub fn channel_scattering<'a>(
                     first,
                     (
                         higher,
-                        EmitterBeamSource::new(beam, solution.medium.phase(), lattice),
+                        EmitterBeamSource::new(
+                            beam,
+                            solution.medium.phase(),
+                            lattice,
+                            &ch.render_cache,
+                        ),
                     ),
                 )),
                 None => Box::new((first, higher)),
