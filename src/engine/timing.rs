@@ -708,9 +708,6 @@ pub fn probe(
         }
         let bins = DirectionBins::with_count(PROBE_BINS).ok()?;
         let op = OrdinatesOperator::new(&coarse, c, bins, options).ok()?;
-        if control.is_cancelled() {
-            return None;
-        }
         let rho =
             solver::spectral_radius_cancellable(&op, PROBE_POWER_STEPS, PROBE_TOLERANCE, control)?
                 .rho;
