@@ -885,16 +885,15 @@ pub fn solve_ordinates(
 /// emitting cells*).
 pub fn emitter_beam(medium: &Medium, c: usize, pass: &EmitterPass) -> Vec<f32> {
     let channel = &medium.channels()[c];
-    let (fluence, current, second) = (pass.fluence(), pass.current(), pass.second());
+    let fluence = pass.fluence();
     let mut values = Vec::with_capacity(EMITTER_BEAM_VALUES * fluence.len());
-    for (i, (&phi, &j)) in fluence.iter().zip(current).enumerate() {
+    for (i, &phi) in fluence.iter().enumerate() {
         let sigma_s = channel.sigma_s(i) as f64;
         if sigma_s == 0.0 || phi <= 0.0 {
             values.extend_from_slice(&[0.0; EMITTER_BEAM_VALUES]);
             continue;
         }
-        let (mean, d) = medium::phase::incident_lobe(phi, j);
-        let shape = medium::phase::IncidentShape::from_moments(mean, second[i]);
+        let (shape, d) = pass.incident_shape(i);
         values.extend_from_slice(&[
             (sigma_s * phi) as f32,
             shape.weight() as f32,

@@ -1988,7 +1988,8 @@ impl OrdinatesOperator {
     /// by [`medium::phase::ShapeScattering`] toward the bin centres, renormalised per cell as
     /// for point lights. So `Σ_l density Ω_l` grows by `σs φ` per cell. (A Henyey–Greenstein
     /// lobe of the same mean cosine, the shape before, scattered a nearby emitter's light,
-    /// which arrives from a wide cone with sharp edges, 2–3× too strongly forward.)
+    /// which arrives from a wide cone with sharp edges, 2.6–3.4× too strongly forward:
+    /// `benches/incident_shape.py`.)
     pub fn add_collision_density(
         &self,
         pass: &medium::emitter_pass::EmitterPass,
@@ -1996,7 +1997,7 @@ impl OrdinatesOperator {
     ) -> Result<(), OrdinatesError> {
         let n = self.grid.cell_count();
         let m = self.bins.len();
-        let (fluence, current, second) = (pass.fluence(), pass.current(), pass.second());
+        let fluence = pass.fluence();
         if fluence.len() != n {
             return Err(OrdinatesError::Length {
                 what: "emitter pass",
@@ -2020,8 +2021,7 @@ impl OrdinatesOperator {
             if ss == 0.0 || phi <= 0.0 {
                 return;
             }
-            let (mean, dir) = medium::phase::incident_lobe(phi, current[c]);
-            let shape = medium::phase::IncidentShape::from_moments(mean, second[c]);
+            let (shape, dir) = pass.incident_shape(c);
             let scattered = |l: usize| table.eval(shape, centres[l].dot(dir));
             let norm: f64 = (0..m).map(|l| scattered(l) * omega[l]).sum();
             for (l, dl) in d.iter_mut().enumerate() {
