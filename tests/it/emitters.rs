@@ -641,10 +641,10 @@ fn two_views_of_an_emitting_cube_pixel_by_pixel() {
 /// path tracer's single scattering (`max_depth = 1`), and the higher orders (the rest) against
 /// the path tracer's. Per band of brightness as [`pixel_agreement`] takes them (bright: above
 /// 10⁻² of the render's peak; dim: 10⁻⁴ … 10⁻²). Measured: the first scattering within 2 % in
-/// the bright bands (the emitters' first collision a cone and a rest; with a Henyey–Greenstein
-/// lobe of the mean cosine the bright bands' scattered light, all orders, was −8 … +14 % here
-/// and −11 … +27 % at albedo 0.1) and 8–34 % low in the dim ones (docs/validation.md, *Two
-/// views, pixel by pixel*), the higher orders within −6 … +7 %.
+/// the bright bands (the emitters' first collision a cone and a rest; the bright pixels of
+/// [`two_views_of_an_emitting_cube_pixel_by_pixel`] were −4.9 … +5.4 % off with a
+/// Henyey–Greenstein lobe of its mean cosine) and 8–34 % low in the dim ones
+/// (docs/validation.md, *Two views, pixel by pixel*), the higher orders within −6 … +7 %.
 #[test]
 fn the_emitters_first_scattering_and_the_higher_orders_apart() {
     use volrad::engine::solution::{CellRows, ScatteredField};
