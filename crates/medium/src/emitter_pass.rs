@@ -52,7 +52,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::environment::fibonacci_directions;
-use crate::phase::IncidentShape;
+use crate::phase::{DirectionBins, IncidentShape, BINNED_VALUES};
 use crate::traversal::{segment_weight, Ray};
 use crate::{Grid, Medium, MediumError};
 
@@ -74,6 +74,11 @@ pub struct EmitterPassOptions {
     /// each part is, which the spread correction models as linear in depth (exact where σt
     /// is uniform around the cluster, not where the cluster is the edge of a dense region).
     pub cluster_optical_size: f64,
+    /// At most this many cells (the widest-lit first) of those that scatter and whose light's
+    /// mean cosine is below [`WIDE_MEAN_COSINE`] also get their light sorted into
+    /// [`DirectionBins::INCIDENT`] direction bins ([`EmitterPass::binned_row`]): 3 kB each.
+    /// 0 (the default) bins none.
+    pub binned_cells: usize,
 }
 
 impl Default for EmitterPassOptions {
@@ -82,9 +87,16 @@ impl Default for EmitterPassOptions {
             near_directions: 3456,
             opening_ratio: 0.2,
             cluster_optical_size: 1.0,
+            binned_cells: 0,
         }
     }
 }
+
+/// The mean cosine `|J| / φ` below which a cell's light is wide enough for its binned
+/// directions to scatter it better than a cone and a rest: near a 4³ emitting cube at g = 0.85
+/// the cone and rest are 5–30 % off at some angle up to a mean cosine of about 0.98 (six to
+/// nine cells from the cube), the bins within 4 % (`benches/incident_shape.py`).
+pub const WIDE_MEAN_COSINE: f64 = 0.98;
 
 /// What the pass did, for logs and `volrad info`.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -96,6 +108,8 @@ pub struct EmitterPassReport {
     pub far_rays: u64,
     /// Cells whose 3×3×3 block holds an emitter (each traced `near_directions` rays).
     pub near_cells: usize,
+    /// Cells whose light was also sorted into direction bins.
+    pub binned_cells: usize,
     pub seconds: f64,
 }
 
@@ -104,13 +118,50 @@ pub struct EmitterPassReport {
 /// # Invariants
 /// `fluence`, `current` and `second` have one entry per cell of the grid it was computed
 /// for; `fluence ≥ 0`, `|current| ≤ fluence` (up to rounding) and `0 ≤ second ≤ 1`, all
-/// finite.
+/// finite. `binned_cells` is increasing, and `binned` holds one row of
+/// [`BINNED_VALUES`] × [`DirectionBins::INCIDENT`] values per binned cell, its shares summing
+/// to 1.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EmitterPass {
     fluence: Vec<f64>,
     current: Vec<DVec3>,
     second: Vec<f64>,
+    binned_cells: Vec<u32>,
+    binned: Vec<f32>,
     report: EmitterPassReport,
+}
+
+/// A cell's light sorted into direction bins as it is summed: per bin `[φ_k, J_k]`.
+struct BinTally<'a> {
+    bins: &'a DirectionBins,
+    sums: Vec<f64>,
+}
+
+impl BinTally<'_> {
+    /// Light of fluence `f` travelling along unit `dir`, its directions' mean cosine about
+    /// `dir` being `mean` (1 for a ray; less for a source seen with some width).
+    #[inline]
+    fn add(&mut self, f: f64, dir: DVec3, mean: f64) {
+        if f <= 0.0 || f.is_nan() {
+            return;
+        }
+        let k = BINNED_VALUES * self.bins.bin_of(dir);
+        self.sums[k] += f;
+        for a in 0..3 {
+            self.sums[k + 1 + a] += f * mean * dir[a];
+        }
+    }
+
+    /// A far source's light, as its moments give it: fluence, direction and (from its second
+    /// moment about that direction, `⟨cos²⟩ ≈ 1 − ⟨δ²⟩` for a small spread) mean cosine.
+    #[inline]
+    fn add_source(&mut self, source: &Moments) {
+        let length = source.j.length();
+        if source.phi > 0.0 && length > 0.0 {
+            let dir = source.j / length;
+            self.add(source.phi, dir, source.second_about(dir).sqrt());
+        }
+    }
 }
 
 /// The angular moments of uncollided light at a point (or a cell's mean): `φ = ∫ L dω`,
@@ -311,6 +362,8 @@ impl EmitterPass {
                 fluence: vec![0.0; n],
                 current: vec![DVec3::ZERO; n],
                 second: vec![1.0 / 3.0; n],
+                binned_cells: Vec::new(),
+                binned: Vec::new(),
                 report,
             });
         }
@@ -327,38 +380,19 @@ impl EmitterPass {
         let near = near_emitting_cells(grid, &emitting);
         report.near_cells = near.iter().filter(|&&b| b).count();
         let points = NearPoints::new(grid.cell_size, options.near_directions);
+        let field = CellField {
+            grid,
+            sigma_t,
+            emission: &emission,
+            tree: &tree,
+            near: &near,
+            points: &points,
+            opening_ratio: options.opening_ratio,
+        };
         let results: Vec<(f64, DVec3, f64, u64)> = (0..n)
             .into_par_iter()
             .map(|r| {
-                let rc = grid.coords(r);
-                let centre = grid.cell_center(r);
-                // The far field's mean over the cell is its centre's value times the cell's
-                // spread along each source's direction (`receiver_factor`).
-                let (mut moments, rays) = far_field(
-                    grid,
-                    sigma_t,
-                    &tree,
-                    centre,
-                    rc,
-                    options.opening_ratio,
-                    sigma_t[r] as f64,
-                );
-                if near[r] {
-                    // The near field's mean, from the 3³ Gauss points: it has a kink at every
-                    // face where the emission changes, which the centre misses by up to 10 %.
-                    for (offset, share, directions) in &points.points {
-                        let near = near_field(
-                            grid,
-                            sigma_t,
-                            &emission,
-                            centre + *offset,
-                            rc,
-                            directions,
-                            points.weight,
-                        );
-                        moments.add_scaled(&near, *share);
-                    }
-                }
+                let (moments, rays) = field.light(r, None);
                 let (_, axis) = mean_cosine_and_axis(moments.phi, moments.j);
                 (moments.phi, moments.j, moments.second_about(axis), rays)
             })
@@ -378,12 +412,44 @@ impl EmitterPass {
             });
             report.far_rays += rays;
         }
+        // The widest-lit scattering cells, their light traced again into direction bins.
+        let mut wide: Vec<(f64, u32)> = (0..n)
+            .filter(|&i| fluence[i] > 0.0 && channel.sigma_s(i) > 0.0)
+            .map(|i| (current[i].length() / fluence[i], i as u32))
+            .filter(|&(mean, _)| mean < WIDE_MEAN_COSINE)
+            .collect();
+        wide.sort_by(|a, b| a.0.total_cmp(&b.0));
+        wide.truncate(options.binned_cells);
+        let mut binned_cells: Vec<u32> = wide.into_iter().map(|(_, i)| i).collect();
+        binned_cells.sort_unstable();
+        let bins = DirectionBins::incident();
+        let width = BINNED_VALUES * bins.len();
+        let mut binned = vec![0.0f32; width * binned_cells.len()];
+        binned
+            .par_chunks_mut(width)
+            .zip(&binned_cells)
+            .for_each(|(row, &r)| {
+                let mut tally = BinTally {
+                    bins,
+                    sums: vec![0.0; width],
+                };
+                field.light(r as usize, Some(&mut tally));
+                let total: f64 = tally.sums.iter().step_by(BINNED_VALUES).sum();
+                if total > 0.0 {
+                    for (v, s) in row.iter_mut().zip(&tally.sums) {
+                        *v = (s / total) as f32;
+                    }
+                }
+            });
+        report.binned_cells = binned_cells.len();
         report.seconds = start.elapsed().as_secs_f64();
         tracing::debug!(?report, "emitter pass");
         Ok(EmitterPass {
             fluence,
             current,
             second,
+            binned_cells,
+            binned,
             report,
         })
     }
@@ -448,10 +514,10 @@ impl EmitterPass {
                     grid,
                     &channel.sigma_t,
                     &tree,
-                    grid.cell_center(r),
-                    grid.coords(r),
+                    (grid.cell_center(r), grid.coords(r)),
                     options.opening_ratio,
                     channel.sigma_t[r] as f64,
+                    None,
                 );
                 far + if near[r] {
                     options.near_directions as u64
@@ -490,8 +556,72 @@ impl EmitterPass {
         (IncidentShape::from_moments(mean, self.second[cell]), axis)
     }
 
+    /// The cells whose light was sorted into direction bins (increasing): the widest-lit
+    /// scattering cells, at most [`EmitterPassOptions::binned_cells`].
+    pub fn binned_cells(&self) -> &[u32] {
+        &self.binned_cells
+    }
+
+    /// The light of the `k`-th of [`binned_cells`](Self::binned_cells) in
+    /// [`DirectionBins::incident`]'s bins: per bin the share of the cell's fluence and its
+    /// mean direction of travel times that share, what
+    /// [`crate::phase::ShapeScattering::eval_binned`] takes.
+    pub fn binned_row(&self, k: usize) -> &[f32] {
+        let width = BINNED_VALUES * DirectionBins::INCIDENT;
+        &self.binned[k * width..(k + 1) * width]
+    }
+
     pub fn report(&self) -> &EmitterPassReport {
         &self.report
+    }
+}
+
+/// What the pass needs to sum one cell's light.
+struct CellField<'a> {
+    grid: &'a Grid,
+    sigma_t: &'a [f32],
+    emission: &'a [f64],
+    tree: &'a [Cluster],
+    near: &'a [bool],
+    points: &'a NearPoints,
+    opening_ratio: f64,
+}
+
+impl CellField<'_> {
+    /// Cell `r`'s mean light (and the rays traced), sorted into `tally`'s bins as well if
+    /// given.
+    fn light(&self, r: usize, mut tally: Option<&mut BinTally>) -> (Moments, u64) {
+        let grid = self.grid;
+        let rc = grid.coords(r);
+        let centre = grid.cell_center(r);
+        // The far field's mean over the cell is its centre's value times the cell's spread
+        // along each source's direction (`receiver_factor`).
+        let (mut moments, rays) = far_field(
+            grid,
+            self.sigma_t,
+            self.tree,
+            (centre, rc),
+            self.opening_ratio,
+            self.sigma_t[r] as f64,
+            tally.as_deref_mut(),
+        );
+        if self.near[r] {
+            // The near field's mean, from the 3³ Gauss points: it has a kink at every face
+            // where the emission changes, which the centre misses by up to 10 %.
+            for (offset, share, directions) in &self.points.points {
+                let near = near_field(
+                    grid,
+                    self.sigma_t,
+                    self.emission,
+                    (centre + *offset, rc),
+                    directions,
+                    self.points.weight * share,
+                    tally.as_deref_mut(),
+                );
+                moments += near;
+            }
+        }
+        (moments, rays)
     }
 }
 
@@ -877,10 +1007,10 @@ fn far_field(
     grid: &Grid,
     sigma_t: &[f32],
     tree: &[Cluster],
-    x: DVec3,
-    rc: [usize; 3],
+    (x, rc): (DVec3, [usize; 3]),
     opening_ratio: f64,
     receiver_sigma: f64,
+    mut tally: Option<&mut BinTally>,
 ) -> (Moments, u64) {
     let h = grid.cell_size;
     let (mut moments, mut rays) = (Moments::default(), 0u64);
@@ -904,6 +1034,9 @@ fn far_field(
                     } else {
                         spread_source(grid, sigma_t, node, x, receiver_sigma)
                     };
+                    if let Some(t) = tally.as_deref_mut() {
+                        t.add_source(&source);
+                    }
                     moments += source;
                     rays += 1;
                 } else {
@@ -942,6 +1075,9 @@ fn far_field(
                         };
                         emitting_cube(grid, sigma_t, &cube, x, receiver_sigma)
                     };
+                    if let Some(t) = tally.as_deref_mut() {
+                        t.add_source(&part);
+                    }
                     moments += part;
                 }
                 // A sampled part: one full ray and six short ones, about two rays' work.
@@ -958,10 +1094,10 @@ fn near_field(
     grid: &Grid,
     sigma_t: &[f32],
     emission: &[f64],
-    x: DVec3,
-    rc: [usize; 3],
+    (x, rc): (DVec3, [usize; 3]),
     directions: &[DVec3],
     weight: f64,
+    mut tally: Option<&mut BinTally>,
 ) -> Moments {
     let mut moments = Moments::default();
     // Any ray from a point within half a cell of the centre leaves the block within
@@ -988,6 +1124,9 @@ fn near_field(
         }
         // Light arriving from direction d travels along −d.
         moments.add(radiance * weight, -d);
+        if let Some(t) = tally.as_deref_mut() {
+            t.add(radiance * weight, -d, 1.0);
+        }
     }
     moments
 }
@@ -1084,6 +1223,16 @@ mod tests {
 
     /// A cube of `side` cells emitting `e` at the centre of an `n³` grid of uniform `sigma`.
     fn emitting_cube(n: usize, side: usize, sigma: f32, e: f32) -> (Medium, [usize; 2]) {
+        scattering_emitting_cube(n, side, sigma, e, 0.0)
+    }
+
+    fn scattering_emitting_cube(
+        n: usize,
+        side: usize,
+        sigma: f32,
+        e: f32,
+        albedo: f32,
+    ) -> (Medium, [usize; 2]) {
         let grid = Grid::new([n; 3], 1.0).unwrap();
         let lo = (n - side) / 2;
         let hi = lo + side;
@@ -1101,7 +1250,7 @@ mod tests {
             grid,
             vec![ChannelMedium {
                 sigma_t: vec![sigma; grid.cell_count()],
-                albedo: CellValues::Uniform(0.0),
+                albedo: CellValues::Uniform(albedo),
                 emission: CellValues::PerCell(emission),
             }],
             PhaseFunction::Isotropic,
@@ -1368,6 +1517,94 @@ mod tests {
         let inside = pass.second()[grid.index(mid, mid, mid)];
         assert!((inside - 1.0 / 3.0).abs() < 0.01, "{inside}");
         assert!(pass.second()[grid.index(n - 1, n - 1, n - 1)] > 0.97);
+    }
+
+    /// The widest-lit cells' binned light, scattered by g = 0.85 toward 40 directions, against
+    /// the chords of the box (each cell's mean over its Gauss points), in cells beside the
+    /// cube's faces, edges and corners and farther out: 95 % of the directions within 4 %
+    /// and all within 15 % (a bin across the cube's silhouette, seen from beside an edge),
+    /// where the cone and the rest are off by up to 100 % (printed).
+    #[test]
+    fn binned_light_beside_an_emitting_cube_scatters_as_the_chords_do() {
+        let (n, side, sigma) = (16, 4, 0.6f32);
+        let (medium, [lo, hi]) = scattering_emitting_cube(n, side, sigma, 1.0, 0.5);
+        let options = EmitterPassOptions {
+            binned_cells: 100_000,
+            ..EmitterPassOptions::default()
+        };
+        let pass = EmitterPass::compute(&medium, 0, &options).unwrap();
+        assert!(pass.report().binned_cells > 500, "{:?}", pass.report());
+        assert_eq!(pass.binned_cells().len(), pass.report().binned_cells);
+        let g = 0.85;
+        let table = PhaseFunction::HenyeyGreenstein { g }.shape_scattering();
+        let grid = medium.grid();
+        let (blo, bhi) = (DVec3::splat(lo as f64), DVec3::splat(hi as f64));
+        let directions: Vec<DVec3> = fibonacci_directions(20_000).collect();
+        let outgoing: Vec<DVec3> = fibonacci_directions(40).collect();
+        let hg = |mu: f64| (1.0 - g * g) / (4.0 * PI * (1.0 + g * g - 2.0 * g * mu).powf(1.5));
+        let mid = n / 2;
+        let cells = [
+            [hi, mid, mid],
+            [hi, hi, mid],
+            [hi, hi, hi],
+            [lo - 1, mid, hi],
+            [hi + 1, mid, mid],
+            [hi + 2, hi + 1, mid],
+        ];
+        let (mut worst_binned, mut worst_shape) = (0.0f64, 0.0f64);
+        let (mut within, mut count) = (0, 0);
+        for ijk in cells {
+            let c = grid.index(ijk[0], ijk[1], ijk[2]);
+            let k = pass
+                .binned_cells()
+                .binary_search(&(c as u32))
+                .unwrap_or_else(|_| panic!("cell {ijk:?} is not binned"));
+            let row = pass.binned_row(k);
+            let shares: f64 = row.iter().step_by(BINNED_VALUES).map(|&v| v as f64).sum();
+            assert!((shares - 1.0).abs() < 1e-4, "{ijk:?}: shares {shares}");
+            let (shape, axis) = pass.incident_shape(c);
+            let mut exact = vec![0.0; outgoing.len()];
+            let mut total = 0.0;
+            for (offset, w) in cell_gauss_points(grid.cell_size) {
+                for &d in &directions {
+                    if let Some((t0, t1)) =
+                        chord_through_box(grid.cell_center(c) + offset, d, blo, bhi)
+                    {
+                        let s = sigma as f64;
+                        let l = w * ((-s * t0).exp() - (-s * t1).exp()) / s;
+                        total += l;
+                        for (e, o) in exact.iter_mut().zip(&outgoing) {
+                            *e += l * hg(-d.dot(*o));
+                        }
+                    }
+                }
+            }
+            for (e, o) in exact.iter().zip(&outgoing) {
+                let want = e / total;
+                let binned = table.eval_binned(row, *o) / want - 1.0;
+                let shaped = table.eval(shape, axis.dot(*o)) / want - 1.0;
+                worst_binned = worst_binned.max(binned.abs());
+                worst_shape = worst_shape.max(shaped.abs());
+                assert!(binned.abs() < 0.15, "cell {ijk:?} toward {o}: {binned:+.3}");
+                within += usize::from(binned.abs() < 0.04);
+                count += 1;
+            }
+        }
+        eprintln!(
+            "beside the cube: binned worst {:.1} %, {within} of {count} within 4 %; cone and \
+             rest worst {:.1} %",
+            100.0 * worst_binned,
+            100.0 * worst_shape
+        );
+        assert!(within * 100 >= 95 * count, "{within} of {count} within 4 %");
+        // Without the option nothing is binned; far cells (narrow light) never are.
+        let plain = EmitterPass::compute(&medium, 0, &EmitterPassOptions::default()).unwrap();
+        assert!(plain.binned_cells().is_empty());
+        assert!(pass
+            .binned_cells()
+            .iter()
+            .all(|&c| pass.current()[c as usize].length()
+                < WIDE_MEAN_COSINE * pass.fluence()[c as usize]));
     }
 
     #[test]
