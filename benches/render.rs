@@ -2,7 +2,7 @@
 //! pixel, exact per-cell segments: emission + absorption (the particle model, emission = σt),
 //! and the scattering renders of `data/cloud.toml` (first bounce from the light pass, alone
 //! and with a stored per-cell multiple-scattering source as a zonal solution supplies it), and
-//! the table the emitters' first scattering is drawn with.
+//! the table the emitters' first scattering is drawn with and its binned cells' cost per view.
 //! Run with `cargo bench --bench render`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -195,6 +195,31 @@ fn bench_shape_table(c: &mut Criterion) {
             b.iter(|| phase.shape_scattering())
         });
     }
+    // A view's value of each cell whose emitted light is kept in direction bins: 1000 cells
+    // lit from a hemisphere (half the bins), on one thread.
+    let table = PhaseFunction::HenyeyGreenstein { g: 0.85 }.shape_scattering();
+    let bins = medium::phase::DirectionBins::incident();
+    let mut row = vec![0.0f32; medium::phase::BINNED_VALUES * bins.len()];
+    for k in 0..bins.len() {
+        let d = bins.direction(k);
+        if d.z > 0.0 {
+            let share = 2.0 / bins.len() as f32;
+            row[4 * k] = share;
+            row[4 * k + 1] = share * d.x as f32 * 0.99;
+            row[4 * k + 2] = share * d.y as f32 * 0.99;
+            row[4 * k + 3] = share * d.z as f32 * 0.99;
+        }
+    }
+    group.bench_function("emitter_binned_1000_cells_g0.85", |b| {
+        b.iter(|| {
+            (0..1000)
+                .map(|i| {
+                    let a = i as f64 * 0.01;
+                    table.eval_binned(&row, DVec3::new(a.cos(), a.sin(), 0.0))
+                })
+                .sum::<f64>()
+        })
+    });
     group.finish();
 }
 

@@ -730,6 +730,25 @@ fn peak_of(s: &Sizes, scene: &Scene, settings: &SolveSettings) -> MemoryEstimate
                     bytes: unknowns.saturating_mul(ORDINATES_SKY_BYTES_PER_CELL_BIN),
                 });
             }
+            // The emitters' light in direction bins, kept with the solution: at most
+            // `EMITTER_BINNED_CELLS` of the cells with medium per emitting channel.
+            let emitting = scene
+                .medium
+                .channels()
+                .iter()
+                .filter(|c| !c.emission.is_zero())
+                .count() as u64;
+            if emitting > 0 {
+                let cells = s
+                    .transport_occupied
+                    .min(crate::engine::methods::EMITTER_BINNED_CELLS as u64);
+                parts.push(MemoryPart {
+                    what: "the emitters' light in direction bins (the widest-lit cells)",
+                    bytes: cells
+                        .saturating_mul(emitting)
+                        .saturating_mul(4 * crate::engine::solution::EMITTER_BIN_VALUES as u64),
+                });
+            }
             let vectors = work_vectors(&settings.iteration, settings.max_iterations);
             if vectors > 0 {
                 parts.push(MemoryPart {

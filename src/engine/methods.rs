@@ -21,7 +21,8 @@ use solver::{Method, SolveOptions, SolveReport, TransportOperator};
 
 use crate::engine::ground::{relative_change, ChannelGround, GROUND_TOLERANCE, MAX_GROUND_ROUNDS};
 use crate::engine::solution::{
-    CellRows, ChannelSolution, ScatteredField, Solution, StoredBins, EMITTER_BEAM_VALUES,
+    CellRows, ChannelSolution, EmitterBeam, ScatteredField, Solution, StoredBins,
+    EMITTER_BEAM_VALUES, EMITTER_BIN_VALUES,
 };
 use crate::engine::SolveHooks;
 
@@ -137,6 +138,10 @@ fn run_solver(
 /// operator carries well.
 pub const MAX_EMITTER_RAYS_PER_CELL: f64 = 512.0;
 
+/// The most cells whose emitted light a discrete-ordinates solve keeps in direction bins
+/// (the widest-lit; [`EmitterPassOptions::binned_cells`]): 3 kB each, 48 MB at most.
+pub const EMITTER_BINNED_CELLS: usize = 16_384;
+
 /// Cells at which the emitter pass's cost is sampled before it runs.
 pub const EMITTER_COST_SAMPLES: usize = 64;
 
@@ -237,13 +242,23 @@ pub fn emitter_pass(
         c,
         medium.channels().len(),
     ));
-    let pass = EmitterPass::compute(medium, c, &EmitterPassOptions::default())
-        .context("the emitter pass")?;
+    // Discrete ordinates draw the emitters' first scattering from the pass; beside an
+    // emitting region its light is binned by direction (the rest keep a cone and a rest).
+    let options = EmitterPassOptions {
+        binned_cells: if settings.method == SolveMethod::DiscreteOrdinates {
+            EMITTER_BINNED_CELLS
+        } else {
+            0
+        },
+        ..EmitterPassOptions::default()
+    };
+    let pass = EmitterPass::compute(medium, c, &options).context("the emitter pass")?;
     let report = pass.report();
     tracing::info!(
         emitting_cells = report.emitting_cells,
         clusters = report.clusters,
         near_cells = report.near_cells,
+        binned_cells = report.binned_cells,
         far_rays = report.far_rays,
         seconds = report.seconds,
         "emitter pass"
@@ -878,23 +893,24 @@ pub fn solve_ordinates(
 /// `[σs φ, weight, cos_half_angle, d]` — the emitter pass's flux `φ` and the incident light's
 /// shape about the flux vector's direction `d` ([`medium::phase::IncidentShape`], from the
 /// pass's mean and mean squared cosine; the shape
-/// [`OrdinatesOperator::add_collision_density`] gives the sweeps). Drawn with the true phase
-/// function in the view's direction: stored in the bins at their centres, as a beam and an
-/// isotropic rest, it was drawn between bin centres and was 5–8 % RMS off the path tracer on a
-/// cube emitting inside a g = 0.6 cloud, whatever the bins (docs/validation.md, *Light from
-/// emitting cells*).
-pub fn emitter_beam(medium: &Medium, c: usize, pass: &EmitterPass) -> Vec<f32> {
+/// [`OrdinatesOperator::add_collision_density`] gives the sweeps) — and the widest-lit cells'
+/// light in direction bins ([`EmitterPass::binned_row`]), which a cone and a rest cannot
+/// hold beside an emitting region. Drawn with the true phase function in the view's
+/// direction: stored in the bins at their centres, as a beam and an isotropic rest, it was
+/// drawn between bin centres and was 5–8 % RMS off the path tracer on a cube emitting inside
+/// a g = 0.6 cloud, whatever the bins (docs/validation.md, *Light from emitting cells*).
+pub fn emitter_beam(medium: &Medium, c: usize, pass: &EmitterPass) -> Result<EmitterBeam> {
     let channel = &medium.channels()[c];
     let fluence = pass.fluence();
-    let mut values = Vec::with_capacity(EMITTER_BEAM_VALUES * fluence.len());
+    let mut shapes = Vec::with_capacity(EMITTER_BEAM_VALUES * fluence.len());
     for (i, &phi) in fluence.iter().enumerate() {
         let sigma_s = channel.sigma_s(i) as f64;
         if sigma_s == 0.0 || phi <= 0.0 {
-            values.extend_from_slice(&[0.0; EMITTER_BEAM_VALUES]);
+            shapes.extend_from_slice(&[0.0; EMITTER_BEAM_VALUES]);
             continue;
         }
         let (shape, d) = pass.incident_shape(i);
-        values.extend_from_slice(&[
+        shapes.extend_from_slice(&[
             (sigma_s * phi) as f32,
             shape.weight() as f32,
             shape.cos_half_angle() as f32,
@@ -903,7 +919,14 @@ pub fn emitter_beam(medium: &Medium, c: usize, pass: &EmitterPass) -> Vec<f32> {
             d.z as f32,
         ]);
     }
-    values
+    let binned = CellRows::from_rows(
+        fluence.len(),
+        EMITTER_BIN_VALUES,
+        pass.binned_cells(),
+        |i| pass.binned_row(i / EMITTER_BIN_VALUES)[i % EMITTER_BIN_VALUES],
+    )
+    .context("the emitters' binned light")?;
+    Ok(EmitterBeam { shapes, binned })
 }
 
 /// Blasi & Wuethrich's two-pass method for channel `c`: second and higher orders stored by a

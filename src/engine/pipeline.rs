@@ -190,7 +190,8 @@ pub fn solve_scene(
             emitted_beam: emitters
                 .as_ref()
                 .filter(|_| settings.method == SolveMethod::DiscreteOrdinates)
-                .map(|e| crate::engine::methods::emitter_beam(transport_medium, c, e)),
+                .map(|e| crate::engine::methods::emitter_beam(transport_medium, c, e))
+                .transpose()?,
             render_cache: Default::default(),
         });
     }
@@ -276,6 +277,7 @@ pub fn render_view_through(
         );
     }
     let camera = Camera::from_spec(camera)?;
+    let view = crate::engine::sources::Viewpoint::of_camera(&camera);
     // The solution's caches, built together on a first view (at once after that); a
     // rescaled view medium gets its own render index below.
     if std::ptr::eq(view_medium, &solution.medium) {
@@ -291,7 +293,9 @@ pub fn render_view_through(
         .channels
         .iter()
         .enumerate()
-        .map(|(c, ch)| crate::engine::sources::channel_scattering(solution, c, ch, options.model))
+        .map(|(c, ch)| {
+            crate::engine::sources::channel_scattering(solution, c, ch, options.model, view)
+        })
         .collect::<Result<Vec<Box<dyn InScattering + '_>>>>()?;
     let refs: Vec<&dyn InScattering> = sources.iter().map(|b| b.as_ref()).collect();
     // The solved medium's render indices are kept with the solution; a rescaled view medium

@@ -610,11 +610,12 @@ fn two_views_of_an_emitting_cube_pixel_by_pixel() {
                 // is 10–30 % uncertain). At g = 0.85 discrete ordinates are within 2 % in the
                 // bright pixels (−4.9 … +5.4 % with the emitters' first collision a
                 // Henyey–Greenstein lobe of its mean cosine, which scatters a nearby emitter's
-                // light 2–3× too strongly forward) and −21 … −2 % in the dim ones; two-pass 2–4
-                // % and −2 … +25 %.
+                // light 2–3× too strongly forward) and +3 … +7 % in the dim ones (−18 … 0 %
+                // while the render interpolated the cells beside the cube with the cube's
+                // own); two-pass 2–4 % and −2 … +25 %.
                 let (bright_bound, dim_bound, share) = match (phase == ISOTROPIC, *method) {
                     (true, _) => (0.03, 0.03, 0.8),
-                    (false, "discrete-ordinates") => (0.03, 0.25, 0.75),
+                    (false, "discrete-ordinates") => (0.03, 0.1, 0.75),
                     (false, _) => (0.05, 0.25, 0.6),
                 };
                 let agrees =
@@ -640,11 +641,12 @@ fn two_views_of_an_emitting_cube_pixel_by_pixel() {
 /// without its higher orders, less the emission, which the albedo-0 solve renders) against the
 /// path tracer's single scattering (`max_depth = 1`), and the higher orders (the rest) against
 /// the path tracer's. Per band of brightness as [`pixel_agreement`] takes them (bright: above
-/// 10⁻² of the render's peak; dim: 10⁻⁴ … 10⁻²). Measured: the first scattering within 2 % in
-/// the bright bands (the emitters' first collision a cone and a rest; the bright pixels of
-/// [`two_views_of_an_emitting_cube_pixel_by_pixel`] were −4.9 … +5.4 % off with a
-/// Henyey–Greenstein lobe of its mean cosine) and 8–34 % low in the dim ones
-/// (docs/validation.md, *Two views, pixel by pixel*), the higher orders within −6 … +7 %.
+/// 10⁻² of the render's peak; dim: 10⁻⁴ … 10⁻²). Measured: the first scattering within 2.5 %
+/// in the bright bands (the bright pixels of [`two_views_of_an_emitting_cube_pixel_by_pixel`]
+/// were −4.9 … +5.4 % off with a Henyey–Greenstein lobe of its mean cosine) and 0 … +22 %
+/// in the dim ones (−8 … −34 % while the render interpolated the cells beside the cube with
+/// the cube's own: docs/validation.md, *Two views, pixel by pixel*), the higher orders within
+/// −7 … +8 %.
 #[test]
 fn the_emitters_first_scattering_and_the_higher_orders_apart() {
     use volrad::engine::solution::{CellRows, ScatteredField};
@@ -712,6 +714,11 @@ fn the_emitters_first_scattering_and_the_higher_orders_apart() {
             (bright.0 - 1.0).abs() < 0.03,
             "{name}: the bright band's first scattering {:.3}",
             bright.0
+        );
+        assert!(
+            (dim.0 - 1.0).abs() < 0.3,
+            "{name}: the dim band's first scattering {:.3}",
+            dim.0
         );
         assert!(
             (bright.1 - 1.0).abs() < 0.1 && (dim.1 - 1.0).abs() < 0.1,

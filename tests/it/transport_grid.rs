@@ -357,8 +357,14 @@ fn pieces_taken_in_pairs_keep_the_image() {
         let camera = gather::Camera::from_spec(&scene.cameras[0]).unwrap();
         let options = gather::RenderOptions::from_settings(&solution.render, solution.background);
         let ch = &solution.channels[0];
-        let source =
-            volrad::engine::sources::channel_scattering(&solution, 0, ch, options.model).unwrap();
+        let source = volrad::engine::sources::channel_scattering(
+            &solution,
+            0,
+            ch,
+            options.model,
+            volrad::engine::sources::Viewpoint::of_camera(&camera),
+        )
+        .unwrap();
         let render = |s: &dyn gather::InScattering| {
             gather::render_image(&solution.medium, &camera, &options, &[s]).unwrap()
         };

@@ -40,10 +40,11 @@ pub const MAGIC: &[u8; 8] = b"VOLRADSL";
 /// no longer in the bins' higher orders; 12: discrete ordinates store the bins' fluence per
 /// cell instead of their radiance per cell and bin, and the higher orders of scattering cells
 /// only; 13: `emitted_beam` holds the incident light's shape as a cone and a rest, six values
-/// per cell). Bumping it means
+/// per cell; 14: `emitted_bins`, the widest-lit cells' light in direction bins). Bumping it
+/// means
 /// refreshing the golden files in
 /// `tests/data/solution-golden/` (`VOLRAD_BLESS=1 cargo test --test it solution_file`).
-pub const FORMAT_VERSION: u32 = 13;
+pub const FORMAT_VERSION: u32 = 14;
 const FIXED_HEADER: usize = 24;
 /// The largest metadata (records and array table, without the arrays) a solution file may
 /// hold. The reader decodes with this limit, so a length inside hostile metadata cannot make

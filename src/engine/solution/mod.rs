@@ -56,6 +56,24 @@ pub enum ScatteredField {
 /// first scattering, the incident light's shape (its cone's weight and cosine) and its axis.
 pub const EMITTER_BEAM_VALUES: usize = 6;
 
+/// Discrete ordinates' emitters' first scattering, as the render draws it in the view's own
+/// direction ([`crate::engine::sources::EmitterBeamSource`]; the bins then hold no first
+/// scattering of the emission). Made by [`crate::engine::methods::emitter_beam`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct EmitterBeam {
+    /// Per transport cell [`EMITTER_BEAM_VALUES`] values: `σs φ`, the incident light's shape
+    /// (a cone and a rest) and its axis.
+    pub shapes: Vec<f32>,
+    /// The widest-lit cells' incident light in direction bins
+    /// ([`medium::emitter_pass::EmitterPass::binned_row`]'s rows, [`EMITTER_BIN_VALUES`]
+    /// wide): what a cone and a rest cannot hold beside an emitting region.
+    pub binned: CellRows,
+}
+
+/// Values per row of [`EmitterBeam::binned`].
+pub const EMITTER_BIN_VALUES: usize =
+    medium::phase::BINNED_VALUES * medium::phase::DirectionBins::INCIDENT;
+
 /// Direction bins as stored: what a render needs to look radiance up by direction (in the
 /// file as [`records::BinsRecord`]).
 #[derive(Clone, Debug, PartialEq)]
@@ -76,11 +94,8 @@ pub struct ChannelSolution {
     /// ordinates in a channel that emits); `None` otherwise.
     pub emitted_fluence: Option<Vec<f32>>,
     /// Discrete ordinates with an emitter pass: the emitters' first scattering, drawn by the
-    /// render in the view's own direction ([`crate::engine::sources::EmitterBeamSource`];
-    /// the bins then hold no first scattering of the emission): per transport cell
-    /// [`EMITTER_BEAM_VALUES`] values ([`crate::engine::methods::emitter_beam`]). `None`
-    /// otherwise.
-    pub emitted_beam: Option<Vec<f32>>,
+    /// render in the view's own direction. `None` otherwise.
+    pub emitted_beam: Option<EmitterBeam>,
     /// Built from the light pass on first render, shared by every later one; not stored.
     pub render_cache: RenderCache,
 }
@@ -111,9 +126,9 @@ pub struct RenderCache {
     two_pass_means: std::sync::OnceLock<(Vec<f32>, f64)>,
     /// What the emitters' first scattering (`emitted_beam`) is drawn with: the phase
     /// function's table for incident shapes (2.4 ms to build at g = 0.85, 8.0 ms at 0.95:
-    /// `cargo bench --bench render -- emitter_shape`) and the source's bound
-    /// ([`crate::engine::sources::EmitterBeamSource`]).
-    emitter_beam: std::sync::OnceLock<(medium::phase::ShapeScattering, f64)>,
+    /// `cargo bench --bench render -- emitter_shape`), the source's bound and which cells
+    /// emit ([`crate::engine::sources::EmitterBeamSource`]).
+    emitter_beam: std::sync::OnceLock<(medium::phase::ShapeScattering, f64, Vec<bool>)>,
     /// `fluence` on the grid the channel's fields live on (the transport grid's, at most a
     /// few MB): tracing the cells' sources there can take seconds, and the service's slices
     /// ask for it again for every plane.
@@ -223,14 +238,14 @@ impl RenderCache {
         (means, *ratio)
     }
 
-    /// The channel's table and bound for drawing its emitters' first scattering, made by
-    /// `make` on the first call (the same solution on every call).
+    /// The channel's table, bound and emitting cells for drawing its emitters' first
+    /// scattering, made by `make` on the first call (the same solution on every call).
     pub fn emitter_beam(
         &self,
-        make: impl FnOnce() -> (medium::phase::ShapeScattering, f64),
-    ) -> (&medium::phase::ShapeScattering, f64) {
-        let (table, bound) = self.emitter_beam.get_or_init(make);
-        (table, *bound)
+        make: impl FnOnce() -> (medium::phase::ShapeScattering, f64, Vec<bool>),
+    ) -> (&medium::phase::ShapeScattering, f64, &[bool]) {
+        let (table, bound, emitting) = self.emitter_beam.get_or_init(make);
+        (table, *bound, emitting)
     }
 
     /// The channel's `fluence` on the grid its fields live on, made by `make` on the first
@@ -469,7 +484,15 @@ impl Solution {
                 arrays.push((format!("emitted_fluence/{c}"), Cow::Borrowed(&f[..])));
             }
             if let Some(b) = &sol.emitted_beam {
-                arrays.push((format!("emitted_beam/{c}"), Cow::Borrowed(&b[..])));
+                arrays.push((format!("emitted_beam/{c}"), Cow::Borrowed(&b.shapes[..])));
+                arrays.push((
+                    format!("emitted_bins_kept/{c}"),
+                    Cow::Owned(b.binned.kept_mask()),
+                ));
+                arrays.push((
+                    format!("emitted_bins/{c}"),
+                    Cow::Borrowed(b.binned.values()),
+                ));
             }
             channels.push(ChannelRecord {
                 albedo,
@@ -667,10 +690,19 @@ impl Solution {
                     None
                 },
                 emitted_beam: if cm.has_emitted_beam {
-                    Some(take(
+                    let shapes = take(
                         format!("emitted_beam/{ci}"),
                         EMITTER_BEAM_VALUES * transport_cells,
-                    )?)
+                    )?;
+                    let kept = take(format!("emitted_bins_kept/{ci}"), transport_cells)?;
+                    let kept_cells = kept.iter().filter(|&&k| k == 1.0).count();
+                    let values = take(
+                        format!("emitted_bins/{ci}"),
+                        kept_cells * EMITTER_BIN_VALUES,
+                    )?;
+                    let binned = CellRows::from_parts(EMITTER_BIN_VALUES, &kept, values)
+                        .map_err(|e| bad(format!("channel {ci}: emitters' bins: {e}")))?;
+                    Some(EmitterBeam { shapes, binned })
                 } else {
                     None
                 },

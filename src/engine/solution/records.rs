@@ -261,8 +261,9 @@ pub struct ChannelRecord {
     pub emission: Option<f32>,
     /// Whether the array `emitted_fluence/{c}` (the emitter pass's fluence) is present.
     pub has_emitted_fluence: bool,
-    /// Whether the array `emitted_beam/{c}` (discrete ordinates' emitters' first scattering,
-    /// five values per transport cell) is present.
+    /// Whether the arrays `emitted_beam/{c}` (discrete ordinates' emitters' first scattering,
+    /// six values per transport cell), `emitted_bins_kept/{c}` and `emitted_bins/{c}` (the
+    /// widest-lit cells' light in direction bins) are present.
     pub has_emitted_beam: bool,
     /// The light pass's power bookkeeping, one per light in the scene's order.
     pub light_energy: Vec<LightEnergyRecord>,

@@ -145,6 +145,25 @@ impl CellRows {
         self.start_of(cell).map(|s| &self.rows[s..s + self.width])
     }
 
+    /// `cell`'s rank among the kept cells (its row is the rank-th), if it has a row.
+    #[inline]
+    pub fn rank_of(&self, cell: usize) -> Option<usize> {
+        let r = self.row_of[cell];
+        (r != Self::ABSENT).then_some(r as usize)
+    }
+
+    /// The kept cells with their rows, in cell order.
+    pub fn kept_rows(&self) -> impl Iterator<Item = (usize, &[f32])> + '_ {
+        self.row_of
+            .iter()
+            .enumerate()
+            .filter(|(_, &r)| r != Self::ABSENT)
+            .map(|(cell, &r)| {
+                let start = r as usize * self.width;
+                (cell, &self.rows[start..start + self.width])
+            })
+    }
+
     /// Per cell, 1 if it has a row and 0 if not (how a solution file stores which cells do).
     pub fn kept_mask(&self) -> Vec<f32> {
         self.row_of
