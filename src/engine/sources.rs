@@ -44,12 +44,13 @@ pub struct CellLattice<'a> {
 /// How many times brighter one side of a [`TransportLattice::regions`] boundary must be than
 /// the other for the two cells to be drawn apart. Across an emitting region's boundary the
 /// first scattering is continuous (its derivative jumps): interpolated, a cube emitting in a
-/// cloud is drawn within 1.1 % RMS (isotropic and g = 0.6), always drawn apart 1.8 % and
-/// 2.2 %, and with a contrast of 4, 1.2 % and 1.5 %. But scattered forward (g = 0.85) toward a
+/// cloud is drawn within 1.1 % RMS (isotropic and g = 0.6), with this constant 0 (always
+/// apart) 1.8 % and 2.2 %, and 4, 1.2 % and 1.5 %. But scattered forward (g = 0.85) toward a
 /// view along the boundary it changes many-fold within a cell (light along a face comes from
 /// the emitter on one side of it and not on the other), more than a mean-keeping line
-/// between centres can hold without going negative: the cells beside the cube came out
-/// 34–56 % dark (`cargo test --release --test it emitters -- --nocapture`).
+/// between centres can hold without going negative: drawn across, the dim bands' first
+/// scattering around the cube was 8–34 % low (`cargo test --release --test it emitters --
+/// --nocapture`).
 const REGION_CONTRAST: f64 = 8.0;
 
 #[derive(Clone, Copy)]
@@ -141,16 +142,13 @@ impl TransportLattice<'_> {
                 (o, value(o) * self.inverse_sigma_s[o] as f64)
             });
             for (k, &o) in cells.iter().enumerate() {
-                let mut inv = self.inverse_sigma_s[o] as f64;
-                if let Some((a, ra)) = own {
-                    if inv > 0.0 && self.apart(a, ra, o, value(o) * inv) {
-                        inv = 0.0;
-                    }
-                }
-                (block.ratio[k], block.scatters[k]) = if inv > 0.0 && self.keep_cell_means {
-                    (self.nodal_ratio(o, inv, &mut value), 1.0)
-                } else if inv > 0.0 {
-                    (value(o) * inv, 1.0)
+                let inv = self.inverse_sigma_s[o] as f64;
+                let r = if inv > 0.0 { value(o) * inv } else { 0.0 };
+                let drawn = inv > 0.0 && !own.is_some_and(|(a, ra)| self.apart(a, ra, o, r));
+                (block.ratio[k], block.scatters[k]) = if drawn && self.keep_cell_means {
+                    (self.nodal_ratio(o, r, &mut value), 1.0)
+                } else if drawn {
+                    (r, 1.0)
                 } else {
                     (0.0, 0.0)
                 };
@@ -178,10 +176,9 @@ impl TransportLattice<'_> {
     /// and its silhouette came out bright. Without the correction the interpolated light
     /// loses (where the light peaks inside the medium) or gains (where it falls off) a share
     /// of each cell's solved energy — about −1 % of the image mean on a cloud of albedo 0.99.
-    /// Never below 0.
+    /// Never below 0. `r` is the cell's own `Q/σs` (`value(o)` times its `1/σs`).
     #[inline]
-    fn nodal_ratio(&self, o: usize, inv: f64, value: &mut impl FnMut(usize) -> f64) -> f64 {
-        let r = value(o) * inv;
+    fn nodal_ratio(&self, o: usize, r: f64, value: &mut impl FnMut(usize) -> f64) -> f64 {
         let [nx, ny, nz] = self.coarse.dims;
         let (i, j, k) = (o % nx, (o / nx) % ny, o / (nx * ny));
         let mut curvature = 0.0;
@@ -387,20 +384,12 @@ impl<'a> CellLattice<'a> {
     /// An upper bound on `Q` anywhere from `values` (`per_cell` values per cell of the grid
     /// they live on).
     fn bound(&self, values: &[f32], per_cell: usize) -> f64 {
-        match &self.transport {
-            None => values.iter().copied().fold(0.0f32, f32::max) as f64,
-            Some(t) => {
-                let ratio = values
-                    .chunks(per_cell.max(1))
-                    .zip(t.inverse_sigma_s)
-                    .map(|(v, &inv)| v.iter().copied().fold(0.0f32, f32::max) as f64 * inv as f64)
-                    .fold(0.0, f64::max);
-                // A corrected centre value is at most r + 3 · 2r / 8 (three axes, neighbours
-                // at 0).
-                let correction = if t.keep_cell_means { 1.75 } else { 1.0 };
-                t.max_sigma_s * ratio * correction
-            }
-        }
+        self.bound_of_cells(
+            values
+                .chunks(per_cell.max(1))
+                .map(|v| v.iter().copied().fold(0.0f32, f32::max))
+                .enumerate(),
+        )
     }
 
     /// [`bound`](Self::bound) of one value per cell given for some cells only (the rest 0).
@@ -411,6 +400,8 @@ impl<'a> CellLattice<'a> {
                 let ratio = values
                     .map(|(cell, v)| v as f64 * t.inverse_sigma_s[cell] as f64)
                     .fold(0.0, f64::max);
+                // A corrected centre value is at most r + 3 · 2r / 8 (three axes, neighbours
+                // at 0).
                 let correction = if t.keep_cell_means { 1.75 } else { 1.0 };
                 t.max_sigma_s * ratio * correction
             }
@@ -441,7 +432,8 @@ impl<'a> CellLattice<'a> {
             .map(|o| {
                 let inv = t.inverse_sigma_s[o] as f64;
                 if inv > 0.0 {
-                    (t.nodal_ratio(o, inv, &mut |i| values[i] as f64) / inv) as f32
+                    let r = values[o] as f64 * inv;
+                    (t.nodal_ratio(o, r, &mut |i| values[i] as f64) / inv) as f32
                 } else {
                     values[o]
                 }

@@ -94,8 +94,9 @@ impl Default for EmitterPassOptions {
 
 /// The mean cosine `|J| / φ` below which a cell's light is wide enough for its binned
 /// directions to scatter it better than a cone and a rest: near a 4³ emitting cube at g = 0.85
-/// the cone and rest are 5–30 % off at some angle up to a mean cosine of about 0.98 (six to
-/// nine cells from the cube), the bins within 4 % (`benches/incident_shape.py`).
+/// the cone and rest are 7–88 % off at some angle where the mean cosine is below 0.98 (up to
+/// six to nine cells from the cube; 4.7 % at 0.982), the bins 1.5–5.5 % (`python3
+/// benches/incident_shape.py`, its second table).
 pub const WIDE_MEAN_COSINE: f64 = 0.98;
 
 /// What the pass did, for logs and `volrad info`.
@@ -428,19 +429,22 @@ impl EmitterPass {
         binned
             .par_chunks_mut(width)
             .zip(&binned_cells)
-            .for_each(|(row, &r)| {
-                let mut tally = BinTally {
+            .for_each_init(
+                || BinTally {
                     bins,
                     sums: vec![0.0; width],
-                };
-                field.light(r as usize, Some(&mut tally));
-                let total: f64 = tally.sums.iter().step_by(BINNED_VALUES).sum();
-                if total > 0.0 {
-                    for (v, s) in row.iter_mut().zip(&tally.sums) {
-                        *v = (s / total) as f32;
+                },
+                |tally, (row, &r)| {
+                    tally.sums.fill(0.0);
+                    field.light(r as usize, Some(tally));
+                    let total: f64 = tally.sums.iter().step_by(BINNED_VALUES).sum();
+                    if total > 0.0 {
+                        for (v, s) in row.iter_mut().zip(&tally.sums) {
+                            *v = (s / total) as f32;
+                        }
                     }
-                }
-            });
+                },
+            );
         report.binned_cells = binned_cells.len();
         report.seconds = start.elapsed().as_secs_f64();
         tracing::debug!(?report, "emitter pass");

@@ -74,6 +74,23 @@ pub struct EmitterBeam {
 pub const EMITTER_BIN_VALUES: usize =
     medium::phase::BINNED_VALUES * medium::phase::DirectionBins::INCIDENT;
 
+/// Channel `c`'s [`CellRows`] of `width` values as a file stores them: the kept mask
+/// `{name}_kept/{c}` over `cells` cells ([`CellRows::kept_mask`]) and the kept rows
+/// `{name}/{c}` ([`CellRows::values`]), taken out of the file's arrays by `take`. The outer
+/// error is `take`'s; the inner one names what does not fit.
+fn take_rows(
+    take: &mut impl FnMut(String, usize) -> Result<Vec<f32>, SolutionError>,
+    name: &str,
+    c: usize,
+    cells: usize,
+    width: usize,
+) -> Result<Result<CellRows, String>, SolutionError> {
+    let kept = take(format!("{name}_kept/{c}"), cells)?;
+    let kept_cells = kept.iter().filter(|&&k| k == 1.0).count();
+    let rows = take(format!("{name}/{c}"), kept_cells * width)?;
+    Ok(CellRows::from_parts(width, &kept, rows))
+}
+
 /// Direction bins as stored: what a render needs to look radiance up by direction (in the
 /// file as [`records::BinsRecord`]).
 #[derive(Clone, Debug, PartialEq)]
@@ -662,13 +679,12 @@ impl Solution {
                     if bin_count == 0 {
                         return Err(bad("binned radiance without direction bins".into()));
                     }
-                    let kept = take(format!("higher_order_kept/{ci}"), transport_cells)?;
-                    let kept_cells = kept.iter().filter(|&&k| k == 1.0).count();
-                    let values = take(format!("higher_order/{ci}"), kept_cells * bin_count)?;
+                    let higher_order =
+                        take_rows(&mut take, "higher_order", ci, transport_cells, bin_count)?
+                            .map_err(|e| bad(format!("channel {ci}: higher orders: {e}")))?;
                     ScatteredField::Binned {
                         fluence: take(format!("fluence/{ci}"), transport_cells)?,
-                        higher_order: CellRows::from_parts(bin_count, &kept, values)
-                            .map_err(|e| bad(format!("channel {ci}: higher orders: {e}")))?,
+                        higher_order,
                     }
                 }
             };
@@ -694,14 +710,14 @@ impl Solution {
                         format!("emitted_beam/{ci}"),
                         EMITTER_BEAM_VALUES * transport_cells,
                     )?;
-                    let kept = take(format!("emitted_bins_kept/{ci}"), transport_cells)?;
-                    let kept_cells = kept.iter().filter(|&&k| k == 1.0).count();
-                    let values = take(
-                        format!("emitted_bins/{ci}"),
-                        kept_cells * EMITTER_BIN_VALUES,
-                    )?;
-                    let binned = CellRows::from_parts(EMITTER_BIN_VALUES, &kept, values)
-                        .map_err(|e| bad(format!("channel {ci}: emitters' bins: {e}")))?;
+                    let binned = take_rows(
+                        &mut take,
+                        "emitted_bins",
+                        ci,
+                        transport_cells,
+                        EMITTER_BIN_VALUES,
+                    )?
+                    .map_err(|e| bad(format!("channel {ci}: emitters' bins: {e}")))?;
                     Some(EmitterBeam { shapes, binned })
                 } else {
                     None
